@@ -1,0 +1,1 @@
+"""Shipped configuration (parameter YAML, default tissue image, RViz config) as package data."""

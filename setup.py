@@ -1,0 +1,74 @@
+"""ament_python package: tissue_sim_ros.
+
+The Python dependencies are declared here and only here. The ROS 2 Jazzy
+client library and message packages come from one of two places:
+
+* a full ROS install (``source /opt/ros/jazzy/setup.bash``): nothing to install;
+* PyPI wheels (``ros-jazzy-*``): ``pip install .[ros]``.
+
+so they live in the ``ros`` extra, never in ``install_requires``.
+"""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "tissue_sim_ros"
+
+ROS_WHEELS = [
+    "ros-jazzy-rclpy[fastrtps]",
+    "ros-jazzy-std-msgs",
+    "ros-jazzy-geometry-msgs",
+    "ros-jazzy-sensor-msgs",
+    "ros-jazzy-visualization-msgs",
+    "ros-jazzy-std-srvs",
+    "ros-jazzy-diagnostic-msgs",
+]
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]) + [f"{package_name}.config"],
+    # config/ is the one copy of the YAML, scenes, default image and RViz file;
+    # mapping it into the package makes it importable data after `pip install .`
+    # while ament's share/ copy (data_files) serves `ros2 launch` users.
+    package_dir={f"{package_name}.config": "config"},
+    package_data={f"{package_name}.config": ["*.yaml", "*.png", "*.rviz", "*.xml"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{package_name}"]),
+        (f"share/{package_name}", ["package.xml"]),
+        (f"share/{package_name}/config", glob("config/*.yaml") + glob("config/*.png") + glob("config/*.rviz")),
+        (f"share/{package_name}/launch", glob("launch/*.py")),
+        (f"share/{package_name}/msg_docs", glob("msg_docs/*.md")),
+    ],
+    python_requires=">=3.11",
+    install_requires=[
+        "numpy>=1.26",
+        "numba>=0.59",
+        "python-fcl>=0.7",
+        "opencv-python-headless>=4.8",
+        "rosbags>=0.10",
+        "matplotlib>=3.8",
+        "scipy>=1.11",
+        "tqdm>=4.60",
+        "PyYAML>=6",
+    ],
+    extras_require={
+        "ros": ROS_WHEELS,
+        "test": ["pytest>=7", "mcap>=1.1"],
+        "video": ["imageio>=2.30", "imageio-ffmpeg>=0.4"],
+        "peers": ["mujoco>=3.2", "taichi>=1.7"],
+    },
+    zip_safe=False,
+    maintainer="tissue_sim_ros developers",
+    maintainer_email="tissue-sim@example.org",
+    description="2D soft-tissue simulation under a surgical tool: PBD/XPBD, python-fcl contact, implicit Euler energy, ROS 2 Jazzy.",
+    license="BSD-3-Clause",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "tissue-sim = tissue_sim_ros.cli:main",
+            "tissue_sim_node = tissue_sim_ros.ros.node:main",
+            "tool_driver = tissue_sim_ros.ros.tool_driver:main",
+        ],
+    },
+)

@@ -1,0 +1,313 @@
+"""Simulation parameters, the frozen Model, and the State.
+
+A builder (:meth:`Model.from_mesh`) turns a :class:`~tissue_sim_ros.core.mesh.TissueMesh`
+and :class:`SimParams` into a Model of plain arrays; ``model.state()`` makes a
+:class:`State`. Names say entity then quantity (``particle_q``,
+``edge_rest_length``), as in warp.sim.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Mapping
+
+import numpy as np
+
+from .errors import InputError
+from .mesh import TissueMesh
+
+METHODS = ("pbd", "xpbd")
+SCHEMES = ("gauss_seidel", "jacobi")
+AREA_MODES = ("signed", "abs")
+CONTACT_MODELS = ("paper", "projection", "none")
+
+#: Method names of the design card, mapped onto the orthogonal options.
+METHOD_ALIASES: dict[str, dict[str, Any]] = {
+    "pbd": {"method": "pbd", "scheme": "gauss_seidel"},
+    "pbd_jacobi": {"method": "pbd", "scheme": "jacobi"},
+    "xpbd": {"method": "xpbd", "scheme": "gauss_seidel"},
+    "xpbd_jacobi": {"method": "xpbd", "scheme": "jacobi"},
+    "xpbd_substep": {"method": "xpbd", "scheme": "gauss_seidel", "substeps": 30, "iterations": 1},
+}
+
+
+@dataclass(frozen=True)
+class SimParams:
+    """Every number and switch that defines a simulation, with the paper's defaults.
+
+    ``k_spring`` and ``k_area`` are the paper's PBD per-iteration coefficients
+    (Table I), used by ``method="pbd"``. ``stiffness_spring`` [N/m] and
+    ``stiffness_area`` [N/m^3 for C in m^2] are physical stiffnesses used by
+    ``method="xpbd"`` (compliance = 1/stiffness); Table I's coefficients read as
+    physical stiffnesses let the tissue collapse under its own weight. The
+    energy uses the K of the method in use.
+    """
+
+    # physics (Table I)
+    mass: float = 1e-4
+    """Mass of each particle [kg]."""
+    gravity: float = -9.8
+    """Gravity along world y [m/s^2]."""
+    dt: float = 0.01
+    """Time step [s]."""
+    damping: float = 0.0
+    """Velocity damping per second [1/s]; v *= max(0, 1 - damping*dt) before prediction. 0 = off (paper)."""
+    # solver
+    method: str = "pbd"
+    """``pbd`` (paper, stiffness scales each projection) or ``xpbd`` (compliance, Lagrange multipliers)."""
+    scheme: str = "gauss_seidel"
+    """``gauss_seidel`` (sequential) or ``jacobi`` (parallel, averaged/relaxed)."""
+    iterations: int = 30
+    """Solver iterations per (sub)step."""
+    substeps: int = 1
+    """Substeps per step (Macklin 2019: many substeps of one iteration)."""
+    relaxation: float = 0.25
+    """Jacobi relaxation factor omega in (0, 1] for XPBD Jacobi (PBD Jacobi averages by constraint count)."""
+    k_spring: float = 0.15
+    """PBD distance-constraint stiffness coefficient in [0, 1] (Table I)."""
+    k_area: float = 1.0
+    """PBD area-constraint stiffness coefficient in [0, 1] (Table I)."""
+    stiffness_spring: float = 100.0
+    """XPBD distance-constraint stiffness [N/m]."""
+    stiffness_area: float = 1.0e5
+    """XPBD area-constraint stiffness [N/m^3]."""
+    area_mode: str = "signed"
+    """``signed`` area constraint (resists inversion) or the paper's ``abs`` |area| form."""
+    # boundary (the paper's horizontal lines; NaN = no line)
+    boundary_y_top: float = math.nan
+    """Particles at or above this world y are held (velocity zero) [m]; NaN = no upper line."""
+    boundary_y_bottom: float = math.nan
+    """Particles at or below this world y are held (velocity zero) [m]; NaN = no lower line."""
+    # contact (the paper's eq. 3 and the projection model)
+    contact_model: str = "paper"
+    """``paper`` (eq. 3), ``projection`` (non-penetration in the solver loop, swept), or ``none``."""
+    contact_radius: float = 0.25
+    """Paper contact: radius r of the displaced neighbourhood [m]."""
+    contact_threshold: float = 0.025
+    """Paper contact: distance alpha below which contact starts [m]."""
+    contact_margin: float = 0.002
+    """Projection contact: the tool's shape inflated by this margin [m]."""
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    @property
+    def k_spring_effective(self) -> float:
+        """The spring K of the method in use (PBD coefficient or XPBD stiffness)."""
+        return self.k_spring if self.method == "pbd" else self.stiffness_spring
+
+    @property
+    def k_area_effective(self) -> float:
+        """The area K of the method in use (PBD coefficient or XPBD stiffness)."""
+        return self.k_area if self.method == "pbd" else self.stiffness_area
+
+    def validate(self) -> None:
+        """Raise :class:`InputError` naming the first invalid parameter."""
+
+        def bad(name: str, expected: str) -> InputError:
+            return InputError(f"parameter {name}={getattr(self, name)!r}: expected {expected}")
+
+        for name in ("mass", "gravity", "dt", "damping", "relaxation", "k_spring", "k_area",
+                     "stiffness_spring", "stiffness_area", "contact_radius", "contact_threshold",
+                     "contact_margin"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise bad(name, "a finite number")
+        for name in ("iterations", "substeps"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise bad(name, "an integer")
+        if self.dt <= 0:
+            raise bad("dt", "a time step > 0 s")
+        if self.mass <= 0:
+            raise bad("mass", "a particle mass > 0 kg")
+        if self.iterations < 1:
+            raise bad("iterations", "at least 1 solver iteration")
+        if self.substeps < 1:
+            raise bad("substeps", "at least 1 substep")
+        if self.damping < 0:
+            raise bad("damping", "a damping rate >= 0 1/s")
+        if not 0.0 < self.relaxation <= 1.0:
+            raise bad("relaxation", "a Jacobi relaxation factor in (0, 1]")
+        if self.method not in METHODS:
+            raise bad("method", f"one of {', '.join(METHODS)}")
+        if self.scheme not in SCHEMES:
+            raise bad("scheme", f"one of {', '.join(SCHEMES)}")
+        if self.area_mode not in AREA_MODES:
+            raise bad("area_mode", f"one of {', '.join(AREA_MODES)}")
+        if self.contact_model not in CONTACT_MODELS:
+            raise bad("contact_model", f"one of {', '.join(CONTACT_MODELS)}")
+        for name in ("k_spring", "k_area"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise bad(name, "a PBD stiffness coefficient in [0, 1]")
+        for name in ("stiffness_spring", "stiffness_area"):
+            if getattr(self, name) < 0:
+                raise bad(name, "a stiffness >= 0")
+        if self.contact_radius <= 0:
+            raise bad("contact_radius", "a radius > 0 m")
+        if self.contact_threshold < 0:
+            raise bad("contact_threshold", "a distance >= 0 m")
+        if self.contact_margin < 0:
+            raise bad("contact_margin", "a margin >= 0 m")
+        for name in ("boundary_y_top", "boundary_y_bottom"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or math.isinf(value):
+                raise bad(name, "a finite y in metres, or NaN for no line")
+        if (math.isfinite(self.boundary_y_top) and math.isfinite(self.boundary_y_bottom)
+                and self.boundary_y_top <= self.boundary_y_bottom):
+            raise bad("boundary_y_top", f"a line above boundary_y_bottom={self.boundary_y_bottom}")
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any]) -> "SimParams":
+        """Build from a flat mapping (a YAML or ROS parameter dict); unknown keys are ignored.
+
+        A ``method`` given as a design-card alias (``xpbd_jacobi``, ``xpbd_substep``,
+        ``pbd_jacobi``) expands into the orthogonal options, which explicit keys override.
+        """
+        names = {f.name for f in fields(cls)}
+        kwargs: dict[str, Any] = {}
+        method = values.get("method")
+        if isinstance(method, str) and method in METHOD_ALIASES:
+            kwargs.update(METHOD_ALIASES[method])
+            explicit = {k: values[k] for k in ("scheme", "substeps", "iterations") if k in values}
+            if method == "xpbd_substep" and "substeps" in values and "iterations" not in values:
+                explicit["iterations"] = 1
+            kwargs.update(explicit)
+        for key, value in values.items():
+            if key in names and key not in ("method",) and key not in kwargs:
+                kwargs[key] = value
+        if isinstance(method, str) and method not in METHOD_ALIASES:
+            kwargs["method"] = method
+        # YAML/ROS integers for float fields
+        for f in fields(cls):
+            if f.name in kwargs and f.type in ("float",) and isinstance(kwargs[f.name], int) \
+                    and not isinstance(kwargs[f.name], bool):
+                kwargs[f.name] = float(kwargs[f.name])
+        return cls(**kwargs)
+
+    def with_(self, **changes: Any) -> "SimParams":
+        """A copy with some fields changed (validated)."""
+        return replace(self, **changes)
+
+
+@dataclass
+class State:
+    """Positions and velocities of every particle, float64, SI units."""
+
+    particle_q: np.ndarray
+    """Particle positions [m], shape (N, 2), float64."""
+    particle_qd: np.ndarray
+    """Particle velocities [m/s], shape (N, 2), float64."""
+
+    def copy(self) -> "State":
+        return State(self.particle_q.copy(), self.particle_qd.copy())
+
+
+@dataclass(frozen=True, eq=False)
+class Model:
+    """Frozen topology and rest configuration of all tissue bodies in one scene.
+
+    Built once by :meth:`from_mesh`; arrays are made read-only so that no
+    solver changes them by accident.
+    """
+
+    params: SimParams
+    particle_q0: np.ndarray
+    """Rest positions [m], shape (N, 2), float64."""
+    particle_mass: np.ndarray
+    """Particle masses [kg], shape (N,), float64."""
+    particle_inv_mass: np.ndarray
+    """Inverse masses [1/kg], shape (N,), float64; 0 for pinned particles."""
+    particle_body: np.ndarray
+    """Body index of each particle, shape (N,), int32."""
+    particle_pinned: np.ndarray
+    """True where the particle is pinned (explicit set or on/past a boundary line at rest), shape (N,), bool."""
+    edge_indices: np.ndarray
+    """Particle indices of each distance constraint, shape (E, 2), int32."""
+    edge_rest_length: np.ndarray
+    """Rest length d0 of each edge [m], shape (E,), float64."""
+    tri_indices: np.ndarray
+    """Particle indices of each triangle, counter-clockwise, shape (T, 3), int32."""
+    tri_rest_area: np.ndarray
+    """Signed rest area A0 of each triangle [m^2] (positive for CCW), shape (T,), float64."""
+    tri_body: np.ndarray
+    """Body index of each triangle, shape (T,), int32."""
+    edge_body: np.ndarray
+    """Body index of each edge, shape (E,), int32."""
+    n_bodies: int
+    """Number of separate tissue bodies."""
+    mesh: TissueMesh | None = field(default=None, repr=False)
+    """The mesh the model was built from (for rendering and collision)."""
+
+    @property
+    def n_particles(self) -> int:
+        return int(self.particle_q0.shape[0])
+
+    @property
+    def n_edges(self) -> int:
+        return int(self.edge_indices.shape[0])
+
+    @property
+    def n_triangles(self) -> int:
+        return int(self.tri_indices.shape[0])
+
+    def state(self) -> State:
+        """A new State at rest in the rest configuration."""
+        return State(self.particle_q0.copy(), np.zeros_like(self.particle_q0))
+
+    @classmethod
+    def from_mesh(cls, mesh: TissueMesh, params: SimParams | None = None,
+                  pinned: np.ndarray | None = None) -> "Model":
+        """Build a Model from a mesh.
+
+        Parameters
+        ----------
+        mesh : TissueMesh
+            Vertices [m], CCW triangles, unique edges, body of each vertex.
+        params : SimParams, optional
+            Defaults to Table I.
+        pinned : array of int or bool, optional
+            Extra particles to pin (indices, or a boolean mask of length N).
+            Particles on or past a boundary line at rest are pinned as well.
+        """
+        params = params or SimParams()
+        q0 = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
+        n = q0.shape[0]
+        pin = np.zeros(n, dtype=bool)
+        if pinned is not None:
+            pinned = np.asarray(pinned)
+            if pinned.dtype == bool:
+                if pinned.shape != (n,):
+                    raise InputError(f"pinned mask has shape {pinned.shape}: expected ({n},)")
+                pin |= pinned
+            else:
+                if pinned.size and (pinned.min() < 0 or pinned.max() >= n):
+                    raise InputError(f"pinned indices must lie in [0, {n}); got min {pinned.min()}, max {pinned.max()}")
+                pin[pinned.astype(np.int64)] = True
+        if math.isfinite(params.boundary_y_top):
+            pin |= q0[:, 1] >= params.boundary_y_top
+        if math.isfinite(params.boundary_y_bottom):
+            pin |= q0[:, 1] <= params.boundary_y_bottom
+        mass = np.full(n, params.mass, dtype=np.float64)
+        inv_mass = np.where(pin, 0.0, 1.0 / params.mass)
+        edges = np.ascontiguousarray(mesh.edges, dtype=np.int32)
+        tris = np.ascontiguousarray(mesh.triangles, dtype=np.int32)
+        d = q0[edges[:, 1]] - q0[edges[:, 0]]
+        rest_len = np.sqrt((d * d).sum(axis=1))
+        a, b, c = q0[tris[:, 0]], q0[tris[:, 1]], q0[tris[:, 2]]
+        rest_area = 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+        body = np.ascontiguousarray(mesh.body, dtype=np.int32)
+        arrays = dict(
+            particle_q0=q0, particle_mass=mass, particle_inv_mass=inv_mass, particle_body=body,
+            particle_pinned=pin, edge_indices=edges, edge_rest_length=rest_len, tri_indices=tris,
+            tri_rest_area=rest_area, tri_body=np.ascontiguousarray(body[tris[:, 0]]) if len(tris) else np.zeros(0, np.int32),
+            edge_body=np.ascontiguousarray(body[edges[:, 0]]) if len(edges) else np.zeros(0, np.int32),
+        )
+        for arr in arrays.values():
+            arr.setflags(write=False)
+        return cls(params=params, n_bodies=int(body.max()) + 1 if n else 0, mesh=mesh, **arrays)
+
+    def with_params(self, params: SimParams) -> "Model":
+        """The same mesh and pinned set with other parameters (pins from boundary lines recomputed)."""
+        explicit = self.particle_pinned.copy()
+        return Model.from_mesh(self.mesh, params, pinned=explicit)

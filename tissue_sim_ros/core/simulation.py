@@ -1,0 +1,175 @@
+"""Simulation: one scene stepped with a tool, returning a StepReport per step.
+
+The data flow of one step::
+
+    tool pose/twist --detect--> Contacts --Solver.step--> State --> energy, reaction, report
+
+The Simulation owns the Model, the current State, the Solver (workspaces) and
+the contact model; it never imports ROS.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .collision import ContactModel, Contacts
+from .energy import EnergyTerms, energy_terms
+from .model import Model, State
+from .solvers import Solver
+from .tool import ToolPose, ToolShape, ToolTwist
+
+
+@dataclass
+class StepReport:
+    """What one step did: energy, solver residual, contact, reaction and timings."""
+
+    step: int
+    """Index of the step just taken (1 for the first step)."""
+    time: float
+    """Simulated time at the end of the step [s]."""
+    energy: EnergyTerms
+    """Implicit Euler energy terms per body and in total [J, in the units of the method's K]."""
+    residual: float
+    """Solver residual after the solve: RMS constraint violation (edges [m], areas [m^2] scaled by rest size)."""
+    in_contact: np.ndarray
+    """Per body: True where the tool touches (paper: d* < alpha; projection: any particle pushed), shape (B,)."""
+    d_star: np.ndarray
+    """Per body: tool-tissue distance d* [m] (inf when no tool), shape (B,)."""
+    n_contact_particles: int
+    """Particles moved by the contact model this step."""
+    contact_particles: np.ndarray
+    """Indices of the particles moved by the contact model this step, int32."""
+    reaction_force: np.ndarray
+    """Tissue's reaction on the tool [N], shape (2,): - sum m dx / dt^2 over contact corrections."""
+    reaction_torque: float
+    """Torque of the reaction about the tool centre [N m] (about +z)."""
+    n_inverted: int
+    """Triangles whose signed area is <= 0 after the step."""
+    diverged: bool
+    """True if the solve produced NaN/inf and the previous state was restored."""
+    timings: dict[str, float] = field(default_factory=dict)
+    """Wall time of each phase [s]: contact, solve, energy, total."""
+
+
+class Simulation:
+    """One scene: Model + State + Solver + tool contact.
+
+    Parameters
+    ----------
+    model : Model
+        Topology, rest state and parameters (``model.params``).
+    tool : ToolShape, optional
+        Shape of the tool; without it the tissue only feels gravity.
+    """
+
+    def __init__(self, model: Model, tool: ToolShape | None = None) -> None:
+        self.model = model
+        self.params = model.params
+        self.tool = tool
+        self.solver = Solver(model)
+        self.contact = ContactModel(model, tool) if tool is not None else None
+        self.state: State = model.state()
+        self._state_out: State = model.state()
+        self.step_count = 0
+        self.time = 0.0
+        self.tool_pose: ToolPose | None = None
+        self._last_good: State = self.state.copy()
+
+    def reset(self) -> None:
+        """Back to the rest configuration at t = 0 (tool pose forgotten)."""
+        self.state = self.model.state()
+        self._state_out = self.model.state()
+        self._last_good = self.state.copy()
+        self.step_count = 0
+        self.time = 0.0
+        self.tool_pose = None
+
+    def set_state(self, state: State) -> None:
+        """Replace the current state (copied)."""
+        self.state = state.copy()
+        self._last_good = state.copy()
+
+    def step(self, tool_pose: ToolPose | None = None, tool_twist: ToolTwist | None = None) -> StepReport:
+        """Advance one time step dt.
+
+        Parameters
+        ----------
+        tool_pose : ToolPose, optional
+            Tool pose at the end of this step (the commanded pose). None: no tool this step.
+        tool_twist : ToolTwist, optional
+            Tool velocity. None: derived from the previous and this pose over dt.
+        """
+        t_start = time.perf_counter()
+        p = self.params
+        model = self.model
+        nb = model.n_bodies
+        if tool_pose is not None and tool_twist is None:
+            tool_twist = self._twist_from_poses(self.tool_pose, tool_pose, p.dt)
+        if self.contact is not None and tool_pose is not None and p.contact_model != "none":
+            contacts = self.contact.detect(self.state, self.tool_pose or tool_pose, tool_pose, tool_twist, p.dt)
+        else:
+            contacts = Contacts.empty(nb)
+        t_contact = time.perf_counter()
+
+        info = self.solver.step(self.state, self._state_out, contacts, p.dt)
+        t_solve = time.perf_counter()
+
+        out = self._state_out
+        diverged = not (np.isfinite(out.particle_q).all() and np.isfinite(out.particle_qd).all())
+        if diverged:
+            # restore the last good state; never hand NaN to anyone
+            out.particle_q[:] = self._last_good.particle_q
+            out.particle_qd[:] = 0.0
+            energy = EnergyTerms.zeros(nb)
+            force = np.zeros(2)
+            torque = 0.0
+        else:
+            energy = energy_terms(model, out.particle_q, info.x_pred)
+            force, torque = self._reaction(info.contact_dx, tool_pose, p.dt)
+        t_energy = time.perf_counter()
+
+        self.state, self._state_out = out, self.state
+        if not diverged:
+            self._last_good.particle_q[:] = self.state.particle_q
+            self._last_good.particle_qd[:] = self.state.particle_qd
+        self.step_count += 1
+        self.time = self.step_count * p.dt
+        if tool_pose is not None:
+            self.tool_pose = tool_pose
+        return StepReport(
+            step=self.step_count, time=self.time, energy=energy, residual=float(info.residual),
+            in_contact=contacts.in_contact.copy(), d_star=contacts.d_star.copy(),
+            n_contact_particles=int(contacts.touched.size), contact_particles=contacts.touched.copy(),
+            reaction_force=force, reaction_torque=torque, n_inverted=self.count_inverted(), diverged=diverged,
+            timings={"contact": t_contact - t_start, "solve": t_solve - t_contact,
+                     "energy": t_energy - t_solve, "total": time.perf_counter() - t_start},
+        )
+
+    @staticmethod
+    def _twist_from_poses(prev: ToolPose | None, pose: ToolPose, dt: float) -> ToolTwist:
+        if prev is None:
+            return ToolTwist()
+        dyaw = math.atan2(math.sin(pose.yaw - prev.yaw), math.cos(pose.yaw - prev.yaw))
+        return ToolTwist((pose.x - prev.x) / dt, (pose.y - prev.y) / dt, dyaw / dt)
+
+    def _reaction(self, contact_dx: np.ndarray | None, tool_pose: ToolPose | None, dt: float) -> tuple[np.ndarray, float]:
+        """Reaction on the tool: the tool pushed particles by dx, so they push back with -m dx / dt^2."""
+        if contact_dx is None or tool_pose is None:
+            return np.zeros(2), 0.0
+        m = self.model.particle_mass[:, None]
+        f_particles = -m * contact_dx / (dt * dt)
+        force = f_particles.sum(axis=0)
+        r = self.state.particle_q - np.array([tool_pose.x, tool_pose.y])
+        torque = float(np.sum(r[:, 0] * f_particles[:, 1] - r[:, 1] * f_particles[:, 0]))
+        return force, torque
+
+    def count_inverted(self) -> int:
+        """Triangles with signed area <= 0 in the current state."""
+        x = self.state.particle_q
+        t = self.model.tri_indices
+        a, b, c = x[t[:, 0]], x[t[:, 1]], x[t[:, 2]]
+        area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+        return int(np.count_nonzero(area2 <= 0))
