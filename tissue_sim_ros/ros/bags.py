@@ -1,0 +1,712 @@
+"""rosbag2 bags with the ``rosbags`` library: write, read, and tool trajectories from bags.
+
+No rclpy here: ``tissue-sim replay`` uses this module offline, and the ROS node
+uses :class:`BagWriter` for its ``record_path`` parameter. Bags are ordinary
+rosbag2 bags (a directory with ``metadata.yaml`` and one ``.mcap`` or ``.db3``
+file) with the Jazzy type names, message definitions and type hashes, so they
+open in ``ros2 bag``, Foxglove and PlotJuggler.
+
+Writing
+    :class:`BagWriter` takes *serialized* CDR bytes (what ``raw=True``
+    subscriptions deliver and what the node's encoders produce), so large
+    messages are never decoded and re-encoded. It flushes every
+    ``flush_period`` seconds (MCAP: closes the pending chunk; sqlite3:
+    commits), so a crash loses at most that much, and :func:`recover_mcap`
+    salvages what an interrupted MCAP recording wrote. ``close()`` is
+    idempotent, serialised by a lock, and SIGINT/SIGTERM are held back while a
+    record or the bag's index is being written, so an interrupt never leaves a
+    half-written record.
+
+Reading
+    :class:`Bag` opens a bag (directory, ``.mcap`` or ``.db3``) and turns every
+    failure (not a bag, empty, truncated, corrupt) into an
+    :class:`~tissue_sim_ros.core.errors.InputError` naming the path.
+    :func:`read_tool_track` extracts the tool's planar trajectory from any
+    message that carries a pose (:data:`POSE_TYPES`), with an optional twist
+    topic (:data:`TWIST_TYPES`).
+
+Timestamp policy of :func:`read_tool_track` (documented, never silent):
+    the time of a sample is its ``header.stamp`` when the type has a header and
+    the stamp is non-zero, else the bag's receive time (``time_source="bag"``
+    forces the receive time). A sample whose time equals the previous kept
+    sample's (``repeated``) or precedes it (``out_of_order``) is skipped and
+    counted; a sample with a non-finite position or an invalid quaternion is
+    skipped and counted (``non_finite``, ``bad_quaternion``).
+    ``on_bad_time="error"`` raises instead of skipping. The counts travel with
+    the track (:attr:`ToolTrack.skipped`) and ``tissue-sim replay`` prints them.
+"""
+from __future__ import annotations
+
+import contextlib
+import math
+import signal
+import struct
+import threading
+import time
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Iterator
+
+import numpy as np
+
+from ..core.errors import InputError
+
+if TYPE_CHECKING:
+    from rosbags.interfaces import Connection
+    from rosbags.typesys.store import Typestore
+
+STORAGES = ("mcap", "sqlite3")
+"""Storage plugins accepted by :class:`BagWriter` (rosbag2's own identifiers)."""
+
+POSE_TYPES = (
+    "geometry_msgs/msg/PoseStamped",
+    "geometry_msgs/msg/Pose",
+    "geometry_msgs/msg/TransformStamped",
+    "tf2_msgs/msg/TFMessage",
+    "geometry_msgs/msg/PoseWithCovarianceStamped",
+    "nav_msgs/msg/Odometry",
+)
+"""Message types a tool pose is read from (TFMessage needs a child frame)."""
+
+TWIST_TYPES = ("geometry_msgs/msg/TwistStamped", "geometry_msgs/msg/Twist")
+"""Message types a tool velocity is read from."""
+
+TF_TYPE = "tf2_msgs/msg/TFMessage"
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@lru_cache(maxsize=1)
+def typestore() -> "Typestore":
+    """The ROS 2 Jazzy typestore of ``rosbags`` (type names, definitions, hashes, CDR)."""
+    from rosbags.typesys import Stores, get_typestore  # noqa: PLC0415
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """Hold SIGINT/SIGTERM back for the duration (they are delivered right after).
+
+    Python runs signal handlers between bytecodes, so a KeyboardInterrupt could
+    otherwise land in the middle of a storage record and corrupt the bag.
+    """
+    try:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
+    except (AttributeError, OSError, ValueError):  # platform without pthread_sigmask
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+# --------------------------------------------------------------------------- writing
+
+
+class BagWriter:
+    """Write a rosbag2 bag from serialized CDR messages.
+
+    Parameters
+    ----------
+    path : str or Path
+        The bag directory to create (must not exist; rosbag2 never overwrites).
+    storage : {"mcap", "sqlite3"}
+        Storage plugin; MCAP by default, as in Jazzy's ``ros2 bag record``.
+    flush_period : float
+        Seconds between flushes to disk (MCAP: the pending chunk is closed and
+        written; sqlite3: the transaction is committed). A crash loses at most
+        this much. 0 flushes after every message.
+
+    Examples
+    --------
+    >>> with BagWriter("run1") as bag:                       # doctest: +SKIP
+    ...     bag.add_topic("/tissue/energy", "std_msgs/msg/Float64")
+    ...     bag.write("/tissue/energy", cdr_bytes, t_ns)
+    """
+
+    def __init__(self, path: str | Path, storage: str = "mcap", *, flush_period: float = 1.0) -> None:
+        from rosbags.rosbag2 import StoragePlugin, Writer  # noqa: PLC0415
+        from rosbags.rosbag2.errors import WriterError  # noqa: PLC0415
+
+        if storage not in STORAGES:
+            raise InputError(f"bag storage {storage!r}: expected one of {', '.join(STORAGES)}")
+        if not math.isfinite(flush_period) or flush_period < 0:
+            raise InputError(f"flush_period={flush_period!r}: expected seconds >= 0")
+        self.path = Path(path)
+        self.storage = storage
+        self.flush_period = float(flush_period)
+        if self.path.exists():
+            raise InputError(f"bag {str(self.path)!r} exists already: choose a new output path (rosbag2 never overwrites)")
+        if not self.path.parent.exists():
+            raise InputError(f"bag {str(self.path)!r}: the directory {str(self.path.parent)!r} does not exist")
+        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        self._writer = Writer(self.path, version=9, storage_plugin=plugin)
+        try:
+            self._writer.open()
+        except (WriterError, OSError) as exc:
+            raise InputError(f"cannot create bag {str(self.path)!r}: {exc}") from None
+        self._lock = threading.Lock()
+        self._connections: dict[str, "Connection"] = {}
+        self._counts: dict[str, int] = {}
+        self._last_flush = time.monotonic()
+        self._closed = False
+
+    # -- topics
+    def add_topic(self, name: str, msgtype: str) -> None:
+        """Declare a topic with its ROS 2 type (``pkg/msg/Type``), definition and hash from the Jazzy typestore.
+
+        Declaring the same topic again with the same type is a no-op; with
+        another type it is an InputError (one type per topic, as in rosbag2).
+        """
+        store = typestore()
+        if msgtype not in store.fielddefs:
+            raise InputError(f"topic {name!r}: message type {msgtype!r} is not in the ROS 2 Jazzy typestore "
+                             "(expected e.g. 'std_msgs/msg/Float64')")
+        with self._lock:
+            self._check_open()
+            existing = self._connections.get(name)
+            if existing is not None:
+                if existing.msgtype != msgtype:
+                    raise InputError(f"topic {name!r} was added as {existing.msgtype}, not {msgtype}")
+                return
+            with _signals_held():
+                self._connections[name] = self._writer.add_connection(name, msgtype, typestore=store)
+            self._counts[name] = 0
+
+    @property
+    def topics(self) -> dict[str, str]:
+        """Declared topics and their types."""
+        return {name: conn.msgtype for name, conn in self._connections.items()}
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Messages written per topic so far."""
+        return dict(self._counts)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    # -- messages
+    def write(self, name: str, data: bytes | bytearray | memoryview | np.ndarray, t_ns: int) -> None:
+        """Write one serialized (CDR, with encapsulation header) message at receive time ``t_ns`` [ns].
+
+        The bytes are stored as given: no decoding, no re-encoding.
+        """
+        conn = self._connections.get(name)
+        if conn is None:
+            raise InputError(f"topic {name!r} was not added to bag {str(self.path)!r}; added: "
+                             f"{', '.join(sorted(self._connections)) or 'none'}")
+        t_ns = int(t_ns)
+        if t_ns < 0:
+            raise InputError(f"timestamp {t_ns} ns for topic {name!r}: expected >= 0")
+        if isinstance(data, np.ndarray):
+            data = memoryview(np.ascontiguousarray(data).view(np.uint8).reshape(-1))
+        with self._lock:
+            self._check_open()
+            with _signals_held():
+                self._writer.write(conn, t_ns, data)
+                self._counts[name] += 1
+                now = time.monotonic()
+                if now - self._last_flush >= self.flush_period:
+                    self._flush_locked()
+                    self._last_flush = now
+
+    def write_message(self, name: str, msg: Any, t_ns: int) -> None:
+        """Serialize a ``rosbags`` message object with the Jazzy typestore and write it."""
+        conn = self._connections.get(name)
+        if conn is None:
+            raise InputError(f"topic {name!r} was not added to bag {str(self.path)!r}")
+        self.write(name, typestore().serialize_cdr(msg, conn.msgtype), t_ns)
+
+    def flush(self) -> None:
+        """Put everything written so far on disk (MCAP: close the pending chunk; sqlite3: commit)."""
+        with self._lock:
+            if not self._closed:
+                with _signals_held():
+                    self._flush_locked()
+
+    def _flush_locked(self) -> None:
+        # rosbags has no public flush; these are its storage writers' own steps (rosbags 0.10/0.11).
+        st = self._writer.storage
+        if st is None:
+            return
+        if hasattr(st, "close_chunk") and hasattr(st, "chunk"):
+            if st.chunk.bio.tell():
+                st.close_chunk()
+            st.bio.flush()
+        elif hasattr(st, "conn"):
+            st.conn.commit()
+
+    def close(self) -> None:
+        """Write the index and ``metadata.yaml``; safe to call twice and from a signal handler's cleanup."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            with _signals_held():
+                self._writer.close()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise InputError(f"bag {str(self.path)!r} is closed")
+
+    def __enter__(self) -> "BagWriter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:  # a forgotten close still leaves a readable bag
+        with contextlib.suppress(Exception):
+            if not self._closed:
+                self.close()
+
+
+def recover_mcap(src: str | Path, dst: str | Path) -> int:
+    """Salvage an MCAP file whose writer died before its summary and footer were written.
+
+    Copies every complete top-level record (header, chunks with their
+    schemas, channels and messages) of ``src`` into ``dst`` and ends it with a
+    data-end record and a footer without summary, which readers then scan.
+
+    Parameters
+    ----------
+    src : path of the damaged ``.mcap`` file (or a bag directory holding one).
+    dst : path of the repaired ``.mcap`` file to write (must not exist).
+
+    Returns
+    -------
+    int
+        Number of bytes of ``src`` kept (the rest was an incomplete record).
+    """
+    src = Path(src)
+    if src.is_dir():
+        files = sorted(src.glob("*.mcap"))
+        if len(files) != 1:
+            raise InputError(f"{str(src)!r}: expected one .mcap file in the bag directory, found {len(files)}")
+        src = files[0]
+    dst = Path(dst)
+    if dst.exists():
+        raise InputError(f"{str(dst)!r} exists already")
+    blob = src.read_bytes()
+    if not blob.startswith(_MCAP_MAGIC):
+        raise InputError(f"{str(src)!r} is not an MCAP file (no MCAP magic at its start)")
+    pos = end = len(_MCAP_MAGIC)
+    while pos + 9 <= len(blob):
+        op = blob[pos]
+        (size,) = struct.unpack_from("<Q", blob, pos + 1)
+        if op in (0x0F, 0x02) or pos + 9 + size > len(blob):  # data end / footer, or a record cut short
+            break
+        pos += 9 + size
+        end = pos
+    with dst.open("xb") as out:
+        out.write(blob[:end])
+        out.write(b"\x0f" + struct.pack("<QI", 4, 0))             # DataEnd, no CRC
+        out.write(b"\x02" + struct.pack("<QQQI", 20, 0, 0, 0))    # Footer: no summary
+        out.write(_MCAP_MAGIC)
+    return end
+
+
+# --------------------------------------------------------------------------- reading
+
+
+class Bag:
+    """A rosbag2 bag opened for reading; every failure is an InputError naming the path.
+
+    Parameters
+    ----------
+    path : str or Path
+        A bag directory (``metadata.yaml`` + storage file), or a bare ``.mcap`` /
+        ``.db3`` file. A directory without ``metadata.yaml`` but with exactly one
+        storage file (a recording that never closed) is read from that file.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        from rosbags.rosbag2 import Reader  # noqa: PLC0415
+
+        self.path = Path(path)
+        p = self.path
+        if not p.exists():
+            raise InputError(f"bag {str(p)!r} does not exist")
+        target = p
+        if p.is_dir() and not (p / "metadata.yaml").is_file():
+            files = sorted(p.glob("*.mcap")) + sorted(p.glob("*.db3"))
+            if len(files) != 1:
+                raise InputError(f"{str(p)!r} is not a rosbag2 bag: no metadata.yaml and "
+                                 f"{len(files)} .mcap/.db3 files (expected a bag directory or a .mcap/.db3 file)")
+            target = files[0]
+        elif p.is_file() and p.suffix not in (".mcap", ".db3"):
+            raise InputError(f"{str(p)!r} is not a rosbag2 bag: expected a bag directory or a .mcap/.db3 file")
+        if target.is_file() and target.stat().st_size == 0:
+            raise InputError(f"bag {str(p)!r} is empty: {target.name} has 0 bytes")
+        try:
+            self._reader = Reader(target)
+            self._reader.open()
+        except Exception as exc:  # rosbags raises ReaderError, sqlite3, struct, zstd, YAML and OS errors
+            raise InputError(f"bag {str(p)!r} cannot be read (truncated, corrupt or not a rosbag2 bag): "
+                             f"{type(exc).__name__}: {exc}"
+                             + (" - an MCAP recording that was killed can be salvaged with "
+                                "tissue_sim_ros.ros.bags.recover_mcap" if _looks_like_cut_mcap(target) else "")) from None
+        self.connections = list(self._reader.connections)
+
+    @property
+    def topics(self) -> dict[str, str]:
+        """Topic name -> message type."""
+        return {c.topic: c.msgtype for c in self.connections}
+
+    @property
+    def message_counts(self) -> dict[str, int]:
+        counts: dict[str, int] = {}
+        for c in self.connections:
+            counts[c.topic] = counts.get(c.topic, 0) + int(c.msgcount)
+        return counts
+
+    @property
+    def message_count(self) -> int:
+        return int(self._reader.message_count)
+
+    def describe_topics(self) -> str:
+        """The bag's topics with types and counts, for error messages."""
+        if not self.connections:
+            return "no topics"
+        counts = self.message_counts
+        return "; ".join(f"{t} ({ty}, {counts.get(t, 0)} msgs)" for t, ty in sorted(self.topics.items()))
+
+    def messages(self, topics: list[str] | None = None) -> Iterator[tuple[str, str, int, bytes]]:
+        """Yield ``(topic, msgtype, t_ns, raw_cdr)`` in receive-time order; corrupt data -> InputError."""
+        conns = [c for c in self.connections if topics is None or c.topic in topics]
+        if topics is not None and not conns:
+            return
+        try:
+            for conn, t_ns, raw in self._reader.messages(connections=conns):
+                yield conn.topic, conn.msgtype, int(t_ns), raw
+        except InputError:
+            raise
+        except Exception as exc:
+            raise InputError(f"bag {str(self.path)!r} is corrupt: reading its messages failed with "
+                             f"{type(exc).__name__}: {exc}") from None
+
+    def decode(self, raw: bytes, msgtype: str) -> Any:
+        """Deserialize CDR bytes with the Jazzy typestore; corrupt bytes -> InputError."""
+        try:
+            return typestore().deserialize_cdr(raw, msgtype)
+        except Exception as exc:
+            raise InputError(f"bag {str(self.path)!r}: a {msgtype} message cannot be decoded "
+                             f"({type(exc).__name__}: {exc})") from None
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self._reader.close()
+
+    def __enter__(self) -> "Bag":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _looks_like_cut_mcap(path: Path) -> bool:
+    if not path.is_file() or path.suffix != ".mcap":
+        return False
+    with path.open("rb") as f:
+        head = f.read(8)
+        f.seek(max(0, path.stat().st_size - 8))
+        tail = f.read(8)
+    return head == _MCAP_MAGIC and tail != _MCAP_MAGIC
+
+
+# --------------------------------------------------------------------------- tool trajectories
+
+
+@dataclass
+class ToolTrack:
+    """A planar tool trajectory read from a bag."""
+
+    t_ns: np.ndarray
+    """Sample times [ns], strictly increasing, shape (M,), int64."""
+    pose: np.ndarray
+    """Tool pose per sample: x [m], y [m], yaw [rad], shape (M, 3), float64."""
+    twist: np.ndarray | None
+    """Tool velocity per sample: vx, vy [m/s], wz [rad/s], shape (M, 3), float64; NaN rows where no
+    twist had been received yet (the simulation then derives it from poses); None without a twist topic."""
+    topic: str
+    """Topic the poses came from."""
+    msgtype: str
+    """Its message type."""
+    child_frame: str | None = None
+    """For TF messages: the child frame that is the tool."""
+    frame_ids: tuple[str, ...] = ()
+    """Parent/header frames seen on the pose samples."""
+    twist_topic: str | None = None
+    n_messages: int = 0
+    """Pose-topic messages read (kept + skipped, TF messages without the frame not counted)."""
+    skipped: dict[str, int] = field(default_factory=dict)
+    """Samples skipped per reason: repeated, out_of_order, non_finite, bad_quaternion."""
+    time_source: str = "header"
+    """``header`` (stamps, receive time where a stamp is 0 or absent) or ``bag`` (receive times)."""
+
+    @property
+    def n(self) -> int:
+        return int(self.t_ns.shape[0])
+
+    @property
+    def duration(self) -> float:
+        """Time from first to last sample [s]."""
+        return float(self.t_ns[-1] - self.t_ns[0]) * 1e-9 if self.n else 0.0
+
+    def interpolate(self, t_ns: np.ndarray) -> np.ndarray:
+        """Pose at times ``t_ns`` [ns] (clamped to the track's span): linear in x, y and unwrapped yaw.
+
+        Returns shape (K, 3), float64.
+        """
+        t = (np.asarray(t_ns, dtype=np.int64) - self.t_ns[0]).astype(np.float64)
+        ts = (self.t_ns - self.t_ns[0]).astype(np.float64)
+        yaw = np.unwrap(self.pose[:, 2])
+        out = np.empty((t.shape[0], 3))
+        out[:, 0] = np.interp(t, ts, self.pose[:, 0])
+        out[:, 1] = np.interp(t, ts, self.pose[:, 1])
+        y = np.interp(t, ts, yaw)
+        out[:, 2] = np.arctan2(np.sin(y), np.cos(y))
+        return out
+
+    def summary(self) -> str:
+        """One line: topic, frame, samples, duration, rate, skips."""
+        rate = (self.n - 1) / self.duration if self.duration > 0 else float("nan")
+        frame = f" child frame {self.child_frame!r}" if self.child_frame else ""
+        skips = ", ".join(f"{k} {v}" for k, v in sorted(self.skipped.items()) if v) or "none"
+        tw = f", twist from {self.twist_topic}" if self.twist_topic else ""
+        return (f"tool track: {self.topic} ({self.msgtype}){frame}, {self.n} samples over {self.duration:.3f} s "
+                f"(~{rate:.1f} Hz, {self.time_source} time){tw}; skipped: {skips}")
+
+
+def _stamp_ns(header: Any) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def _yaw(q: Any) -> float | None:
+    """Heading about +z of a quaternion (x, y, z, w); None when it is not a rotation."""
+    x, y, z, w = float(q.x), float(q.y), float(q.z), float(q.w)
+    n2 = x * x + y * y + z * z + w * w
+    if not math.isfinite(n2) or n2 < 1e-12:
+        return None
+    return math.atan2(2.0 * (w * z + x * y), n2 - 2.0 * (y * y + z * z))
+
+
+# each extractor: msg -> list of (stamp_ns or 0, x, y, quaternion, frame_id, child_frame)
+def _samples(msg: Any, msgtype: str, child: str | None) -> list[tuple[int, float, float, Any, str]]:
+    if msgtype == "geometry_msgs/msg/PoseStamped":
+        p = msg.pose
+        return [(_stamp_ns(msg.header), p.position.x, p.position.y, p.orientation, msg.header.frame_id)]
+    if msgtype == "geometry_msgs/msg/Pose":
+        return [(0, msg.position.x, msg.position.y, msg.orientation, "")]
+    if msgtype in ("geometry_msgs/msg/PoseWithCovarianceStamped", "nav_msgs/msg/Odometry"):
+        p = msg.pose.pose
+        return [(_stamp_ns(msg.header), p.position.x, p.position.y, p.orientation, msg.header.frame_id)]
+    if msgtype == "geometry_msgs/msg/TransformStamped":
+        tr = msg.transform
+        return [(_stamp_ns(msg.header), tr.translation.x, tr.translation.y, tr.rotation, msg.header.frame_id)]
+    if msgtype == TF_TYPE:
+        out = []
+        for ts in msg.transforms:
+            if ts.child_frame_id.lstrip("/") == child:
+                tr = ts.transform
+                out.append((_stamp_ns(ts.header), tr.translation.x, tr.translation.y, tr.rotation, ts.header.frame_id))
+        return out
+    raise AssertionError(msgtype)
+
+
+def tool_candidates(bag: Bag) -> list[tuple[str, str, str | None]]:
+    """Every (topic, type, child frame) in the bag that can carry the tool pose.
+
+    TF topics contribute one candidate per child frame they carry (found by
+    reading them).
+    """
+    out: list[tuple[str, str, str | None]] = []
+    tf_topics = []
+    for topic, msgtype in sorted(bag.topics.items()):
+        if msgtype == TF_TYPE:
+            tf_topics.append(topic)
+        elif msgtype in POSE_TYPES:
+            out.append((topic, msgtype, None))
+    for topic in tf_topics:
+        frames: set[str] = set()
+        for _, msgtype, _, raw in bag.messages([topic]):
+            frames.update(ts.child_frame_id.lstrip("/") for ts in bag.decode(raw, msgtype).transforms)
+        out += [(topic, TF_TYPE, f) for f in sorted(frames)]
+    return out
+
+
+def _format_candidates(cands: list[tuple[str, str, str | None]]) -> str:
+    return "; ".join(f"--tool-topic {t}" + (f" --frame {f}" if f else "") + f" ({ty})" for t, ty, f in cands)
+
+
+def _choose(bag: Bag, topic: str | None, frame: str | None) -> tuple[str, str, str | None]:
+    """Resolve the tool topic (and TF child frame) from the options, or explain what is there."""
+    topics = bag.topics
+    frame = frame.lstrip("/") if frame else frame
+    if topic is not None:
+        if topic not in topics:
+            alt = "/" + topic if not topic.startswith("/") else topic.lstrip("/")
+            if alt in topics:
+                topic = alt
+            else:
+                raise InputError(f"bag {str(bag.path)!r} has no topic {topic!r}; it has: {bag.describe_topics()}")
+        msgtype = topics[topic]
+        if msgtype not in POSE_TYPES:
+            raise InputError(f"topic {topic!r} in bag {str(bag.path)!r} has type {msgtype}, which carries no tool pose; "
+                             f"supported: {', '.join(POSE_TYPES)}")
+        if msgtype != TF_TYPE:
+            return topic, msgtype, None
+        cands = [c for c in tool_candidates(bag) if c[0] == topic]
+    else:
+        cands = tool_candidates(bag)
+    if frame is not None:
+        matching = [c for c in cands if c[2] == frame]
+        if not matching:
+            tf = [c for c in cands if c[1] == TF_TYPE]
+            raise InputError(f"bag {str(bag.path)!r}: no TF child frame {frame!r}"
+                             + (f" on {topic}" if topic else "")
+                             + f"; TF child frames there: {', '.join(sorted({c[2] for c in tf if c[2]})) or 'none'}")
+        cands = matching
+    if not cands:
+        raise InputError(f"bag {str(bag.path)!r} has no topic carrying a tool pose (supported types: "
+                         f"{', '.join(POSE_TYPES)}); it has: {bag.describe_topics()}")
+    if len(cands) > 1:
+        raise InputError(f"bag {str(bag.path)!r}: {len(cands)} possible tool poses, choose one with --tool-topic "
+                         f"and --frame: {_format_candidates(cands)}")
+    return cands[0]
+
+
+def read_tool_track(path: str | Path | Bag, topic: str | None = None, frame: str | None = None,
+                    twist_topic: str | None = None, time_source: str = "header",
+                    on_bad_time: str = "skip") -> ToolTrack:
+    """Extract the tool's planar trajectory from a bag.
+
+    Parameters
+    ----------
+    path : bag path, or an open :class:`Bag`
+    topic : str, optional
+        The pose topic; when None, the one topic (or TF child frame) that can
+        carry a pose, else an InputError listing the candidates.
+    frame : str, optional
+        TF child frame that is the tool (for ``tf2_msgs/msg/TFMessage`` topics).
+    twist_topic : str, optional
+        A TwistStamped/Twist topic; each pose sample gets the latest twist at or
+        before its time.
+    time_source : {"header", "bag"}
+        Sample time: header stamps (receive time where absent or 0) or receive times.
+    on_bad_time : {"skip", "error"}
+        Repeated or out-of-order sample times: skip and count, or raise InputError.
+
+    Returns
+    -------
+    ToolTrack
+        Poses projected onto the tissue plane: x, y and the heading about +z.
+    """
+    if time_source not in ("header", "bag"):
+        raise InputError(f"time_source={time_source!r}: expected 'header' or 'bag'")
+    if on_bad_time not in ("skip", "error"):
+        raise InputError(f"on_bad_time={on_bad_time!r}: expected 'skip' or 'error'")
+    own = not isinstance(path, Bag)
+    bag = Bag(path) if own else path
+    try:
+        if bag.message_count == 0:
+            raise InputError(f"bag {str(bag.path)!r} holds no messages (topics: {bag.describe_topics()})")
+        topic, msgtype, child = _choose(bag, topic, frame)
+        if twist_topic is not None:
+            if twist_topic not in bag.topics:
+                raise InputError(f"bag {str(bag.path)!r} has no twist topic {twist_topic!r}; it has: {bag.describe_topics()}")
+            if bag.topics[twist_topic] not in TWIST_TYPES:
+                raise InputError(f"twist topic {twist_topic!r} has type {bag.topics[twist_topic]}: expected one of "
+                                 f"{', '.join(TWIST_TYPES)}")
+        skipped = {"repeated": 0, "out_of_order": 0, "non_finite": 0, "bad_quaternion": 0}
+        times: list[int] = []
+        poses: list[tuple[float, float, float]] = []
+        frames: set[str] = set()
+        n_messages = 0
+        last = -1
+        for _, _, t_bag, raw in bag.messages([topic]):
+            msg = bag.decode(raw, msgtype)
+            for stamp, x, y, q, frame_id in _samples(msg, msgtype, child):
+                n_messages += 1
+                t = t_bag if (time_source == "bag" or stamp == 0) else stamp
+                yaw = _yaw(q)
+                if not (math.isfinite(x) and math.isfinite(y)):
+                    skipped["non_finite"] += 1
+                    continue
+                if yaw is None:
+                    skipped["bad_quaternion"] += 1
+                    continue
+                if t <= last:
+                    reason = "repeated" if t == last else "out_of_order"
+                    if on_bad_time == "error":
+                        raise InputError(f"bag {str(bag.path)!r}, topic {topic}: sample {n_messages} has time {t} ns, "
+                                         f"{'equal to' if t == last else 'before'} the previous sample's {last} ns "
+                                         f"({reason}); use on_bad_time='skip' to drop such samples")
+                    skipped[reason] += 1
+                    continue
+                last = t
+                times.append(t)
+                poses.append((float(x), float(y), yaw))
+                frames.add(frame_id)
+        if not times:
+            raise InputError(f"bag {str(bag.path)!r}: topic {topic}"
+                             + (f" frame {child!r}" if child else "")
+                             + f" gave no usable tool pose ({n_messages} samples; skipped {skipped})")
+        t_arr = np.asarray(times, dtype=np.int64)
+        twist = _read_twist(bag, twist_topic, t_arr, time_source) if twist_topic else None
+        return ToolTrack(t_ns=t_arr, pose=np.asarray(poses, dtype=np.float64), twist=twist, topic=topic,
+                         msgtype=msgtype, child_frame=child, frame_ids=tuple(sorted(frames)),
+                         twist_topic=twist_topic, n_messages=n_messages, skipped=skipped, time_source=time_source)
+    finally:
+        if own:
+            bag.close()
+
+
+def _read_twist(bag: Bag, topic: str, t_pose: np.ndarray, time_source: str) -> np.ndarray:
+    """Latest twist at or before each pose time (sample and hold); NaN rows before the first twist."""
+    t_tw: list[int] = []
+    vals: list[tuple[float, float, float]] = []
+    for _, msgtype, t_bag, raw in bag.messages([topic]):
+        msg = bag.decode(raw, msgtype)
+        if msgtype == "geometry_msgs/msg/TwistStamped":
+            stamp, tw = _stamp_ns(msg.header), msg.twist
+        else:
+            stamp, tw = 0, msg
+        t = t_bag if (time_source == "bag" or stamp == 0) else stamp
+        v = (float(tw.linear.x), float(tw.linear.y), float(tw.angular.z))
+        if not all(math.isfinite(c) for c in v) or (t_tw and t < t_tw[-1]):
+            continue  # a bad or late twist: the pose-derived velocity stands in
+        t_tw.append(t)
+        vals.append(v)
+    out = np.full((t_pose.shape[0], 3), np.nan)
+    if t_tw:
+        idx = np.searchsorted(np.asarray(t_tw, dtype=np.int64), t_pose, side="right") - 1
+        ok = idx >= 0
+        out[ok] = np.asarray(vals)[idx[ok]]
+    return out
+
+
+def pose_stamped_cdr(t_ns: int, x: float, y: float, yaw: float, frame_id: str = "world") -> bytes:
+    """A geometry_msgs/msg/PoseStamped in CDR (for bags, ``play`` and tests), without rclpy."""
+    store = typestore()
+    Header = store.types["std_msgs/msg/Header"]
+    Time = store.types["builtin_interfaces/msg/Time"]
+    Pose = store.types["geometry_msgs/msg/Pose"]
+    Point = store.types["geometry_msgs/msg/Point"]
+    Quat = store.types["geometry_msgs/msg/Quaternion"]
+    PoseStamped = store.types["geometry_msgs/msg/PoseStamped"]
+    msg = PoseStamped(
+        header=Header(stamp=Time(sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000)), frame_id=frame_id),
+        pose=Pose(position=Point(x=float(x), y=float(y), z=0.0),
+                  orientation=Quat(x=0.0, y=0.0, z=math.sin(0.5 * yaw), w=math.cos(0.5 * yaw))),
+    )
+    return bytes(store.serialize_cdr(msg, "geometry_msgs/msg/PoseStamped"))
+
+
+__all__ = ["STORAGES", "POSE_TYPES", "TWIST_TYPES", "BagWriter", "Bag", "ToolTrack", "read_tool_track",
+           "tool_candidates", "recover_mcap", "typestore", "pose_stamped_cdr"]
