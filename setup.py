@@ -27,7 +27,7 @@ ROS_WHEELS = [
 setup(
     name=package_name,
     version="0.1.0",
-    packages=find_packages(exclude=["test", "test.*"]) + [f"{package_name}.config"],
+    packages=find_packages(exclude=["test", "test.*", "config", "config.*"]) + [f"{package_name}.config"],
     # config/ is the one copy of the YAML, scenes, default image and RViz file;
     # mapping it into the package makes it importable data after `pip install .`
     # while ament's share/ copy (data_files) serves `ros2 launch` users.
@@ -54,7 +54,7 @@ setup(
     ],
     extras_require={
         "ros": ROS_WHEELS,
-        "test": ["pytest>=7", "mcap>=1.1"],
+        "test": ["pytest>=7", "mcap>=1.1", "wheel", "setuptools>=68,<80", "colcon-common-extensions>=0.3", "colcon-ros>=0.5"],
         "video": ["imageio>=2.30", "imageio-ffmpeg>=0.4"],
         "peers": ["mujoco>=3.2", "taichi>=1.7"],
     },
