@@ -18,6 +18,13 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def _copy_source(dst: Path) -> Path:
+    """Copy the package sources (not the venv, outputs or build dirs) so builds never touch the checkout."""
+    shutil.copytree(ROOT, dst, ignore=shutil.ignore_patterns(".venv", ".git", "out", "build", "install", "log",
+                                                             "*.egg-info", "__pycache__", ".pytest_cache"))
+    return dst
+
+
 def test_source_checkout_finds_config():
     from tissue_sim_ros.resources import DEFAULT_PARAMS_FILE, config_path
 
@@ -34,7 +41,7 @@ def test_source_checkout_finds_config():
 def test_wheel_carries_config_and_entry_points(tmp_path):
     # build the wheel exactly as `pip install .` would, without touching the network
     subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
-                    "-w", str(tmp_path), str(ROOT)], check=True, cwd=tmp_path)
+                    "-w", str(tmp_path), str(_copy_source(tmp_path / "src"))], check=True, cwd=tmp_path)
     wheel = next(tmp_path.glob("tissue_sim_ros-*.whl"))
     with zipfile.ZipFile(wheel) as zf:
         names = zf.namelist()
@@ -60,10 +67,7 @@ def test_colcon_build_installs_ament_layout(tmp_path):
     colcon = shutil.which("colcon") or str(Path(sys.prefix) / "bin" / "colcon")
     ws = tmp_path / "ws"
     (ws / "src").mkdir(parents=True)
-    # copy the package (not the venv or outputs) so colcon's build dirs stay out of the checkout
-    shutil.copytree(ROOT, ws / "src" / "tissue_sim_ros",
-                    ignore=shutil.ignore_patterns(".venv", ".git", "out", "build", "install", "log", "*.egg-info",
-                                                  "__pycache__", ".pytest_cache"))
+    _copy_source(ws / "src" / "tissue_sim_ros")
     result = subprocess.run([colcon, "build", "--event-handlers", "console_cohesion-"], cwd=ws,
                             capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stdout + result.stderr
