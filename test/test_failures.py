@@ -1,0 +1,116 @@
+"""The failure checks (bench/failures.py) on hand-built states whose verdict is known."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from tissue_sim_ros.bench.failures import (FailureMonitor, has_nonfinite, inverted_triangles, kinetic_energy,
+                                           plausible_kinetic_energy, residual_falls, tunnelled_particles)
+from tissue_sim_ros.core.mesh import mesh_rectangle
+from tissue_sim_ros.core.model import Model, SimParams
+from tissue_sim_ros.core.tool import ToolPose, ToolShape
+
+BOX = ToolShape("box", length=0.4, width=0.01)
+
+
+def _model() -> Model:
+    return Model.from_mesh(mesh_rectangle(0.4, 0.2, 0.05), SimParams(boundary_y_top=0.19, boundary_y_bottom=0.01))
+
+
+def test_nonfinite() -> None:
+    x = np.zeros((3, 2))
+    assert not has_nonfinite(x, x)
+    x[1, 0] = np.nan
+    assert has_nonfinite(np.zeros((3, 2)), x)
+    x[1, 0] = -np.inf
+    assert has_nonfinite(x)
+
+
+def test_inverted_triangles_include_degenerate_ones() -> None:
+    x = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0], [2.0, 0.0]])
+    tris = np.array([[0, 1, 2],    # CCW: fine
+                     [0, 2, 1],    # CW: inverted
+                     [0, 1, 4]])   # collinear: zero area counts as inverted
+    np.testing.assert_array_equal(inverted_triangles(x, tris), [1, 2])
+
+
+def test_tunnelling_box_moving_through_a_particle() -> None:
+    # a box 0.4 x 0.01 moving down by 0.05 m past a particle at rest 0.02 below its centre
+    x = np.array([[0.0, -0.02], [0.3, -0.02], [0.0, 0.1]])
+    pose0, pose1 = ToolPose(0.0, 0.0), ToolPose(0.0, -0.05)
+    hit = tunnelled_particles(x, x, pose0, pose1, BOX)
+    np.testing.assert_array_equal(hit, [0])  # 0.3 is beyond the box's end; 0.1 is behind it
+    # the same particle pushed ahead of the tool does not tunnel
+    pushed = x.copy()
+    pushed[0, 1] = -0.06
+    assert tunnelled_particles(x, pushed, pose0, pose1, BOX).size == 0
+    # a particle resting on the surface (inside by less than the tolerance) does not count
+    on_surface = np.array([[0.0, -0.005 + 5e-5]])
+    assert tunnelled_particles(on_surface, on_surface, pose0, pose0, BOX).size == 0
+    # a particle ending deep inside the tool counts; an immovable one is not checked
+    inside = np.array([[0.0, -0.052]])  # 2 mm above the lowered centre
+    assert tunnelled_particles(inside, inside, pose0, pose1, BOX).size == 1
+    assert tunnelled_particles(inside, inside, pose0, pose1, BOX, movable=np.array([False])).size == 0
+
+
+def test_tunnelling_rotated_tool() -> None:
+    # the box turned upright (yaw 90 deg) sweeping along +x through a particle at x = 0.03
+    x = np.array([[0.03, 0.0]])
+    pose0, pose1 = ToolPose(0.0, 0.0, math.pi / 2), ToolPose(0.06, 0.0, math.pi / 2)
+    assert tunnelled_particles(x, x, pose0, pose1, BOX).size == 1
+    assert tunnelled_particles(x, x + [0.06, 0.0], pose0, pose1, BOX).size == 0
+
+
+def test_energy_bound_and_kinetic_energy() -> None:
+    m = np.full(4, 0.5)
+    v = np.array([[1.0, 0.0], [0.0, 2.0], [0.0, 0.0], [3.0, 4.0]])
+    assert kinetic_energy(m, v) == 0.25 * (1 + 4 + 25)
+    # all 2 kg at tool speed 1 + g t = 9.8 * 0.1 + floor 0.1
+    assert math.isclose(plausible_kinetic_energy(2.0, 1.0, -9.8, 0.1), 0.5 * 2.0 * (1.0 + 0.98 + 0.1) ** 2)
+
+
+def test_residual_falls() -> None:
+    assert residual_falls([1e-2, 3e-3, 1e-4])
+    assert not residual_falls([1e-2, 2e-2, 5e-1])   # diverging Jacobi
+    assert not residual_falls([1e-2, 9e-3])          # barely moving
+    assert not residual_falls([1e-2, math.nan])
+    assert residual_falls([0.0, 0.0])
+
+
+def test_monitor_first_failure_of_each_kind() -> None:
+    model = _model()
+    x = model.particle_q0.copy()
+    v = np.zeros_like(x)
+    quiet = FailureMonitor(model, BOX)
+    assert quiet.observe(1, x, x, v, 0.01) is None and quiet.first is None
+
+    mon = FailureMonitor(model, BOX)
+    assert mon.observe(1, x, x, v, 0.01, diverged=True).kind == "nonfinite"
+
+    mon = FailureMonitor(model, BOX)
+    fast = np.where(model.particle_inv_mass[:, None] > 0, 50.0, 0.0) * np.ones_like(x)
+    assert mon.observe(1, x, x, fast, 0.01, tool_speed=1.0).kind == "energy_growth"
+    assert mon.max_kinetic_ratio > 100
+
+    # one triangle flipped: a failure only once it stays flipped for inverted_steps steps
+    mon = FailureMonitor(model, BOX, inverted_steps=3)
+    t = model.tri_indices[len(model.tri_indices) // 2]
+    flipped = x.copy()
+    flipped[t[0]], flipped[t[1]] = x[t[1]].copy(), x[t[0]].copy()
+    assert mon.observe(1, x, flipped, v, 0.01) is None
+    assert mon.observe(2, flipped, flipped, v, 0.02) is None
+    assert mon.observe(3, flipped, x, v, 0.03) is None  # recovered: the count restarts
+    for k in range(4, 6):
+        assert mon.observe(k, x, flipped, v, 0.01 * k) is None
+    failure = mon.observe(6, flipped, flipped, v, 0.06)
+    assert failure is not None and failure.kind == "inverted" and failure.step == 6
+
+    # the tool sweeping down through the strip's middle without the tissue moving
+    mon = FailureMonitor(model, BOX)
+    failure = mon.observe(1, x, x, v, 0.01, pose0=ToolPose(0.2, 0.16), pose1=ToolPose(0.2, 0.04), tool_speed=12.0)
+    assert failure is not None and failure.kind == "tunnelling"
+    assert mon.first == failure
+    # later failures do not replace the first
+    mon.observe(2, x, x, v, 0.02, diverged=True)
+    assert mon.first.kind == "tunnelling"

@@ -1,0 +1,264 @@
+"""Failure checks for a simulation run: the ways a method or contact model breaks.
+
+Five kinds, each a plain function on arrays plus a :class:`FailureMonitor`
+that applies them step by step and keeps the first failure of a run:
+
+* ``nonfinite``: NaN or infinity in positions or velocities (or the
+  Simulation reporting that it restored the last good state);
+* ``energy_growth``: the tissue's kinetic energy growing without bound, i.e.
+  beyond ``energy_factor`` times what the scene can plausibly put in (all mass
+  moving at the tool's speed plus free fall since the start);
+* ``inverted``: a triangle whose signed area stays <= 0 for ``inverted_steps``
+  consecutive steps (a transient flip that the signed area constraint undoes
+  is not a failure; the paper's |area| constraint keeps it);
+* ``tunnelling``: a movable particle whose path relative to the tool crossed
+  the tool's interior during a step (the tool passed through tissue);
+* ``no_convergence``: the constraint residual not falling as the iteration
+  count grows (checked separately, on one state, by :func:`iteration_residuals`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Sequence
+
+import numpy as np
+
+from ..core.tool import ToolPose, ToolShape
+
+if TYPE_CHECKING:
+    from ..core.collision import Contacts
+    from ..core.model import Model, State
+
+FAILURE_KINDS = ("nonfinite", "energy_growth", "inverted", "tunnelling", "no_convergence")
+
+
+@dataclass(frozen=True)
+class Failure:
+    """The first failure seen in a run."""
+
+    kind: str
+    """One of :data:`FAILURE_KINDS`."""
+    step: int
+    """Step index (1 = first step) at which it was seen; 0 for checks made outside a run."""
+    detail: str
+    """Human-readable numbers behind the verdict."""
+
+
+def has_nonfinite(*arrays: np.ndarray) -> bool:
+    """True if any array holds NaN or infinity."""
+    return any(not np.isfinite(a).all() for a in arrays)
+
+
+def kinetic_energy(mass: np.ndarray, velocity: np.ndarray) -> float:
+    """1/2 sum m |v|^2 [J]; ``mass`` (N,) [kg], ``velocity`` (N, 2) [m/s]."""
+    return 0.5 * float(np.sum(mass * np.einsum("ij,ij->i", velocity, velocity)))
+
+
+def plausible_kinetic_energy(total_mass: float, tool_speed: float, gravity: float, elapsed: float,
+                             floor_speed: float = 0.1) -> float:
+    """Kinetic energy [J] of all mass moving at the tool's speed plus free-fall speed since t = 0.
+
+    An upper bound on what tool and gravity can put into a tissue pinned at its
+    boundaries; ``floor_speed`` [m/s] keeps the bound away from 0 at rest.
+    """
+    speed = max(tool_speed, 0.0) + abs(gravity) * max(elapsed, 0.0) + floor_speed
+    return 0.5 * total_mass * speed * speed
+
+
+def inverted_triangles(x: np.ndarray, tri_indices: np.ndarray) -> np.ndarray:
+    """Indices of triangles whose signed area is <= 0 (CCW at rest), int64.
+
+    ``x`` (N, 2) positions [m], ``tri_indices`` (T, 3) CCW at rest.
+    """
+    if len(tri_indices) == 0:
+        return np.zeros(0, dtype=np.int64)
+    a, b, c = x[tri_indices[:, 0]], x[tri_indices[:, 1]], x[tri_indices[:, 2]]
+    area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    return np.flatnonzero(~(area2 > 0.0))
+
+
+def _to_tool_frame(x: np.ndarray, pose: ToolPose) -> np.ndarray:
+    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+    d = x - np.array([pose.x, pose.y])
+    return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)
+
+
+def tunnelled_particles(x0: np.ndarray, x1: np.ndarray, pose0: ToolPose, pose1: ToolPose, shape: ToolShape,
+                        movable: np.ndarray | None = None, tolerance: float = 1e-4) -> np.ndarray:
+    """Particles whose path relative to the tool crossed the tool's interior in one step.
+
+    Each particle's start position is taken into the tool frame at ``pose0``
+    and its end position into the tool frame at ``pose1``; if the straight
+    segment between them passes through the tool's box (half extents shrunk by
+    ``tolerance`` so that particles resting on the surface do not count; a
+    capsule or sphere is taken as its bounding box with the radius added), the
+    tool went through the particle. Exact for a translating box; for a rotating
+    tool the segment approximates the relative path.
+
+    Parameters
+    ----------
+    x0, x1 : ndarray, shape (N, 2), float64
+        Positions at the start and the end of the step [m].
+    pose0, pose1 : ToolPose
+        Tool poses at the start and the end of the step.
+    shape : ToolShape
+    movable : ndarray, shape (N,), bool, optional
+        Only these particles are checked (pinned ones cannot get out of the tool's way).
+    tolerance : float
+        Depth [m] a particle must reach inside the tool to count.
+
+    Returns
+    -------
+    ndarray of int64, the tunnelled particles.
+    """
+    hx, hy, radius = shape.rounded_box()
+    hx, hy = hx + radius - tolerance, hy + radius - tolerance
+    if hx <= 0 or hy <= 0:
+        return np.zeros(0, dtype=np.int64)
+    p0 = _to_tool_frame(x0, pose0)
+    p1 = _to_tool_frame(x1, pose1)
+    d = p1 - p0
+    # slab test of the segment p0 + t d, t in [0, 1], against |x| < hx, |y| < hy
+    t_lo = np.zeros(len(p0))
+    t_hi = np.ones(len(p0))
+    for axis, h in ((0, hx), (1, hy)):
+        dd = d[:, axis]
+        pp = p0[:, axis]
+        still = np.abs(dd) < 1e-300
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ta = (-h - pp) / dd
+            tb = (h - pp) / dd
+        t_near = np.where(still, np.where(np.abs(pp) < h, -np.inf, np.inf), np.minimum(ta, tb))
+        t_far = np.where(still, np.where(np.abs(pp) < h, np.inf, -np.inf), np.maximum(ta, tb))
+        t_lo = np.maximum(t_lo, t_near)
+        t_hi = np.minimum(t_hi, t_far)
+    hit = t_lo < t_hi
+    if movable is not None:
+        hit &= movable
+    return np.flatnonzero(hit)
+
+
+def residual_falls(residuals: Sequence[float], min_drop: float = 0.5) -> bool:
+    """True if the residual at the largest iteration count is at most ``min_drop`` times the first.
+
+    ``residuals`` are measured at increasing iteration counts; NaN or a rise means it does not fall.
+    """
+    r = np.asarray(residuals, dtype=np.float64)
+    if len(r) < 2 or not np.isfinite(r).all():
+        return False
+    if r[0] == 0.0:
+        return r[-1] == 0.0
+    return bool(r[-1] <= min_drop * r[0])
+
+
+def iteration_residuals(model: "Model", state: "State", contacts: "Contacts", dt: float,
+                        counts: Sequence[int] = (1, 4, 16, 64)) -> list[float]:
+    """The solver's residual after one step from ``state`` with each iteration count in ``counts``.
+
+    Each count solves the same step from the same state with a fresh Solver
+    (``iterations`` changed, everything else as in ``model.params``).
+    """
+    from ..core.solvers import Solver  # noqa: PLC0415  (the checks above need no solver)
+
+    out = []
+    for n in counts:
+        m = model.with_params(model.params.with_(iterations=int(n)))
+        state_out = m.state()
+        with np.errstate(all="ignore"):
+            info = Solver(m).step(state.copy(), state_out, contacts, dt)
+        r = float(info.residual)
+        if has_nonfinite(state_out.particle_q):
+            r = math.inf
+        out.append(r)
+    return out
+
+
+class FailureMonitor:
+    """Applies the run checks after every step and keeps the first failure.
+
+    Parameters
+    ----------
+    model : Model
+        For masses, triangles and which particles are movable.
+    tool : ToolShape, optional
+        Needed for the tunnelling check.
+    energy_factor : float
+        Kinetic energy above this times :func:`plausible_kinetic_energy` is a failure.
+    inverted_steps : int
+        Consecutive steps a triangle must stay inverted to count.
+    tunnel_tolerance : float
+        Depth [m] inside the tool a path must reach to count as tunnelling.
+    """
+
+    def __init__(self, model: "Model", tool: ToolShape | None = None, energy_factor: float = 100.0,
+                 inverted_steps: int = 5, tunnel_tolerance: float = 1e-4) -> None:
+        self.model = model
+        self.tool = tool
+        self.energy_factor = float(energy_factor)
+        self.inverted_steps = int(inverted_steps)
+        self.tunnel_tolerance = float(tunnel_tolerance)
+        self.mass = np.asarray(model.particle_mass)
+        self.total_mass = float(self.mass[np.asarray(model.particle_inv_mass) > 0].sum())
+        self.movable = np.asarray(model.particle_inv_mass) > 0
+        self._inverted_run = np.zeros(model.n_triangles, dtype=np.int64)
+        self.first: Failure | None = None
+        self.max_kinetic_ratio = 0.0
+        """Largest kinetic energy / plausible bound seen so far."""
+        self.n_tunnelled = 0
+        """Particles that tunnelled, summed over steps."""
+        self.max_inverted = 0
+        """Largest number of inverted triangles after any step."""
+
+    def observe(self, step: int, x_prev: np.ndarray, x: np.ndarray, v: np.ndarray, elapsed: float,
+                diverged: bool = False, pose0: ToolPose | None = None, pose1: ToolPose | None = None,
+                tool_speed: float = 0.0) -> Failure | None:
+        """Check one step; return the failure found now (the first of the run is kept in ``first``).
+
+        Parameters
+        ----------
+        step : int
+            Index of the step just taken.
+        x_prev, x : ndarray, shape (N, 2)
+            Positions before and after the step [m].
+        v : ndarray, shape (N, 2)
+            Velocities after the step [m/s].
+        elapsed : float
+            Simulated time since the start [s].
+        diverged : bool
+            The Simulation reported NaN and restored the last good state.
+        pose0, pose1 : ToolPose, optional
+            Tool poses at the start and end of the step (tunnelling needs both).
+        tool_speed : float
+            Tool speed this step [m/s], for the energy bound.
+        """
+        failure = None
+        if diverged or has_nonfinite(x, v):
+            failure = Failure("nonfinite", step, "NaN or inf in positions/velocities")
+        else:
+            ke = kinetic_energy(self.mass, v)
+            bound = plausible_kinetic_energy(self.total_mass, tool_speed, self.model.params.gravity, elapsed)
+            ratio = ke / bound
+            self.max_kinetic_ratio = max(self.max_kinetic_ratio, ratio)
+            inv = inverted_triangles(x, self.model.tri_indices)
+            self.max_inverted = max(self.max_inverted, int(inv.size))
+            run = np.zeros_like(self._inverted_run)
+            run[inv] = self._inverted_run[inv] + 1
+            self._inverted_run = run
+            tunnelled = np.zeros(0, dtype=np.int64)
+            if self.tool is not None and pose0 is not None and pose1 is not None:
+                tunnelled = tunnelled_particles(x_prev, x, pose0, pose1, self.tool, self.movable,
+                                                self.tunnel_tolerance)
+                self.n_tunnelled += int(tunnelled.size)
+            if ratio > self.energy_factor:
+                failure = Failure("energy_growth", step,
+                                  f"kinetic energy {ke:.3g} J is {ratio:.3g}x the plausible {bound:.3g} J")
+            elif tunnelled.size:
+                failure = Failure("tunnelling", step, f"{tunnelled.size} particles passed through the tool")
+            elif run.size and run.max() >= self.inverted_steps:
+                failure = Failure("inverted", step,
+                                  f"{int(np.count_nonzero(run >= self.inverted_steps))} triangles inverted "
+                                  f"for {self.inverted_steps} steps")
+        if failure is not None and self.first is None:
+            self.first = failure
+        return failure
