@@ -3,8 +3,13 @@
 E = 1/2 sum_i m_i |x_i - x*_i|^2 + dt^2 (E_spring + E_area), with
 E_spring = sum_e 1/2 k_s (|x_a - x_b| - l0)^2 and E_area = sum_t 1/2 k_a C_t^2,
 where x* are the predicted positions (before the constraint solve) and x the
-solved ones. K is the method's own (the paper's coefficients for ``pbd``, the
-physical stiffness for ``xpbd``); C_t uses the model's area mode.
+solved ones. K is the method's own (:attr:`SimParams.k_spring_effective`):
+the paper's per-iteration coefficients for ``pbd`` (as the paper defines its
+energy; the terms are then in "coefficient" units, comparable between steps of
+one run but not a physical energy), the physical stiffness [N/m, N/m^3] for
+``xpbd`` (then E is in joules x s^2 / s^2 = J scaled as the implicit Euler
+objective). C_t uses the model's area mode. The spring term uses current edge
+lengths only, never rest edge vectors, so a rigid rotation leaves it unchanged.
 """
 from __future__ import annotations
 
@@ -12,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .errors import InputError
+from .kernels import energy_terms_kernel
 from .model import Model
 
 
@@ -42,5 +49,28 @@ class EnergyTerms:
 
 
 def energy_terms(model: Model, x: np.ndarray, x_pred: np.ndarray) -> EnergyTerms:
-    """Implicit Euler energy terms of positions ``x`` given predictions ``x_pred``, per body."""
-    raise NotImplementedError("energy_terms: implemented with the numba kernels (issue 3)")
+    """Implicit Euler energy terms of positions ``x`` given predictions ``x_pred``, per body.
+
+    Parameters
+    ----------
+    model : Model
+        Topology, masses, rest sizes; ``model.params`` gives dt, K and the area mode.
+    x : (N, 2) float64
+        Solved positions x(t+1) [m].
+    x_pred : (N, 2) float64
+        Predicted positions x* [m] (before the constraint solve).
+    """
+    n = model.n_particles
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    x_pred = np.ascontiguousarray(x_pred, dtype=np.float64)
+    for name, arr in (("x", x), ("x_pred", x_pred)):
+        if arr.shape != (n, 2):
+            raise InputError(f"energy_terms: {name} has shape {arr.shape}: expected ({n}, 2)")
+    p = model.params
+    out = EnergyTerms.zeros(model.n_bodies)
+    energy_terms_kernel(x, x_pred, model.particle_mass, model.particle_body,
+                        model.edge_indices, model.edge_rest_length, model.edge_body,
+                        model.tri_indices, model.tri_rest_area, model.tri_body,
+                        p.k_spring_effective, p.k_area_effective, p.dt, p.area_mode == "signed",
+                        out.inertial, out.spring, out.area)
+    return out

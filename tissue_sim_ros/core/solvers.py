@@ -2,20 +2,53 @@
 
 A Solver is made once per Model (it holds workspaces: multipliers, scratch
 arrays, constraint colouring) and steps ``(state_in, state_out, contacts, dt)``.
+Nothing in a step creates a Python object per particle: every loop is a numba
+kernel of :mod:`~tissue_sim_ros.core.kernels` on arrays allocated here.
+
+One step (the paper's Algorithm 1, with Macklin's multipliers for XPBD)::
+
+    x* = x_t + dt damp v_t + dt^2 (0, g)            free particles; + held_dx (paper contact)
+    for each of `substeps` substeps of h = dt / substeps:
+        predict from the substep's start (h), reset multipliers
+        `iterations` sweeps: edges, triangles, tool (projection contact)
+        v = (x - x_start) / h; boundary lines clamp and stop particles
+    residual = RMS(C / rest size)
+
+Orders. ``pbd`` Gauss-Seidel sweeps the constraints in mesh order, as the
+paper does. The coloured parallel path sorts constraints by colour (no two
+constraints of one colour share a particle) and projects each colour on all
+threads: still Gauss-Seidel, in a different order, so results differ from the
+serial sweep by round-off-sized amounts per iteration that converge to the
+same solution, not bit for bit.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
+from . import kernels
 from .collision import Contacts
+from .errors import InputError
 from .model import Model, State
+
+#: Particle count from which Gauss-Seidel runs coloured on all threads by
+#: default. Below it thread hand-offs (~1.5 us per colour with OpenMP, 13
+#: colours per iteration) cost as much as the work; see ``tissue-sim bench solver``.
+PARALLEL_MIN_PARTICLES = 4000
+
+ORDERS = ("mesh", "colour")
+JACOBI_RELAXATIONS = ("stiffness", "uniform")
 
 
 @dataclass
 class SolveInfo:
-    """What a solve hands back to the Simulation."""
+    """What a solve hands back to the Simulation.
+
+    The arrays are the Solver's workspaces: valid until its next step.
+    """
 
     x_pred: np.ndarray
     """Full-step predicted positions x* [m], shape (N, 2) (including the paper contact's displacement)."""
@@ -25,11 +58,239 @@ class SolveInfo:
     """RMS constraint violation after the solve (edges relative to rest length, areas relative to rest area)."""
 
 
-class Solver:
-    """Steps a Model: prediction, constraint solve, velocity update, boundary lines."""
+def colour_constraints(indices: np.ndarray, n_particles: int) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy colouring of constraints, as a stable permutation sorted by colour.
 
-    def __init__(self, model: Model) -> None:
+    Parameters
+    ----------
+    indices : (M, K) int32
+        Particles of each constraint.
+    n_particles : int
+        Number of particles.
+
+    Returns
+    -------
+    order : (M,) int64
+        Constraint indices sorted by colour (mesh order within a colour).
+    offsets : (n_colours + 1,) int64
+        Colour c is ``order[offsets[c]:offsets[c + 1]]``.
+    """
+    m = indices.shape[0]
+    colour = np.zeros(m, dtype=np.int64)
+    n_colours = kernels.greedy_colour(np.ascontiguousarray(indices, dtype=np.int32), n_particles, colour) if m else 0
+    order = np.argsort(colour, kind="stable")
+    offsets = np.zeros(n_colours + 1, dtype=np.int64)
+    offsets[1:] = np.cumsum(np.bincount(colour, minlength=n_colours))
+    return order, offsets
+
+
+class Solver:
+    """Steps a Model: prediction, constraint solve, velocity update, boundary lines.
+
+    Parameters
+    ----------
+    model : Model
+        Topology and parameters (``model.params``: method, scheme, iterations, substeps, ...).
+    parallel : bool, optional
+        Gauss-Seidel on all threads, constraints sorted by colour. Default: on
+        from :data:`PARALLEL_MIN_PARTICLES` particles when numba has two or
+        more threads (Jacobi is always serial).
+    order : {"mesh", "colour"}, optional
+        Serial Gauss-Seidel order: mesh order (the paper's, default) or sorted
+        by colour (independent neighbours pipeline better on one core). The
+        parallel path always uses colour order.
+    jacobi_relaxation : {"stiffness", "uniform"}
+        XPBD Jacobi relaxation: per-constraint omega_c = 2 relaxation / r_c from
+        a Gershgorin bound r_c (default; stable at any stiffness, see
+        :func:`~tissue_sim_ros.core.kernels.jacobi_relaxation`), or the same
+        omega = ``params.relaxation`` for every constraint (diverges for stiff
+        constraints; kept to show that).
+    jacobi_average : bool
+        PBD Jacobi: divide each particle's summed correction by its constraint
+        count (the paper authors' code; default). False sums them, which blows
+        up for stiff constraints (kept for the stability tests).
+    """
+
+    def __init__(self, model: Model, *, parallel: bool | None = None, order: str | None = None,
+                 jacobi_relaxation: str = "stiffness", jacobi_average: bool = True) -> None:
+        p = model.params
+        if order is not None and order not in ORDERS:
+            raise InputError(f"solver order={order!r}: expected one of {', '.join(ORDERS)}")
+        if jacobi_relaxation not in JACOBI_RELAXATIONS:
+            raise InputError(f"jacobi_relaxation={jacobi_relaxation!r}: expected one of {', '.join(JACOBI_RELAXATIONS)}")
         self.model = model
+        self.params = p
+        n = model.n_particles
+        self.jacobi = p.scheme == "jacobi"
+        if parallel is None:
+            parallel = (not self.jacobi and n >= PARALLEL_MIN_PARTICLES and numba.get_num_threads() >= 2)
+        self.parallel = bool(parallel) and not self.jacobi
+        self.order = "colour" if self.parallel else (order or "mesh")
+        self.jacobi_relaxation = jacobi_relaxation
+        self.jacobi_average = jacobi_average
+        # Stiffness-aware Jacobi: omega_c = 2 relaxation / r_c; steps below 2 / r_c converge for the
+        # linearised system (kernels.jacobi_relaxation), so relaxation in (0, 1) is a fraction of the
+        # largest guaranteed step.
+        self.relaxation_scale = 2.0 * p.relaxation
+        self.signed = p.area_mode == "signed"
+
+        # constraints in solve order (colour-sorted copies when needed)
+        edges = np.ascontiguousarray(model.edge_indices, dtype=np.int32)
+        rest = np.ascontiguousarray(model.edge_rest_length, dtype=np.float64)
+        tris = np.ascontiguousarray(model.tri_indices, dtype=np.int32)
+        area0 = np.ascontiguousarray(model.tri_rest_area, dtype=np.float64)
+        self.edge_offsets = np.array([0, edges.shape[0]], dtype=np.int64)
+        self.tri_offsets = np.array([0, tris.shape[0]], dtype=np.int64)
+        if self.order == "colour":
+            perm_e, self.edge_offsets = colour_constraints(edges, n)
+            perm_t, self.tri_offsets = colour_constraints(tris, n)
+            edges, rest = np.ascontiguousarray(edges[perm_e]), np.ascontiguousarray(rest[perm_e])
+            tris, area0 = np.ascontiguousarray(tris[perm_t]), np.ascontiguousarray(area0[perm_t])
+        self.edges, self.rest, self.tris, self.area0 = edges, rest, tris, area0
+        self._no_edges = np.zeros((0, 2), dtype=np.int32)
+        self._no_tris = np.zeros((0, 3), dtype=np.int32)
+        self._no_float = np.zeros(0, dtype=np.float64)
+        self._no_index = np.zeros(0, dtype=np.int32)
+
+        # workspaces
+        self.x_pred = np.zeros((n, 2))
+        """Full-step prediction x* [m], (N, 2)."""
+        self.x_start = np.zeros((n, 2))
+        """Positions at the start of the current substep [m], (N, 2)."""
+        self.inv_mass_eff = np.zeros(n)
+        """Inverse masses of this step (held particles zeroed) [1/kg], (N,)."""
+        self.lam_e = np.zeros(edges.shape[0])
+        """Multiplier of each edge (solve order) of the current substep, (E,)."""
+        self.lam_t = np.zeros(tris.shape[0])
+        """Multiplier of each triangle (solve order) of the current substep, (T,)."""
+        self.contact_dx = np.zeros((n, 2))
+        """Summed projection-contact corrections of the step [m], (N, 2)."""
+        self._dx_acc = np.zeros((n, 2))
+        self._node_sum = np.zeros(n)
+        self.omega_e = np.ones(edges.shape[0])
+        self.omega_t = np.ones(tris.shape[0])
+        self.particle_scale = np.ones(n)
+        if self.jacobi and p.method == "pbd" and jacobi_average:
+            count = np.bincount(model.edge_indices.ravel(), minlength=n) + np.bincount(model.tri_indices.ravel(),
+                                                                                      minlength=n)
+            self.particle_scale = 1.0 / np.maximum(count, 1).astype(np.float64)
+        if self.jacobi and p.method == "xpbd" and jacobi_relaxation == "uniform":
+            self.omega_e[:] = p.relaxation
+            self.omega_t[:] = p.relaxation
+        self._shape0 = np.zeros(7)
+        self._shape1 = np.zeros(7)
+
+    @property
+    def n_projections_per_step(self) -> int:
+        """Constraint projections in one step (iterations x substeps x active constraints)."""
+        p = self.params
+        n_c = (self.edges.shape[0] if self._k_alpha(p.k_spring, p.stiffness_spring, 1.0)[2] else 0) \
+            + (self.tris.shape[0] if self._k_alpha(p.k_area, p.stiffness_area, 1.0)[2] else 0)
+        return n_c * p.iterations * p.substeps
+
+    def _k_alpha(self, k_pbd: float, stiffness: float, h: float) -> tuple[float, float, bool]:
+        """(k, alpha, active) of one constraint type for a substep h."""
+        if self.params.method == "pbd":
+            return k_pbd, 0.0, k_pbd > 0.0
+        if stiffness <= 0.0:
+            return 1.0, 0.0, False
+        return 1.0, 1.0 / (stiffness * h * h), True
+
+    @staticmethod
+    def _interpolate_shape(s0: np.ndarray, s1: np.ndarray, f: float, out: np.ndarray) -> None:
+        """Tool shape at fraction f of the step: centre linear, angle via the normalised (cos, sin)."""
+        out[:] = s0 + f * (s1 - s0)
+        norm = math.hypot(out[2], out[3])
+        if norm > 1e-12:
+            out[2] /= norm
+            out[3] /= norm
+        else:  # half a turn within one step: take the end orientation
+            out[2], out[3] = s1[2], s1[3]
 
     def step(self, state_in: State, state_out: State, contacts: Contacts, dt: float) -> SolveInfo:
-        raise NotImplementedError("Solver.step: implemented with the numba kernels (issue 3)")
+        """Advance ``state_in`` by ``dt`` into ``state_out`` (which must not alias ``state_in``).
+
+        Parameters
+        ----------
+        state_in, state_out : State
+            Positions [m] and velocities [m/s], (N, 2) float64 C-contiguous.
+        contacts : Contacts
+            The contact model's output for this step; ``contacts.touched`` is filled here.
+        dt : float
+            Time step [s].
+        """
+        p = self.params
+        model = self.model
+        n = model.n_particles
+        for name, arr in (("state_in.particle_q", state_in.particle_q), ("state_in.particle_qd", state_in.particle_qd),
+                          ("state_out.particle_q", state_out.particle_q),
+                          ("state_out.particle_qd", state_out.particle_qd)):
+            if arr.shape != (n, 2) or arr.dtype != np.float64 or not arr.flags.c_contiguous:
+                raise InputError(f"{name} has shape {arr.shape}, dtype {arr.dtype}: expected ({n}, 2) float64, C-contiguous")
+        if not (dt > 0.0 and math.isfinite(dt)):
+            raise InputError(f"dt={dt!r}: expected a time step > 0 s")
+        n_sub = p.substeps
+        h = dt / n_sub
+        inv_mass = model.particle_inv_mass
+        x0, v0 = state_in.particle_q, state_in.particle_qd
+        x, v = state_out.particle_q, state_out.particle_qd
+        held_idx = np.ascontiguousarray(contacts.held_idx, dtype=np.int32)
+        held_dx = np.ascontiguousarray(contacts.held_dx, dtype=np.float64).reshape(-1, 2)
+        candidates = np.ascontiguousarray(contacts.candidates, dtype=np.int32)
+        projection = candidates.shape[0] > 0
+        if projection:
+            self.contact_dx.fill(0.0)
+            s0 = np.ascontiguousarray(contacts.tool_shape0, dtype=np.float64)
+            s1 = np.ascontiguousarray(contacts.tool_shape1, dtype=np.float64)
+
+        # the full-step prediction x* (the energy's reference), and the held set
+        kernels.predict(x0, v0, inv_mass, dt, p.gravity, max(0.0, 1.0 - p.damping * dt), self.x_pred)
+        kernels.hold_displaced(self.x_pred, inv_mass, held_idx, held_dx, 1.0, self.inv_mass_eff)
+        w = self.inv_mass_eff
+
+        k_e, alpha_e, use_e = self._k_alpha(p.k_spring, p.stiffness_spring, h)
+        k_t, alpha_t, use_t = self._k_alpha(p.k_area, p.stiffness_area, h)
+        edges, rest = (self.edges, self.rest) if use_e else (self._no_edges, self._no_float)
+        tris, area0 = (self.tris, self.area0) if use_t else (self._no_tris, self._no_float)
+
+        np.copyto(v, v0)
+        np.copyto(x, x0)
+        for sub in range(n_sub):
+            np.copyto(self.x_start, x)
+            if n_sub == 1:
+                np.copyto(x, self.x_pred)
+            else:
+                kernels.predict(self.x_start, v, inv_mass, h, p.gravity, max(0.0, 1.0 - p.damping * h), x)
+                kernels.hold_displaced(x, inv_mass, held_idx, held_dx, 1.0 / n_sub, w)
+            self.lam_e.fill(0.0)
+            self.lam_t.fill(0.0)
+            if projection:
+                self._interpolate_shape(s0, s1, sub / n_sub, self._shape0)
+                self._interpolate_shape(s0, s1, (sub + 1) / n_sub, self._shape1)
+                cand = candidates
+            else:
+                cand = self._no_index
+            if self.jacobi:
+                if p.method == "xpbd" and self.jacobi_relaxation == "stiffness":
+                    kernels.jacobi_relaxation(x, w, edges, alpha_e, tris, alpha_t, self.signed, self.relaxation_scale,
+                                              self._node_sum, self.omega_e, self.omega_t)
+                kernels.jacobi_iterations(x, w, edges, rest, k_e, alpha_e, self.lam_e, self.omega_e,
+                                          tris, area0, k_t, alpha_t, self.lam_t, self.omega_t,
+                                          self.signed, p.iterations, self.particle_scale, self._dx_acc,
+                                          self.x_start, cand, self._shape0, self._shape1, self.contact_dx)
+            else:
+                kernels.gauss_seidel_iterations(x, w, edges, rest, k_e, alpha_e, self.lam_e, self.edge_offsets,
+                                                tris, area0, k_t, alpha_t, self.lam_t, self.tri_offsets,
+                                                self.signed, p.iterations, self.parallel,
+                                                self.x_start, cand, self._shape0, self._shape1, self.contact_dx)
+            kernels.update_velocity(x, self.x_start, h, v)
+            kernels.apply_boundary_lines(x, v, inv_mass, p.boundary_y_top, p.boundary_y_bottom)
+
+        residual = kernels.constraint_residual(x, self.edges, self.rest, self.tris, self.area0, self.signed)
+        if projection:
+            moved = np.flatnonzero((self.contact_dx[:, 0] != 0.0) | (self.contact_dx[:, 1] != 0.0))
+            contacts.touched = moved.astype(np.int32)
+        elif held_idx.shape[0]:
+            contacts.touched = held_idx.copy()
+        return SolveInfo(x_pred=self.x_pred, contact_dx=self.contact_dx if projection else None,
+                         residual=float(residual))

@@ -1,0 +1,708 @@
+"""Numba kernels of one simulation step, on plain arrays.
+
+Every kernel takes arrays and scalars and writes into preallocated outputs
+(``@njit(cache=True)``); :mod:`~tissue_sim_ros.core.solvers` owns the
+workspaces and calls them. Each kernel has a slow NumPy twin in
+``test/naive.py`` and the tests compare the two on random and degenerate input.
+
+Vocabulary (Mueller, Macklin): ``C`` constraint value, ``w`` inverse mass,
+``alpha`` = compliance / dt_sub^2 (0 for the paper's PBD), ``k`` the PBD
+coefficient scaling each projection (1 for XPBD), ``lam`` the constraint's
+Lagrange multiplier accumulated over the iterations of one (sub)step.
+One projection, PBD and XPBD alike::
+
+    s = k (-C - alpha lam) / (sum_i w_i |grad_i C|^2 + alpha);  lam += s;  x_i += w_i s grad_i C
+
+With ``alpha = 0`` this is the paper's projection scaled by k; with ``k = 1`` it
+is XPBD's (Macklin, Mueller, Chentanez 2016, eq. 18).
+
+The hot loops are written flat on purpose: small helpers with array
+arguments called per constraint kept reference-count calls in the loop
+(30-40 ns per projection measured by the issue's author). A helper called once
+per iteration costs nothing measurable.
+"""
+from __future__ import annotations
+
+import math
+import os
+
+import numba
+import numpy as np
+from numba import njit, prange
+
+from .collision import project_tool
+
+# OpenMP's thread pool hands work to a thread in ~1.5 us; numba's default
+# (tbb/workqueue) layer took ~200 us per prange on the 2-core VM. The layer
+# is fixed at the first parallel call, so choose it at import unless the user
+# did (NUMBA_THREADING_LAYER).
+if "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER == "default":
+    numba.config.THREADING_LAYER = "omp"
+
+#: Squared length [m^2] below which an edge (or a triangle's gradient) counts as
+#: degenerate and its projection is skipped: its direction is undefined.
+EPS_LEN2 = 1e-30
+
+
+# ----------------------------------------------------------------------------- prediction
+
+
+@njit(cache=True)
+def predict(x: np.ndarray, v: np.ndarray, inv_mass: np.ndarray, dt: float, gravity: float,
+            damp: float, x_pred: np.ndarray) -> None:
+    """Explicit prediction x* = x + dt damp v + dt^2 (0, g) for free particles.
+
+    Parameters
+    ----------
+    x, v : (N, 2) float64
+        Positions [m] and velocities [m/s] at the start of the (sub)step.
+    inv_mass : (N,) float64
+        Inverse masses [1/kg]; particles with 0 keep their position.
+    dt : float
+        (Sub)step [s].
+    gravity : float
+        Gravity along y [m/s^2].
+    damp : float
+        Velocity scale max(0, 1 - damping dt) (1 = no damping).
+    x_pred : (N, 2) float64
+        Output: predicted positions [m].
+    """
+    dv = dt * gravity
+    for i in range(x.shape[0]):
+        if inv_mass[i] > 0.0:
+            x_pred[i, 0] = x[i, 0] + dt * damp * v[i, 0]
+            x_pred[i, 1] = x[i, 1] + dt * (damp * v[i, 1] + dv)
+        else:
+            x_pred[i, 0] = x[i, 0]
+            x_pred[i, 1] = x[i, 1]
+
+
+@njit(cache=True)
+def hold_displaced(x_pred: np.ndarray, inv_mass: np.ndarray, held_idx: np.ndarray, held_dx: np.ndarray,
+                   scale: float, inv_mass_eff: np.ndarray) -> None:
+    """The paper's contact: move held particles by ``scale * held_dx`` and hold them.
+
+    ``inv_mass_eff`` (N,) is set to ``inv_mass`` with the held particles zeroed
+    (they are not moved by the constraint solve this step). Pinned particles
+    (``inv_mass == 0``) are never displaced.
+    """
+    for i in range(inv_mass.shape[0]):
+        inv_mass_eff[i] = inv_mass[i]
+    for k in range(held_idx.shape[0]):
+        i = held_idx[k]
+        if inv_mass[i] > 0.0:
+            x_pred[i, 0] += scale * held_dx[k, 0]
+            x_pred[i, 1] += scale * held_dx[k, 1]
+        inv_mass_eff[i] = 0.0
+
+
+# ----------------------------------------------------------------------------- Gauss-Seidel projections
+
+
+@njit(cache=True)
+def solve_edges(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
+                k: float, alpha: float, lam: np.ndarray) -> None:
+    """One Gauss-Seidel sweep over distance constraints C = |x_i - x_j| - d0, in array order.
+
+    Parameters
+    ----------
+    x : (N, 2) float64
+        Positions [m], updated in place.
+    inv_mass : (N,) float64
+        Inverse masses [1/kg] (0 = held/pinned).
+    edges : (E, 2) int32
+        Particle indices.
+    rest : (E,) float64
+        Rest lengths d0 [m].
+    k : float
+        PBD coefficient in [0, 1] (1 for XPBD).
+    alpha : float
+        Compliance over dt_sub^2 [1/kg] (0 for PBD).
+    lam : (E,) float64
+        Multipliers, accumulated in place.
+    """
+    for e in range(edges.shape[0]):
+        i = edges[e, 0]
+        j = edges[e, 1]
+        wi = inv_mass[i]
+        wj = inv_mass[j]
+        w = wi + wj
+        if w == 0.0:
+            continue
+        dx = x[i, 0] - x[j, 0]
+        dy = x[i, 1] - x[j, 1]
+        len2 = dx * dx + dy * dy
+        if len2 <= EPS_LEN2:
+            continue
+        length = math.sqrt(len2)
+        # one division: s / length, with s the multiplier increment
+        f = k * (rest[e] - length - alpha * lam[e]) / ((w + alpha) * length)
+        lam[e] += f * length
+        x[i, 0] += wi * f * dx
+        x[i, 1] += wi * f * dy
+        x[j, 0] -= wj * f * dx
+        x[j, 1] -= wj * f * dy
+
+
+@njit(cache=True)
+def solve_areas(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray,
+                k: float, alpha: float, lam: np.ndarray, signed: bool) -> None:
+    """One Gauss-Seidel sweep over area constraints, in array order.
+
+    Signed: C = 1/2 (x_b - x_a) x (x_c - x_a) - A0 (an inverted triangle is
+    pushed back). Abs (the paper): C = |1/2 (x_b - x_a) x (x_c - x_a)| - |A0|,
+    which an inverted triangle also satisfies; a triangle of zero area has no
+    gradient there and is skipped.
+
+    Parameters
+    ----------
+    x : (N, 2) float64
+        Positions [m], updated in place.
+    inv_mass : (N,) float64
+        Inverse masses [1/kg].
+    tris : (T, 3) int32
+        Particle indices (CCW at rest).
+    area0 : (T,) float64
+        Signed rest areas A0 [m^2].
+    k, alpha : float
+        PBD coefficient and compliance / dt_sub^2 [1/(kg m^2)].
+    lam : (T,) float64
+        Multipliers, accumulated in place.
+    signed : bool
+        Signed (True) or the paper's absolute (False) area.
+    """
+    for t in range(tris.shape[0]):
+        a = tris[t, 0]
+        b = tris[t, 1]
+        c = tris[t, 2]
+        wa = inv_mass[a]
+        wb = inv_mass[b]
+        wc = inv_mass[c]
+        if wa + wb + wc == 0.0:
+            continue
+        e1x = x[b, 0] - x[a, 0]
+        e1y = x[b, 1] - x[a, 1]
+        e2x = x[c, 0] - x[a, 0]
+        e2y = x[c, 1] - x[a, 1]
+        area = 0.5 * (e1x * e2y - e1y * e2x)
+        if signed:
+            sg = 0.5
+            C = area - area0[t]
+        else:
+            sg = 0.5 if area > 0.0 else (-0.5 if area < 0.0 else 0.0)
+            C = abs(area) - abs(area0[t])
+        # gradients of C: grad_b = sg (e2y, -e2x), grad_c = sg (-e1y, e1x), grad_a = -(grad_b + grad_c)
+        gbx = sg * e2y
+        gby = -sg * e2x
+        gcx = -sg * e1y
+        gcy = sg * e1x
+        gax = -gbx - gcx
+        gay = -gby - gcy
+        ga2 = gax * gax + gay * gay
+        gb2 = gbx * gbx + gby * gby
+        gc2 = gcx * gcx + gcy * gcy
+        if ga2 + gb2 + gc2 <= EPS_LEN2:
+            continue
+        den = wa * ga2 + wb * gb2 + wc * gc2 + alpha
+        if den <= 0.0:
+            continue
+        s = k * (-C - alpha * lam[t]) / den
+        lam[t] += s
+        x[a, 0] += wa * s * gax
+        x[a, 1] += wa * s * gay
+        x[b, 0] += wb * s * gbx
+        x[b, 1] += wb * s * gby
+        x[c, 0] += wc * s * gcx
+        x[c, 1] += wc * s * gcy
+
+
+@njit(cache=True, parallel=True)
+def solve_edges_coloured(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
+                         k: float, alpha: float, lam: np.ndarray, offsets: np.ndarray) -> None:
+    """:func:`solve_edges` on edges sorted by colour, each colour's edges in parallel.
+
+    No two edges of one colour share a particle, so within a colour the
+    projections are independent (still Gauss-Seidel between colours).
+    ``offsets`` (n_colours + 1,) int64 delimits the colours in ``edges``.
+    """
+    for col in range(offsets.shape[0] - 1):
+        start = offsets[col]
+        for q in prange(offsets[col + 1] - start):
+            e = start + q
+            i = edges[e, 0]
+            j = edges[e, 1]
+            wi = inv_mass[i]
+            wj = inv_mass[j]
+            w = wi + wj
+            if w == 0.0:
+                continue
+            dx = x[i, 0] - x[j, 0]
+            dy = x[i, 1] - x[j, 1]
+            len2 = dx * dx + dy * dy
+            if len2 <= EPS_LEN2:
+                continue
+            length = math.sqrt(len2)
+            f = k * (rest[e] - length - alpha * lam[e]) / ((w + alpha) * length)
+            lam[e] += f * length
+            x[i, 0] += wi * f * dx
+            x[i, 1] += wi * f * dy
+            x[j, 0] -= wj * f * dx
+            x[j, 1] -= wj * f * dy
+
+
+@njit(cache=True, parallel=True)
+def solve_areas_coloured(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray,
+                         k: float, alpha: float, lam: np.ndarray, signed: bool, offsets: np.ndarray) -> None:
+    """:func:`solve_areas` on triangles sorted by colour, each colour in parallel (see :func:`solve_edges_coloured`)."""
+    for col in range(offsets.shape[0] - 1):
+        start = offsets[col]
+        for q in prange(offsets[col + 1] - start):
+            t = start + q
+            a = tris[t, 0]
+            b = tris[t, 1]
+            c = tris[t, 2]
+            wa = inv_mass[a]
+            wb = inv_mass[b]
+            wc = inv_mass[c]
+            if wa + wb + wc == 0.0:
+                continue
+            e1x = x[b, 0] - x[a, 0]
+            e1y = x[b, 1] - x[a, 1]
+            e2x = x[c, 0] - x[a, 0]
+            e2y = x[c, 1] - x[a, 1]
+            area = 0.5 * (e1x * e2y - e1y * e2x)
+            if signed:
+                sg = 0.5
+                C = area - area0[t]
+            else:
+                sg = 0.5 if area > 0.0 else (-0.5 if area < 0.0 else 0.0)
+                C = abs(area) - abs(area0[t])
+            gbx = sg * e2y
+            gby = -sg * e2x
+            gcx = -sg * e1y
+            gcy = sg * e1x
+            gax = -gbx - gcx
+            gay = -gby - gcy
+            ga2 = gax * gax + gay * gay
+            gb2 = gbx * gbx + gby * gby
+            gc2 = gcx * gcx + gcy * gcy
+            if ga2 + gb2 + gc2 <= EPS_LEN2:
+                continue
+            den = wa * ga2 + wb * gb2 + wc * gc2 + alpha
+            if den <= 0.0:
+                continue
+            s = k * (-C - alpha * lam[t]) / den
+            lam[t] += s
+            x[a, 0] += wa * s * gax
+            x[a, 1] += wa * s * gay
+            x[b, 0] += wb * s * gbx
+            x[b, 1] += wb * s * gby
+            x[c, 0] += wc * s * gcx
+            x[c, 1] += wc * s * gcy
+
+
+@njit(cache=True)
+def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray,
+                            edges: np.ndarray, rest: np.ndarray, k_e: float, alpha_e: float, lam_e: np.ndarray,
+                            edge_offsets: np.ndarray,
+                            tris: np.ndarray, area0: np.ndarray, k_t: float, alpha_t: float, lam_t: np.ndarray,
+                            tri_offsets: np.ndarray,
+                            signed: bool, iterations: int, parallel: bool,
+                            x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
+                            dx_accum: np.ndarray) -> None:
+    """``iterations`` Gauss-Seidel sweeps: all edges, then all triangles, then the tool.
+
+    Pass empty ``edges``/``tris`` to switch a constraint type off. With
+    ``parallel`` the constraints must be sorted by colour (``*_offsets``);
+    serial sweeps ignore the offsets and go in array order. The projection
+    contact (:func:`~tissue_sim_ros.core.collision.project_tool`) runs after
+    the constraints of every iteration, so the last word is the tool's and no
+    particle ends inside it; an empty ``candidates`` skips it.
+    """
+    for _ in range(iterations):
+        if parallel:
+            solve_edges_coloured(x, inv_mass, edges, rest, k_e, alpha_e, lam_e, edge_offsets)
+            solve_areas_coloured(x, inv_mass, tris, area0, k_t, alpha_t, lam_t, signed, tri_offsets)
+        else:
+            solve_edges(x, inv_mass, edges, rest, k_e, alpha_e, lam_e)
+            solve_areas(x, inv_mass, tris, area0, k_t, alpha_t, lam_t, signed)
+        if candidates.shape[0] > 0:
+            project_tool(x, x_start, inv_mass, candidates, shape0, shape1, dx_accum)
+
+
+# ----------------------------------------------------------------------------- Jacobi
+
+
+@njit(cache=True)
+def jacobi_edges(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
+                 k: float, alpha: float, lam: np.ndarray, omega: np.ndarray, dx_acc: np.ndarray) -> None:
+    """Jacobi pass over distance constraints: corrections from the same ``x`` summed into ``dx_acc``.
+
+    Each multiplier increment is scaled by ``omega[e]`` (relaxation) before it
+    is added to ``lam`` and turned into corrections, so multipliers and
+    positions stay consistent. ``x`` is not changed.
+    """
+    for e in range(edges.shape[0]):
+        i = edges[e, 0]
+        j = edges[e, 1]
+        wi = inv_mass[i]
+        wj = inv_mass[j]
+        w = wi + wj
+        if w == 0.0:
+            continue
+        dx = x[i, 0] - x[j, 0]
+        dy = x[i, 1] - x[j, 1]
+        len2 = dx * dx + dy * dy
+        if len2 <= EPS_LEN2:
+            continue
+        length = math.sqrt(len2)
+        f = omega[e] * k * (rest[e] - length - alpha * lam[e]) / ((w + alpha) * length)
+        lam[e] += f * length
+        dx_acc[i, 0] += wi * f * dx
+        dx_acc[i, 1] += wi * f * dy
+        dx_acc[j, 0] -= wj * f * dx
+        dx_acc[j, 1] -= wj * f * dy
+
+
+@njit(cache=True)
+def jacobi_areas(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray,
+                 k: float, alpha: float, lam: np.ndarray, signed: bool, omega: np.ndarray,
+                 dx_acc: np.ndarray) -> None:
+    """Jacobi pass over area constraints (see :func:`jacobi_edges` and :func:`solve_areas`)."""
+    for t in range(tris.shape[0]):
+        a = tris[t, 0]
+        b = tris[t, 1]
+        c = tris[t, 2]
+        wa = inv_mass[a]
+        wb = inv_mass[b]
+        wc = inv_mass[c]
+        if wa + wb + wc == 0.0:
+            continue
+        e1x = x[b, 0] - x[a, 0]
+        e1y = x[b, 1] - x[a, 1]
+        e2x = x[c, 0] - x[a, 0]
+        e2y = x[c, 1] - x[a, 1]
+        area = 0.5 * (e1x * e2y - e1y * e2x)
+        if signed:
+            sg = 0.5
+            C = area - area0[t]
+        else:
+            sg = 0.5 if area > 0.0 else (-0.5 if area < 0.0 else 0.0)
+            C = abs(area) - abs(area0[t])
+        gbx = sg * e2y
+        gby = -sg * e2x
+        gcx = -sg * e1y
+        gcy = sg * e1x
+        gax = -gbx - gcx
+        gay = -gby - gcy
+        ga2 = gax * gax + gay * gay
+        gb2 = gbx * gbx + gby * gby
+        gc2 = gcx * gcx + gcy * gcy
+        if ga2 + gb2 + gc2 <= EPS_LEN2:
+            continue
+        den = wa * ga2 + wb * gb2 + wc * gc2 + alpha
+        if den <= 0.0:
+            continue
+        s = omega[t] * k * (-C - alpha * lam[t]) / den
+        lam[t] += s
+        dx_acc[a, 0] += wa * s * gax
+        dx_acc[a, 1] += wa * s * gay
+        dx_acc[b, 0] += wb * s * gbx
+        dx_acc[b, 1] += wb * s * gby
+        dx_acc[c, 0] += wc * s * gcx
+        dx_acc[c, 1] += wc * s * gcy
+
+
+@njit(cache=True)
+def jacobi_apply(x: np.ndarray, dx_acc: np.ndarray, particle_scale: np.ndarray) -> None:
+    """x += particle_scale * dx_acc per particle, then clear ``dx_acc`` for the next pass."""
+    for i in range(x.shape[0]):
+        s = particle_scale[i]
+        x[i, 0] += s * dx_acc[i, 0]
+        x[i, 1] += s * dx_acc[i, 1]
+        dx_acc[i, 0] = 0.0
+        dx_acc[i, 1] = 0.0
+
+
+@njit(cache=True)
+def jacobi_relaxation(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, alpha_e: float,
+                      tris: np.ndarray, alpha_t: float, signed: bool, scale: float,
+                      node_sum: np.ndarray, omega_e: np.ndarray, omega_t: np.ndarray) -> None:
+    """Stiffness-aware Jacobi relaxation: one omega per constraint with guaranteed linear convergence.
+
+    The Jacobi iteration on the XPBD system A dlam = r, A = J W J^T + diag(alpha),
+    converges for any SPD A when each row's step is 1 / (its Gershgorin row
+    sum) of the symmetrically scaled matrix D^-1/2 A D^-1/2 (then 2 D' - A is
+    diagonally dominant, hence SPD). With D_c = sum_p w_p |g_cp|^2 + alpha_c and
+    the bound |A_cd| <= sum_{p shared} w_p |g_cp| |g_dp|::
+
+        r_c = alpha_c / D_c + D_c^-1/2 sum_{p in c} w_p |g_cp| G_p,   G_p = sum_{d at p} |g_dp| / D_d^1/2
+        omega_c = scale / r_c   (r_c >= 1; any scale < 2 converges: 2 D'/scale - A stays SPD)
+
+    Soft constraints (alpha dominates) get omega ~ 1; stiff ones about one
+    over the number of constraints they share particles with, which is what
+    keeps stiff XPBD Jacobi from diverging (a uniform omega of 1 or 0.5
+    diverged once 2 k dt^2 / m > ~200). Gradients are taken at ``x``.
+
+    ``node_sum`` (N,) is scratch; ``omega_e`` (E,), ``omega_t`` (T,) are outputs.
+    """
+    for i in range(node_sum.shape[0]):
+        node_sum[i] = 0.0
+    # pass 1: sqrt(D_c) into omega, G_p into node_sum
+    for e in range(edges.shape[0]):
+        i = edges[e, 0]
+        j = edges[e, 1]
+        dx = x[i, 0] - x[j, 0]
+        dy = x[i, 1] - x[j, 1]
+        g = 1.0 if dx * dx + dy * dy > EPS_LEN2 else 0.0
+        d = (inv_mass[i] + inv_mass[j]) * g + alpha_e
+        if d <= 0.0:
+            omega_e[e] = 0.0
+            continue
+        sd = math.sqrt(d)
+        omega_e[e] = sd
+        node_sum[i] += g / sd
+        node_sum[j] += g / sd
+    for t in range(tris.shape[0]):
+        a = tris[t, 0]
+        b = tris[t, 1]
+        c = tris[t, 2]
+        e1x = x[b, 0] - x[a, 0]
+        e1y = x[b, 1] - x[a, 1]
+        e2x = x[c, 0] - x[a, 0]
+        e2y = x[c, 1] - x[a, 1]
+        gb = 0.5 * math.sqrt(e2x * e2x + e2y * e2y)
+        gc = 0.5 * math.sqrt(e1x * e1x + e1y * e1y)
+        ga = 0.5 * math.sqrt((e2x - e1x) ** 2 + (e2y - e1y) ** 2)  # |grad_a| = |x_c - x_b| / 2
+        if not signed:
+            area2 = e1x * e2y - e1y * e2x
+            if area2 == 0.0:
+                ga = 0.0
+                gb = 0.0
+                gc = 0.0
+        d = inv_mass[a] * ga * ga + inv_mass[b] * gb * gb + inv_mass[c] * gc * gc + alpha_t
+        if d <= 0.0:
+            omega_t[t] = 0.0
+            continue
+        sd = math.sqrt(d)
+        omega_t[t] = sd
+        node_sum[a] += ga / sd
+        node_sum[b] += gb / sd
+        node_sum[c] += gc / sd
+    # pass 2: omega_c = scale / r_c
+    for e in range(edges.shape[0]):
+        sd = omega_e[e]
+        if sd == 0.0:
+            continue
+        i = edges[e, 0]
+        j = edges[e, 1]
+        dx = x[i, 0] - x[j, 0]
+        dy = x[i, 1] - x[j, 1]
+        g = 1.0 if dx * dx + dy * dy > EPS_LEN2 else 0.0
+        r = alpha_e / (sd * sd) + g * (inv_mass[i] * node_sum[i] + inv_mass[j] * node_sum[j]) / sd
+        omega_e[e] = scale / r if r > 0.0 else scale
+    for t in range(tris.shape[0]):
+        sd = omega_t[t]
+        if sd == 0.0:
+            continue
+        a = tris[t, 0]
+        b = tris[t, 1]
+        c = tris[t, 2]
+        e1x = x[b, 0] - x[a, 0]
+        e1y = x[b, 1] - x[a, 1]
+        e2x = x[c, 0] - x[a, 0]
+        e2y = x[c, 1] - x[a, 1]
+        gb = 0.5 * math.sqrt(e2x * e2x + e2y * e2y)
+        gc = 0.5 * math.sqrt(e1x * e1x + e1y * e1y)
+        ga = 0.5 * math.sqrt((e2x - e1x) ** 2 + (e2y - e1y) ** 2)
+        if not signed:
+            area2 = e1x * e2y - e1y * e2x
+            if area2 == 0.0:
+                ga = 0.0
+                gb = 0.0
+                gc = 0.0
+        r = alpha_t / (sd * sd) + (inv_mass[a] * ga * node_sum[a] + inv_mass[b] * gb * node_sum[b]
+                                   + inv_mass[c] * gc * node_sum[c]) / sd
+        omega_t[t] = scale / r if r > 0.0 else scale
+
+
+@njit(cache=True)
+def jacobi_iterations(x: np.ndarray, inv_mass: np.ndarray,
+                      edges: np.ndarray, rest: np.ndarray, k_e: float, alpha_e: float, lam_e: np.ndarray,
+                      omega_e: np.ndarray,
+                      tris: np.ndarray, area0: np.ndarray, k_t: float, alpha_t: float, lam_t: np.ndarray,
+                      omega_t: np.ndarray,
+                      signed: bool, iterations: int, particle_scale: np.ndarray, dx_acc: np.ndarray,
+                      x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
+                      dx_accum: np.ndarray) -> None:
+    """``iterations`` Jacobi sweeps: every constraint sees the positions of the sweep's start.
+
+    Corrections are summed per particle and applied as
+    ``x += particle_scale * sum`` (``1 / constraint count`` for the paper
+    authors' averaging, 1 with per-constraint relaxation ``omega_*``); then
+    the tool projection, as in :func:`gauss_seidel_iterations`.
+    ``dx_acc`` (N, 2) must be zero on entry and is zero on exit.
+    """
+    for _ in range(iterations):
+        jacobi_edges(x, inv_mass, edges, rest, k_e, alpha_e, lam_e, omega_e, dx_acc)
+        jacobi_areas(x, inv_mass, tris, area0, k_t, alpha_t, lam_t, signed, omega_t, dx_acc)
+        jacobi_apply(x, dx_acc, particle_scale)
+        if candidates.shape[0] > 0:
+            project_tool(x, x_start, inv_mass, candidates, shape0, shape1, dx_accum)
+
+
+# ----------------------------------------------------------------------------- velocity and boundary
+
+
+@njit(cache=True)
+def update_velocity(x: np.ndarray, x_start: np.ndarray, dt: float, v: np.ndarray) -> None:
+    """v = (x - x_start) / dt [m/s] for every particle."""
+    inv_dt = 1.0 / dt
+    for i in range(x.shape[0]):
+        v[i, 0] = (x[i, 0] - x_start[i, 0]) * inv_dt
+        v[i, 1] = (x[i, 1] - x_start[i, 1]) * inv_dt
+
+
+@njit(cache=True)
+def apply_boundary_lines(x: np.ndarray, v: np.ndarray, inv_mass: np.ndarray, y_top: float,
+                         y_bottom: float) -> int:
+    """The paper's horizontal lines: a free particle at or past a line is put on it with velocity zero.
+
+    A NaN line is absent. Pinned particles (``inv_mass == 0``) are left
+    where they are (they may rest beyond a line). Returns how many were held.
+    """
+    has_top = not math.isnan(y_top)
+    has_bottom = not math.isnan(y_bottom)
+    held = 0
+    for i in range(x.shape[0]):
+        if inv_mass[i] == 0.0:
+            continue
+        if has_top and x[i, 1] >= y_top:
+            x[i, 1] = y_top
+        elif has_bottom and x[i, 1] <= y_bottom:
+            x[i, 1] = y_bottom
+        else:
+            continue
+        v[i, 0] = 0.0
+        v[i, 1] = 0.0
+        held += 1
+    return held
+
+
+# ----------------------------------------------------------------------------- energy and residual
+
+
+@njit(cache=True)
+def energy_terms_kernel(x: np.ndarray, x_pred: np.ndarray, mass: np.ndarray, particle_body: np.ndarray,
+                        edges: np.ndarray, rest: np.ndarray, edge_body: np.ndarray,
+                        tris: np.ndarray, area0: np.ndarray, tri_body: np.ndarray,
+                        k_spring: float, k_area: float, dt: float, signed: bool,
+                        inertial: np.ndarray, spring: np.ndarray, area: np.ndarray) -> None:
+    """Implicit Euler energy terms per body.
+
+    inertial_b = 1/2 sum_i m_i |x_i - x*_i|^2;
+    spring_b = dt^2 sum_e 1/2 K_s (|x_a - x_b| - l0)^2 (current lengths only, so
+    a rigid rotation leaves it unchanged); area_b = dt^2 sum_t 1/2 K_a C_t^2.
+    Outputs (B,) float64 are overwritten.
+    """
+    for b in range(inertial.shape[0]):
+        inertial[b] = 0.0
+        spring[b] = 0.0
+        area[b] = 0.0
+    for i in range(x.shape[0]):
+        dx = x[i, 0] - x_pred[i, 0]
+        dy = x[i, 1] - x_pred[i, 1]
+        inertial[particle_body[i]] += 0.5 * mass[i] * (dx * dx + dy * dy)
+    hs = 0.5 * k_spring * dt * dt
+    for e in range(edges.shape[0]):
+        i = edges[e, 0]
+        j = edges[e, 1]
+        dx = x[i, 0] - x[j, 0]
+        dy = x[i, 1] - x[j, 1]
+        C = math.sqrt(dx * dx + dy * dy) - rest[e]
+        spring[edge_body[e]] += hs * C * C
+    ha = 0.5 * k_area * dt * dt
+    for t in range(tris.shape[0]):
+        a = tris[t, 0]
+        b = tris[t, 1]
+        c = tris[t, 2]
+        A = 0.5 * ((x[b, 0] - x[a, 0]) * (x[c, 1] - x[a, 1]) - (x[b, 1] - x[a, 1]) * (x[c, 0] - x[a, 0]))
+        C = A - area0[t] if signed else abs(A) - abs(area0[t])
+        area[tri_body[t]] += ha * C * C
+
+
+@njit(cache=True)
+def constraint_residual(x: np.ndarray, edges: np.ndarray, rest: np.ndarray, tris: np.ndarray,
+                        area0: np.ndarray, signed: bool) -> float:
+    """RMS over all constraints of C / l0 (edges) and C / |A0| (triangles); 0 without constraints.
+
+    Constraints with a zero rest size contribute C itself.
+    """
+    total = 0.0
+    for e in range(edges.shape[0]):
+        i = edges[e, 0]
+        j = edges[e, 1]
+        dx = x[i, 0] - x[j, 0]
+        dy = x[i, 1] - x[j, 1]
+        C = math.sqrt(dx * dx + dy * dy) - rest[e]
+        if rest[e] > 0.0:
+            C /= rest[e]
+        total += C * C
+    for t in range(tris.shape[0]):
+        a = tris[t, 0]
+        b = tris[t, 1]
+        c = tris[t, 2]
+        A = 0.5 * ((x[b, 0] - x[a, 0]) * (x[c, 1] - x[a, 1]) - (x[b, 1] - x[a, 1]) * (x[c, 0] - x[a, 0]))
+        C = A - area0[t] if signed else abs(A) - abs(area0[t])
+        if area0[t] != 0.0:
+            C /= abs(area0[t])
+        total += C * C
+    n = edges.shape[0] + tris.shape[0]
+    if n == 0:
+        return 0.0
+    return math.sqrt(total / n)
+
+
+# ----------------------------------------------------------------------------- colouring
+
+
+@njit(cache=True)
+def greedy_colour(indices: np.ndarray, n_particles: int, colour: np.ndarray) -> int:
+    """Greedy constraint colouring: no two constraints of one colour share a particle.
+
+    Constraints are visited in array order and each takes the smallest colour
+    not yet used at any of its particles (a 64-bit mask per particle, so at
+    most 64 colours; a mesh with a vertex of degree > 63 raises).
+
+    Parameters
+    ----------
+    indices : (M, K) int32
+        Particles of each constraint.
+    n_particles : int
+        Number of particles.
+    colour : (M,) int64
+        Output: colour of each constraint.
+
+    Returns
+    -------
+    int
+        Number of colours used.
+    """
+    used = np.zeros(n_particles, dtype=np.uint64)
+    n_colours = 0
+    for m in range(indices.shape[0]):
+        mask = np.uint64(0)
+        for q in range(indices.shape[1]):
+            mask |= used[indices[m, q]]
+        c = 0
+        while c < 64 and (mask >> np.uint64(c)) & np.uint64(1):
+            c += 1
+        if c == 64:
+            raise ValueError("greedy_colour: more than 64 colours needed (a vertex of very high degree)")
+        colour[m] = c
+        bit = np.uint64(1) << np.uint64(c)
+        for q in range(indices.shape[1]):
+            used[indices[m, q]] |= bit
+        if c + 1 > n_colours:
+            n_colours = c + 1
+    return n_colours
