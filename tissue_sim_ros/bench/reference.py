@@ -234,7 +234,8 @@ def predict(model: Model, state: State, contacts: Contacts | None, dt: float) ->
     x_pred[fixed] = x[fixed]
     if contacts is not None and contacts.held_idx.size:
         idx = contacts.held_idx.astype(np.int64)
-        x_pred[idx] += contacts.held_dx
+        movable = ~fixed[idx]  # pinned particles are never displaced
+        x_pred[idx[movable]] += np.asarray(contacts.held_dx).reshape(-1, 2)[movable]
         fixed = fixed.copy()
         fixed[idx] = True
     return x_pred, fixed
@@ -352,11 +353,17 @@ def reference_step(model: Model, state_in: State, contacts: Contacts | None = No
     x, info = minimize_step(energy, fixed, x0=x0, rtol=rtol, max_iterations=max_iterations)
     v = (x - state_in.particle_q) / dt
     p = model.params
-    # the paper's boundary lines: a particle on or past a line has its velocity zeroed
+    # the paper's boundary lines, after the solve: a movable particle at or past a line is put on it
+    # and stopped (a projection outside the energy, as every method does it)
+    movable = np.asarray(model.particle_inv_mass) > 0.0
     if math.isfinite(p.boundary_y_top):
-        v[x[:, 1] >= p.boundary_y_top] = 0.0
+        past = movable & (x[:, 1] >= p.boundary_y_top)
+        x[past, 1] = p.boundary_y_top
+        v[past] = 0.0
     if math.isfinite(p.boundary_y_bottom):
-        v[x[:, 1] <= p.boundary_y_bottom] = 0.0
+        past = movable & (x[:, 1] <= p.boundary_y_bottom)
+        x[past, 1] = p.boundary_y_bottom
+        v[past] = 0.0
     return ReferenceResult(particle_q=x, particle_qd=v, x_pred=pred, fixed=fixed, energy=info["energy"],
                            grad_norm=info["grad_norm"], grad_norm0=info["grad_norm0"],
                            newton_iterations=info["iterations"], projected_iterations=info["projected"],
