@@ -866,10 +866,19 @@ def _mesh_body(loops: list[np.ndarray], size: _SizeField) -> tuple[np.ndarray, n
     if size.grade is None:
         interior = _hex_lattice(lo, hi, size.h)
     else:
-        # a lattice at the finest spacing, thinned with probability (h_min / h)^2 (Persson-Strang), seeded
-        interior = _hex_lattice(lo, hi, size.h_min)
-        keep = np.random.default_rng(0).random(len(interior)) < (size.h_min / size(interior)) ** 2
-        interior = interior[keep]
+        # the regular lattice where the spacing is the coarse one; where it is finer, a lattice at the
+        # finest spacing thinned with probability (h_min / h)^2 (Persson-Strang, seeded: deterministic),
+        # minus points crowding a coarse lattice point; the spring smoothing evens out the rest
+        coarse = _hex_lattice(lo, hi, size.h)
+        coarse = coarse[size(coarse) >= 0.999 * size.h]
+        fine = _hex_lattice(lo, hi, size.h_min)
+        h_fine = size(fine)
+        keep = (h_fine < 0.999 * size.h) & (np.random.default_rng(0).random(len(fine)) < (size.h_min / h_fine) ** 2)
+        fine, h_fine = fine[keep], h_fine[keep]
+        if len(coarse) and len(fine):
+            near = np.array([np.min(np.hypot(*(coarse - p).T)) for p in fine])
+            fine = fine[near >= _INTERIOR_CLEARANCE * h_fine]
+        interior = np.concatenate([coarse, fine])
     if len(interior):
         interior = interior[poly.clear_of_boundary(interior, _INTERIOR_CLEARANCE * size(interior))]
     loops, interior = _recover_boundary(loops, interior)
