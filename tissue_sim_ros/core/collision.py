@@ -9,16 +9,75 @@ Contract with the solver (``solvers.py``):
   model; inside every solver iteration the solver calls
   :func:`project_tool` on the candidate particles, with the tool posed at the
   start and the end of the (sub)step, accumulating corrections into ``dx_accum``.
+
+Semantics chosen here (the paper leaves them open):
+
+* **Query positions.** Detection uses the particle positions at the start of
+  the step (``state.particle_q``, the paper's x^t) against the tool at its new
+  pose (the commanded pose at the end of the step). The paper adds the
+  manipulator's "driving force" to the prediction from x^t ("instead of
+  applying the driving force on the particles, we directly update their
+  positions"), so the displacement is decided from x^t, before the solve.
+* **d\* and q (paper model).** Per body, one python-fcl distance query between
+  the body's triangle mesh (z = 0) and the tool gives d* (fcl's minimum
+  distance, mesh to tool: it can be smaller than particle q's own distance when
+  the nearest mesh point lies inside an edge) and the nearest triangle
+  (``DistanceResult.b1``); q is the vertex of that triangle with the smallest
+  signed distance to the tool. Bodies are never mixed: q, d* and the displaced
+  particles all belong to one body, and each body is queried on its own.
+* **Overlap.** When the tool overlaps a body, python-fcl 0.7's mesh-shape
+  distance returns -1 with no primitive id and zero nearest points (measured;
+  a signed-distance request returns ~0, also without an id). We treat that as
+  d* = 0 (touching), take q = the body's particle deepest inside the tool (the
+  smallest signed distance), and apply eq. (3) with d* = 0: the paper's
+  displacement is then zero, so its particles are held in place for the step.
+  A tool that jumps into tissue thus passes through it: the paper rule's
+  documented failure for fast tools.
+* **Held particles.** Eq. (3) applies when d* < alpha and the tool's linear
+  speed |v| > 0; every free (not pinned) particle i of q's body with
+  |x_q - x_i| <= r is displaced by (r - |x_q - x_i|)/r d* v/|v| and held for
+  the step. A tool at rest (or only rotating) displaces and holds nothing.
+* **BVH refit.** python-fcl 0.7 exposes no beginUpdateModel/updateVertex/
+  endUpdateModel, so a body's BVH cannot be refitted in place: it is rebuilt
+  every step. A full rebuild costs ~1.2 us per triangle (mostly python-fcl's
+  per-vertex conversion and OBBRSS fitting), far over a step's budget, so by
+  default only the triangles that can hold the nearest point are put in the
+  step's BVH: triangles whose lower bound on the distance to the tool
+  (nearest vertex's signed distance minus the triangle's longest edge) is
+  below min(alpha, the body's nearest-vertex distance). The nearest triangle
+  always passes that test, so d* and q are the full BVH's whenever d* < alpha
+  (``cull=False`` rebuilds the whole body, for checks and benchmarks). Bodies
+  farther than alpha get d* = inf ("not computed").
+* **Projection, swept.** Conservative advancement in the tool's frame: each
+  candidate particle's path relative to the tool, from ``x_start`` in the
+  frame of ``shape0`` to ``x`` in the frame of ``shape1`` (a straight chord in
+  the tool frame), is intersected exactly with the inflated shape (a rounded
+  box: two rectangles and four discs). A path that enters the shape puts the
+  particle back on the surface on the side it came from: moved along the
+  entry point's outward normal to where that line leaves the shape (so it keeps
+  its tangential motion and slides along the tool), or onto the entry point
+  when that line misses the shape. A particle that started inside the shape is
+  pushed out to the nearest surface point. A tool moving many times its
+  thickness per step therefore cannot pass through the tissue.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import fcl
 import numpy as np
 from numba import njit
 
 from .model import Model, State
-from .tool import ToolPose, ToolShape, ToolTwist
+from .tool import ToolPose, ToolShape, ToolTwist, tool_shape_array
+
+#: A start position this far inside the tool [m] counts as inside (below it, as
+#: on the surface: a particle left on the surface by the last step sits there
+#: within round-off, and must keep the side it came from).
+INSIDE_TOL = 1e-9
+#: Round-off allowance of :func:`near_triangles`' lower bound [m].
+NEAR_TOL = 1e-9
 
 
 @dataclass
@@ -49,15 +108,19 @@ class Contacts:
                    np.zeros(n_bodies, dtype=bool), np.full(n_bodies, np.inf), np.zeros(0, np.int32))
 
 
+# --------------------------------------------------------------------------- numba kernels
+
+
 @njit(cache=True)
-def _rounded_box_sdf(px: float, py: float, shape: np.ndarray) -> tuple[float, float, float]:
-    """Signed distance from (px, py) to the posed rounded box, and its outward unit gradient."""
-    c, s = shape[2], shape[3]
-    dx, dy = px - shape[0], py - shape[1]
-    lx, ly = c * dx + s * dy, -s * dx + c * dy  # into the tool frame
-    qx, qy = abs(lx) - shape[4], abs(ly) - shape[5]
+def _sdf_local(lx: float, ly: float, hx: float, hy: float, r: float) -> tuple[float, float, float]:
+    """Signed distance from a tool-frame point to the rounded box (half extents hx, hy, corner radius r).
+
+    Returns (d, gx, gy): d < 0 inside; (gx, gy) the outward unit gradient in the
+    tool frame. Inside, and at the exact centre, ties go to the y face.
+    """
+    qx, qy = abs(lx) - hx, abs(ly) - hy
     ox, oy = max(qx, 0.0), max(qy, 0.0)
-    outside = np.sqrt(ox * ox + oy * oy)
+    outside = math.sqrt(ox * ox + oy * oy)
     if outside > 0.0:
         gx, gy = ox / outside, oy / outside
         d = outside
@@ -71,42 +134,447 @@ def _rounded_box_sdf(px: float, py: float, shape: np.ndarray) -> tuple[float, fl
         gx = -gx
     if ly < 0.0:
         gy = -gy
-    # back to the world frame
-    wx, wy = c * gx - s * gy, s * gx + c * gy
-    return d - shape[6], wx, wy
+    return d - r, gx, gy
+
+
+@njit(cache=True)
+def _rounded_box_sdf(px: float, py: float, shape: np.ndarray) -> tuple[float, float, float]:
+    """Signed distance from world point (px, py) to the posed rounded box, and its outward unit gradient (world)."""
+    c, s = shape[2], shape[3]
+    dx, dy = px - shape[0], py - shape[1]
+    lx, ly = c * dx + s * dy, -s * dx + c * dy  # into the tool frame
+    d, gx, gy = _sdf_local(lx, ly, shape[4], shape[5], shape[6])
+    return d, c * gx - s * gy, s * gx + c * gy
+
+
+@njit(cache=True)
+def _slab(a: float, d: float, lo: float, hi: float, s_in: float, s_out: float) -> tuple[float, float]:
+    """Clip the line parameter interval [s_in, s_out] to lo <= a + s d <= hi (empty: s_in > s_out)."""
+    if d == 0.0:
+        if a < lo or a > hi:
+            return 1.0, 0.0
+        return s_in, s_out
+    t1, t2 = (lo - a) / d, (hi - a) / d
+    if t1 > t2:
+        t1, t2 = t2, t1
+    return max(s_in, t1), min(s_out, t2)
+
+
+@njit(cache=True)
+def _line_interval(ax: float, ay: float, dx: float, dy: float,
+                   hx: float, hy: float, r: float) -> tuple[bool, float, float]:
+    """Parameter interval of the line a + s d (tool frame) inside the rounded box.
+
+    The rounded box is the union of two rectangles and four discs; being convex,
+    the line meets it in one interval, the hull of the pieces' intervals.
+    Returns (hit, s_in, s_out); s may be +-inf when d = 0 and a is inside.
+    """
+    inf = np.inf
+    hit = False
+    lo, hi = inf, -inf
+    for k in range(2):
+        ex = r if k == 0 else 0.0
+        ey = 0.0 if k == 0 else r
+        s0, s1 = _slab(ax, dx, -hx - ex, hx + ex, -inf, inf)
+        s0, s1 = _slab(ay, dy, -hy - ey, hy + ey, s0, s1)
+        if s0 <= s1:
+            hit = True
+            lo, hi = min(lo, s0), max(hi, s1)
+    if r > 0.0:
+        aa = dx * dx + dy * dy
+        for cx in (-hx, hx):
+            for cy in (-hy, hy):
+                px, py = ax - cx, ay - cy
+                cc = px * px + py * py - r * r
+                if aa == 0.0:
+                    if cc <= 0.0:
+                        hit = True
+                        lo, hi = -inf, inf
+                    continue
+                bb = dx * px + dy * py
+                disc = bb * bb - aa * cc
+                if disc < 0.0:
+                    continue
+                sq = math.sqrt(disc)
+                hit = True
+                lo, hi = min(lo, (-bb - sq) / aa), max(hi, (-bb + sq) / aa)
+    return hit, lo, hi
 
 
 @njit(cache=True)
 def project_tool(x: np.ndarray, x_start: np.ndarray, inv_mass: np.ndarray, candidates: np.ndarray,
                  shape0: np.ndarray, shape1: np.ndarray, dx_accum: np.ndarray) -> int:
-    """Push candidate particles out of the tool posed at ``shape1``; returns how many moved.
+    """Keep candidate particles out of the swept tool; returns how many moved.
 
-    ``x`` (N, 2) is updated in place; ``x_start`` are positions at the start of
-    the (sub)step and ``shape0`` the tool there (for the swept test).
-    ``dx_accum`` (N, 2) accumulates each correction (for the reaction force).
-    Particles with ``inv_mass == 0`` are not moved.
+    For each candidate i (skipped if ``inv_mass[i] == 0``), its path relative to
+    the tool runs from ``x_start[i]`` in the frame of ``shape0`` to ``x[i]`` in
+    the frame of ``shape1`` (a chord in the tool frame). If that path enters the
+    shape (``shape1``'s extents, inflated radius included), the particle goes
+    back to the surface on the side it came from: along the entry point's
+    outward normal n, to where the line x + t n (t > 0) leaves the shape, or to
+    the entry point if that line misses it. A particle that started inside is
+    pushed out to the nearest surface point.
+
+    Parameters
+    ----------
+    x : ndarray, shape (N, 2), float64
+        Current positions [m], updated in place.
+    x_start : ndarray, shape (N, 2), float64
+        Positions at the start of the (sub)step [m].
+    inv_mass : ndarray, shape (N,), float64
+        Inverse masses [1/kg]; 0 = not moved.
+    candidates : ndarray, shape (M,), int32
+        Particles to test.
+    shape0, shape1 : ndarray, shape (7,), float64
+        Tool at the start and the end of the (sub)step (:func:`tool_shape_array`).
+    dx_accum : ndarray, shape (N, 2), float64
+        Accumulates each correction [m] (for the reaction force).
     """
+    c0, s0 = shape0[2], shape0[3]
+    c1, s1 = shape1[2], shape1[3]
+    hx, hy, rr = shape1[4], shape1[5], shape1[6]
     moved = 0
     for k in range(candidates.shape[0]):
         i = candidates[k]
         if inv_mass[i] == 0.0:
             continue
-        d, gx, gy = _rounded_box_sdf(x[i, 0], x[i, 1], shape1)
-        if d < 0.0:
-            x[i, 0] -= d * gx
-            x[i, 1] -= d * gy
-            dx_accum[i, 0] -= d * gx
-            dx_accum[i, 1] -= d * gy
-            moved += 1
+        # both ends of the path in the tool's frame
+        ux, uy = x_start[i, 0] - shape0[0], x_start[i, 1] - shape0[1]
+        p0x, p0y = c0 * ux + s0 * uy, -s0 * ux + c0 * uy
+        ux, uy = x[i, 0] - shape1[0], x[i, 1] - shape1[1]
+        p1x, p1y = c1 * ux + s1 * uy, -s1 * ux + c1 * uy
+        f1, g1x, g1y = _sdf_local(p1x, p1y, hx, hy, rr)
+        f0, _, _ = _sdf_local(p0x, p0y, hx, hy, rr)
+        ddx, ddy = p1x - p0x, p1y - p0y
+        length = math.sqrt(ddx * ddx + ddy * ddy)
+        if f0 < -INSIDE_TOL:
+            # started inside (spawned in the tissue, or a rotation swept over it): nearest surface
+            if f1 >= 0.0:
+                continue
+            tx, ty = p1x - f1 * g1x, p1y - f1 * g1y
+        else:
+            if f1 >= 0.0 and length <= f0 + f1:
+                continue  # the SDF is 1-Lipschitz: this path cannot reach the shape
+            hit, s_in, s_out = _line_interval(p0x, p0y, ddx, ddy, hx, hy, rr)
+            if not hit or s_in >= 1.0 or s_out <= 0.0 or s_in >= s_out:
+                continue  # the path misses the shape, stops before it, or only grazes it
+            s_e = max(s_in, 0.0)
+            ex, ey = p0x + s_e * ddx, p0y + s_e * ddy
+            _, nx, ny = _sdf_local(ex, ey, hx, hy, rr)
+            hit2, t_in, t_out = _line_interval(p1x, p1y, nx, ny, hx, hy, rr)
+            if hit2 and t_in < t_out:
+                if t_out <= INSIDE_TOL:
+                    continue  # already past the shape on the entry side
+                tx, ty = p1x + t_out * nx, p1y + t_out * ny
+            else:
+                tx, ty = ex, ey
+        # back to the world frame with the end pose
+        wx = shape1[0] + c1 * tx - s1 * ty
+        wy = shape1[1] + s1 * tx + c1 * ty
+        cx, cy = wx - x[i, 0], wy - x[i, 1]
+        x[i, 0] = wx
+        x[i, 1] = wy
+        dx_accum[i, 0] += cx
+        dx_accum[i, 1] += cy
+        moved += 1
     return moved
 
 
-class ContactModel:
-    """Finds tool-tissue contact each step (python-fcl) and builds :class:`Contacts`."""
+@njit(cache=True)
+def points_sdf(x: np.ndarray, shape: np.ndarray, out: np.ndarray, grad: np.ndarray) -> None:
+    """Signed distance of every point to the posed tool shape, and its outward unit gradient.
 
-    def __init__(self, model: Model, tool: ToolShape) -> None:
+    x : (N, 2) float64 positions [m]; shape : (7,) packed tool; out : (N,)
+    float64 [m], negative inside; grad : (N, 2) float64 (world frame).
+    """
+    for i in range(x.shape[0]):
+        d, gx, gy = _rounded_box_sdf(x[i, 0], x[i, 1], shape)
+        out[i] = d
+        grad[i, 0] = gx
+        grad[i, 1] = gy
+
+
+@njit(cache=True)
+def near_triangles(x: np.ndarray, tris: np.ndarray, sdf: np.ndarray, grad: np.ndarray, reach: float,
+                   out: np.ndarray) -> int:
+    """Triangles that may come within ``reach`` of the tool; returns their count, indices in ``out[:count]``.
+
+    The tool's signed distance f is convex (the tool is convex), so each
+    vertex's tangent plane bounds it from below over the triangle:
+    f(p) >= f(v_k) + g_k . (p - v_k) >= f(v_k) + min_j g_k . (v_j - v_k).
+    The largest of the three bounds is a lower bound on the triangle's distance
+    to the tool (exact for a face parallel to a tool face); a triangle is kept
+    when it is <= reach (+ ``NEAR_TOL``, so that round-off in the bound never
+    drops the triangle holding the nearest vertex when reach is that vertex's distance).
+
+    x : (N, 2) float64 [m]; tris : (T, 3) int32; sdf : (N,) float64 signed
+    distance [m]; grad : (N, 2) its gradient; out : (T,) int32.
+    """
+    n = 0
+    for t in range(tris.shape[0]):
+        lower = -np.inf
+        for a in range(3):
+            k = tris[t, a]
+            m = 0.0
+            for b in range(3):
+                j = tris[t, b]
+                m = min(m, grad[k, 0] * (x[j, 0] - x[k, 0]) + grad[k, 1] * (x[j, 1] - x[k, 1]))
+            lower = max(lower, sdf[k] + m)
+        if lower <= reach + NEAR_TOL:
+            out[n] = t
+            n += 1
+    return n
+
+
+@njit(cache=True)
+def compact_triangles(x: np.ndarray, tris: np.ndarray, sel: np.ndarray, n_sel: int, vmap: np.ndarray,
+                      out_verts: np.ndarray, out_ids: np.ndarray, out_tris: np.ndarray) -> int:
+    """Gather triangles ``tris[sel[:n_sel]]`` into a compact mesh; returns the vertex count.
+
+    out_verts[:nv] (float64, (., 3), z = 0) holds the used vertices, out_ids[:nv]
+    their particle indices and out_tris[:n_sel] the triangles renumbered.
+    ``vmap`` (N,) int32 must be all -1 on entry and is left all -1.
+    """
+    nv = 0
+    for k in range(n_sel):
+        t = sel[k]
+        for j in range(3):
+            p = tris[t, j]
+            if vmap[p] < 0:
+                vmap[p] = nv
+                out_verts[nv, 0] = x[p, 0]
+                out_verts[nv, 1] = x[p, 1]
+                out_verts[nv, 2] = 0.0
+                out_ids[nv] = p
+                nv += 1
+            out_tris[k, j] = vmap[p]
+    for k in range(nv):
+        vmap[out_ids[k]] = -1
+    return nv
+
+
+@njit(cache=True)
+def swept_candidates(x: np.ndarray, inv_mass: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
+                     reach: float, out: np.ndarray) -> int:
+    """Free particles within ``reach`` of the tool swept from ``shape0`` to ``shape1``; returns the count.
+
+    Every point of the swept shape lies within half the sweep (``sweep``) of the
+    shape at one end or the other, where ``sweep`` bounds how far any point of
+    the tool moves: the centre's travel plus the rotation times the shape's
+    bounding radius. So a particle is kept when
+    min(sdf0, sdf1) <= reach + sweep / 2, which never misses one the swept
+    tool comes within ``reach`` of.
+
+    x : (N, 2) float64 positions at the start of the step [m]; inv_mass : (N,);
+    shape0, shape1 : (7,) packed tool (margin included); out : (N,) int32.
+    """
+    ddx, ddy = shape1[0] - shape0[0], shape1[1] - shape0[1]
+    dang = abs(math.atan2(shape0[2] * shape1[3] - shape0[3] * shape1[2], shape0[2] * shape1[2] + shape0[3] * shape1[3]))
+    radius = math.sqrt(shape1[4] ** 2 + shape1[5] ** 2) + shape1[6]
+    sweep = math.sqrt(ddx * ddx + ddy * ddy) + dang * radius
+    limit = reach + 0.5 * sweep
+    n = 0
+    for i in range(x.shape[0]):
+        if inv_mass[i] == 0.0:
+            continue
+        d0, _, _ = _rounded_box_sdf(x[i, 0], x[i, 1], shape0)
+        d1, _, _ = _rounded_box_sdf(x[i, 0], x[i, 1], shape1)
+        if min(d0, d1) <= limit:
+            out[n] = i
+            n += 1
+    return n
+
+
+# --------------------------------------------------------------------------- python-fcl
+
+
+def _fcl_tool(shape: ToolShape) -> tuple[fcl.CollisionGeometry, np.ndarray]:
+    """The tool as an fcl shape and the rotation taking its axis onto the tool frame's +x.
+
+    The tissue lies in z = 0, so any z extent gives the same in-plane distances;
+    the box is given a z extent equal to its width (thin, but not so flat that
+    GJK loses accuracy). fcl's capsule lies along its z axis: a quarter turn
+    about y lays it along +x. A zero-length capsule is a sphere.
+    """
+    if shape.kind == "box":
+        return fcl.Box(shape.length, shape.width, shape.width), np.eye(3)
+    if shape.kind == "capsule" and shape.length > 0:
+        # R_y(+90 deg): z -> +x
+        return fcl.Capsule(shape.radius, shape.length), np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
+    return fcl.Sphere(shape.radius), np.eye(3)
+
+
+def _yaw_matrix(yaw: float) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass
+class BodyDistance:
+    """One body's distance query result."""
+
+    d_star: float
+    """Distance mesh-tool [m]: 0 when they overlap, inf when farther than the query's reach."""
+    q: int
+    """Particle q (global index), -1 when not computed."""
+    overlap: bool
+    """True when python-fcl reported the tool overlapping the body (distance -1)."""
+    n_tris: int
+    """Triangles in the BVH built for this query (0: no query was needed)."""
+
+
+class ContactModel:
+    """Finds tool-tissue contact each step (python-fcl) and builds :class:`Contacts`.
+
+    Parameters
+    ----------
+    model : Model
+        The scene; ``model.params.contact_model`` selects ``paper`` or ``projection``.
+    tool : ToolShape
+        The tool's geometry.
+    cull : bool
+        Put only the triangles that can hold the nearest point into each step's
+        BVH (default). False rebuilds every body's full BVH each step.
+    """
+
+    def __init__(self, model: Model, tool: ToolShape, cull: bool = True) -> None:
         self.model = model
         self.tool = tool
+        self.cull = cull
+        p = model.params
+        self.kind = p.contact_model
+        tris = np.ascontiguousarray(model.tri_indices, dtype=np.int32)
+        self.body_particles = [np.flatnonzero(model.particle_body == b).astype(np.int32) for b in range(model.n_bodies)]
+        self.body_tris = [np.ascontiguousarray(tris[model.tri_body == b]) for b in range(model.n_bodies)]
+        self.free = model.particle_inv_mass > 0.0
+        n, t = model.n_particles, model.n_triangles
+        # scratch for the kernels (the model is fixed, so are the sizes)
+        self._sdf = np.empty(n)
+        self._grad = np.empty((n, 2))
+        self._sel = np.empty(max(t, 1), dtype=np.int32)
+        self._vmap = np.full(n, -1, dtype=np.int32)
+        self._verts = np.empty((n, 3))
+        self._ids = np.empty(n, dtype=np.int32)
+        self._ctris = np.empty((max(t, 1), 3), dtype=np.int32)
+        self._cand = np.empty(n, dtype=np.int32)
+        geom, self._axis_rot = _fcl_tool(tool)
+        self._tool_obj = fcl.CollisionObject(geom, fcl.Transform())
+        self._request = fcl.DistanceRequest(enable_nearest_points=True)
+        self.last_bvh_triangles = 0
+        """Triangles put into BVHs by the last :meth:`detect` (for benchmarks)."""
+
+    # -- queries ------------------------------------------------------------------------------
+
+    def _place_tool(self, pose: ToolPose) -> None:
+        rot = _yaw_matrix(pose.yaw) @ self._axis_rot
+        self._tool_obj.setTransform(fcl.Transform(rot, np.array([pose.x, pose.y, 0.0])))
+
+    def body_distance(self, b: int, x: np.ndarray, sdf: np.ndarray, reach: float) -> BodyDistance:
+        """d* and q of body ``b`` (positions ``x``, per-particle signed distances ``sdf`` to the posed tool).
+
+        The tool must have been placed (:meth:`_place_tool`). Bodies whose
+        nearest vertex lower bound exceeds ``reach`` are not queried (d* = inf).
+        """
+        tris = self.body_tris[b]
+        if tris.shape[0] == 0:
+            return BodyDistance(math.inf, -1, False, 0)
+        parts = self.body_particles[b]
+        upper = float(sdf[parts].min())  # d* <= the nearest vertex's distance
+        if upper < 0.0:
+            # a particle lies inside the tool: they overlap, which is all fcl would say (distance -1)
+            return BodyDistance(0.0, int(parts[np.argmin(sdf[parts])]), True, 0)
+        if self.cull:
+            n_sel = near_triangles(x, tris, sdf, self._grad, min(reach, upper), self._sel)
+            if n_sel == 0:
+                return BodyDistance(math.inf, -1, False, 0)
+        else:
+            n_sel = tris.shape[0]
+            self._sel[:n_sel] = np.arange(n_sel, dtype=np.int32)
+        nv = compact_triangles(x, tris, self._sel, n_sel, self._vmap, self._verts, self._ids, self._ctris)
+        bvh = fcl.BVHModel()
+        bvh.beginModel(n_sel, nv)
+        bvh.addSubModel(self._verts[:nv], self._ctris[:n_sel])
+        bvh.endModel()
+        obj = fcl.CollisionObject(bvh, fcl.Transform())
+        result = fcl.DistanceResult()
+        # the body first: python-fcl then reports the triangle in b1 and its nearest point first
+        dist = fcl.distance(obj, self._tool_obj, self._request, result)
+        prim = result.b1 if result.b1 >= 0 else result.b2
+        if dist < 0.0 or prim < 0 or prim >= n_sel:
+            # overlap (python-fcl returns -1 without a primitive): q = the deepest particle
+            q = int(parts[np.argmin(sdf[parts])])
+            return BodyDistance(0.0, q, True, n_sel)
+        verts = self._ids[self._ctris[prim]]
+        q = int(verts[np.argmin(sdf[verts])])
+        if dist > reach and self.cull:
+            return BodyDistance(math.inf, -1, False, n_sel)
+        return BodyDistance(float(dist), q, False, n_sel)
 
     def detect(self, state: State, pose0: ToolPose, pose1: ToolPose, twist: ToolTwist, dt: float) -> Contacts:
-        raise NotImplementedError("ContactModel.detect: python-fcl contact (issue 4)")
+        """Contacts of one step: the tool moves from ``pose0`` to ``pose1`` with ``twist`` over ``dt``.
+
+        ``state`` holds the positions at the start of the step (the query positions).
+        """
+        model, p = self.model, self.model.params
+        nb = model.n_bodies
+        contacts = Contacts.empty(nb)
+        x = np.ascontiguousarray(state.particle_q, dtype=np.float64)
+        shape1 = tool_shape_array(self.tool, pose1, 0.0)
+        points_sdf(x, shape1, self._sdf, self._grad)
+        self._place_tool(pose1)
+        self.last_bvh_triangles = 0
+        if self.kind == "projection":
+            self._detect_projection(state, pose0, pose1, dt, contacts)
+        # d* is reported up to alpha for both models (beyond: inf)
+        reach = max(p.contact_threshold, p.contact_margin)
+        held_idx, held_dx = [], []
+        v = np.array([twist.vx, twist.vy])
+        speed = float(np.hypot(v[0], v[1]))
+        for b in range(nb):
+            res = self.body_distance(b, x, self._sdf, reach)
+            self.last_bvh_triangles += res.n_tris
+            contacts.d_star[b] = res.d_star
+            if self.kind == "projection":
+                # touching the inflated tool at the step start; the Simulation adds the particles the solve pushed
+                contacts.in_contact[b] = res.d_star <= p.contact_margin
+                continue
+            if not res.d_star < p.contact_threshold:
+                continue
+            contacts.in_contact[b] = True
+            if speed == 0.0:
+                continue  # eq. (3) needs the tool's direction of motion: a tool at rest moves nothing
+            parts = self.body_particles[b]
+            parts = parts[self.free[parts]]
+            dist = np.hypot(x[parts, 0] - x[res.q, 0], x[parts, 1] - x[res.q, 1])
+            near = dist <= p.contact_radius  # eq. (3): r - |x_q - x_i| >= 0
+            falloff = (p.contact_radius - dist[near]) / p.contact_radius
+            held_idx.append(parts[near])
+            held_dx.append((falloff * res.d_star)[:, None] * (v / speed)[None, :])
+        if held_idx:
+            contacts.held_idx = np.concatenate(held_idx).astype(np.int32)
+            contacts.held_dx = np.ascontiguousarray(np.concatenate(held_dx), dtype=np.float64)
+            contacts.touched = contacts.held_idx.copy()
+        return contacts
+
+    def _detect_projection(self, state: State, pose0: ToolPose, pose1: ToolPose, dt: float,
+                           contacts: Contacts) -> None:
+        """Candidates for the in-solver projection: particles near the tool swept over the step.
+
+        The pad is the largest plausible particle displacement in the step: free
+        flight (|v| dt + |g| dt^2) plus the tool's own travel (a particle pushed
+        or dragged along by the tool moves at most about as far as the tool).
+        """
+        p = self.model.params
+        shape0 = tool_shape_array(self.tool, pose0, p.contact_margin)
+        shape1 = tool_shape_array(self.tool, pose1, p.contact_margin)
+        qd = state.particle_qd
+        vmax = float(np.sqrt((qd * qd).sum(axis=1).max())) if qd.shape[0] else 0.0
+        radius = math.hypot(shape1[4], shape1[5]) + shape1[6]
+        dyaw = abs(math.atan2(math.sin(pose1.yaw - pose0.yaw), math.cos(pose1.yaw - pose0.yaw)))
+        travel = math.hypot(pose1.x - pose0.x, pose1.y - pose0.y) + dyaw * radius
+        reach = vmax * dt + abs(p.gravity) * dt * dt + travel
+        n = swept_candidates(np.ascontiguousarray(state.particle_q), self.model.particle_inv_mass, shape0, shape1,
+                             reach, self._cand)
+        contacts.candidates = self._cand[:n].copy()
+        contacts.tool_shape0 = shape0
+        contacts.tool_shape1 = shape1

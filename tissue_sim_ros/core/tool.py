@@ -84,3 +84,248 @@ def tool_shape_array(shape: ToolShape, pose: ToolPose, margin: float = 0.0) -> n
     """Pack a posed shape for numba kernels: [cx, cy, cos(yaw), sin(yaw), hx, hy, radius + margin], float64 (7,)."""
     hx, hy, rr = shape.rounded_box()
     return np.array([pose.x, pose.y, math.cos(pose.yaw), math.sin(pose.yaw), hx, hy, rr + margin], dtype=np.float64)
+
+
+# --------------------------------------------------------------------------- trajectories
+
+
+def wrap_angle(a: float) -> float:
+    """An angle wrapped to [-pi, pi) [rad]."""
+    return float((a + math.pi) % (2.0 * math.pi) - math.pi)
+
+
+def _check_point(name: str, p: object) -> tuple[float, float]:
+    try:
+        x, y = (float(v) for v in p)  # type: ignore[union-attr]
+    except (TypeError, ValueError):
+        raise InputError(f"{name}={p!r}: expected a point (x, y) in metres") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise InputError(f"{name}={p!r}: expected finite coordinates")
+    return x, y
+
+
+class Trajectory:
+    """A tool trajectory as data: the pose and twist of the tool's centre at any time.
+
+    Subclasses define :meth:`pose_at`, :meth:`twist_at`, :attr:`start_time` and
+    :attr:`duration`. :meth:`steps` turns it into the per-step commands of
+    :meth:`~tissue_sim_ros.core.simulation.Simulation.step`.
+    """
+
+    start_time: float = 0.0
+
+    @property
+    def duration(self) -> float:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def pose_at(self, t: float) -> ToolPose:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def twist_at(self, t: float) -> ToolTwist:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def n_steps(self, dt: float) -> int:
+        """Steps of ``dt`` needed to cover :attr:`duration` (the last one may be partial)."""
+        if not (math.isfinite(dt) and dt > 0):
+            raise InputError(f"dt={dt!r}: expected a time step > 0 s")
+        # the small tolerance keeps an exact multiple (0.5 / 0.01) from rounding up to one more step
+        return max(0, math.ceil(self.duration / dt - 1e-9))
+
+    def steps(self, dt: float):
+        """Iterate ``(pose, twist)`` for steps k = 1..n: the pose at the end of step k.
+
+        The twist is the pose change over the step divided by ``dt`` (yaw along
+        the shortest arc), i.e. exactly what a simulation derives from
+        consecutive poses; at the end the pose is clamped to the last one.
+        """
+        n = self.n_steps(dt)
+        end = self.start_time + self.duration
+        prev = self.pose_at(self.start_time)
+        for k in range(1, n + 1):
+            t = min(self.start_time + k * dt, end)
+            pose = self.pose_at(t)
+            twist = ToolTwist((pose.x - prev.x) / dt, (pose.y - prev.y) / dt, wrap_angle(pose.yaw - prev.yaw) / dt)
+            yield pose, twist
+            prev = pose
+
+
+@dataclass(frozen=True)
+class StraightInsertion(Trajectory):
+    """Straight insertion: the tool tip moves from ``start`` to ``target`` at a constant speed, then stops.
+
+    The tool points along the motion (yaw = the insertion angle, the direction
+    start -> target), tip first; its pose is its centre, ``tip_offset`` behind
+    the tip (``length / 2`` for a box or capsule, 0 for a sphere: see
+    :meth:`from_tool`).
+
+    Parameters
+    ----------
+    start, target : (float, float)
+        Tip position at t = 0 and at the end [m].
+    speed : float
+        Tip speed: [m/s], or [m per step] when ``dt`` is given (the authors used 0.001 m per step).
+    tip_offset : float
+        Distance from the tool's centre to its tip along its axis [m].
+    dt : float, optional
+        Step [s] for a speed given per step.
+    hold : float
+        Time spent at the target after arriving [s].
+    """
+
+    start: tuple[float, float]
+    target: tuple[float, float]
+    speed: float
+    tip_offset: float = 0.4
+    dt: float | None = None
+    hold: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "start", _check_point("start", self.start))
+        object.__setattr__(self, "target", _check_point("target", self.target))
+        if not (math.isfinite(self.speed) and self.speed > 0):
+            raise InputError(f"speed={self.speed!r}: expected a speed > 0")
+        if self.dt is not None and not (math.isfinite(self.dt) and self.dt > 0):
+            raise InputError(f"dt={self.dt!r}: expected a time step > 0 s (or None for a speed in m/s)")
+        if not (math.isfinite(self.tip_offset) and self.tip_offset >= 0):
+            raise InputError(f"tip_offset={self.tip_offset!r}: expected a distance >= 0 m")
+        if not (math.isfinite(self.hold) and self.hold >= 0):
+            raise InputError(f"hold={self.hold!r}: expected a time >= 0 s")
+        if self.length == 0.0:
+            raise InputError(f"start={self.start} equals target={self.target}: expected two distinct points")
+
+    @classmethod
+    def from_tool(cls, tool: ToolShape, start: tuple[float, float], target: tuple[float, float], speed: float,
+                  dt: float | None = None, hold: float = 0.0) -> "StraightInsertion":
+        """An insertion of ``tool`` (its tip is ``length / 2`` ahead of its centre; a sphere's is its centre)."""
+        offset = 0.0 if tool.kind == "sphere" else 0.5 * tool.length
+        return cls(start, target, speed, tip_offset=offset, dt=dt, hold=hold)
+
+    @classmethod
+    def from_angle(cls, tool: ToolShape, target: tuple[float, float], angle: float, distance: float, speed: float,
+                   dt: float | None = None, hold: float = 0.0) -> "StraightInsertion":
+        """Insertion at ``angle`` [rad] (the tip's direction of motion) ending at ``target`` after ``distance`` [m]."""
+        tx, ty = _check_point("target", target)
+        if not (math.isfinite(angle)):
+            raise InputError(f"angle={angle!r}: expected a finite angle in rad")
+        if not (math.isfinite(distance) and distance > 0):
+            raise InputError(f"distance={distance!r}: expected an insertion distance > 0 m")
+        start = (tx - distance * math.cos(angle), ty - distance * math.sin(angle))
+        return cls.from_tool(tool, start, (tx, ty), speed, dt=dt, hold=hold)
+
+    @property
+    def length(self) -> float:
+        """Distance the tip travels [m]."""
+        return math.hypot(self.target[0] - self.start[0], self.target[1] - self.start[1])
+
+    @property
+    def angle(self) -> float:
+        """Insertion angle: the tool's yaw, the direction start -> target [rad]."""
+        return math.atan2(self.target[1] - self.start[1], self.target[0] - self.start[0])
+
+    @property
+    def speed_mps(self) -> float:
+        """Tip speed [m/s]."""
+        return self.speed / self.dt if self.dt is not None else self.speed
+
+    @property
+    def travel_time(self) -> float:
+        """Time to reach the target [s]."""
+        return self.length / self.speed_mps
+
+    @property
+    def duration(self) -> float:
+        return self.travel_time + self.hold
+
+    def tip_at(self, t: float) -> tuple[float, float]:
+        """Tip position at time ``t`` [s] (start before 0, target after arrival) [m]."""
+        s = min(max(t, 0.0) * self.speed_mps, self.length) / self.length
+        return (self.start[0] + s * (self.target[0] - self.start[0]), self.start[1] + s * (self.target[1] - self.start[1]))
+
+    def pose_at(self, t: float) -> ToolPose:
+        tx, ty = self.tip_at(t)
+        yaw = self.angle
+        return ToolPose(tx - self.tip_offset * math.cos(yaw), ty - self.tip_offset * math.sin(yaw), yaw)
+
+    def twist_at(self, t: float) -> ToolTwist:
+        """Velocity at ``t``: the insertion velocity while moving (0 <= t < travel time), else zero."""
+        if 0.0 <= t < self.travel_time:
+            v = self.speed_mps
+            return ToolTwist(v * math.cos(self.angle), v * math.sin(self.angle), 0.0)
+        return ToolTwist()
+
+
+@dataclass(frozen=True)
+class WaypointTrajectory(Trajectory):
+    """Timed poses of the tool's centre, linearly interpolated (yaw along the shortest arc).
+
+    Parameters
+    ----------
+    times : array of float, shape (K,)
+        Strictly increasing times [s]; the trajectory starts at ``times[0]``.
+    poses : sequence of ToolPose, or array shape (K, 3) of [x, y, yaw]
+        Pose of the tool's centre at each time [m, m, rad].
+    hold : float
+        Time the last pose is held after ``times[-1]`` [s].
+    """
+
+    times: np.ndarray
+    poses: np.ndarray
+    hold: float = 0.0
+
+    def __post_init__(self) -> None:
+        times = np.asarray(self.times, dtype=np.float64).reshape(-1)
+        raw = self.poses
+        if len(raw) and isinstance(raw[0], ToolPose):  # type: ignore[index]
+            poses = np.array([p.as_array() for p in raw], dtype=np.float64)  # type: ignore[union-attr]
+        else:
+            poses = np.asarray(raw, dtype=np.float64)
+        if times.size < 1:
+            raise InputError("waypoint trajectory has no waypoints: expected at least one (time, pose)")
+        if poses.shape != (times.size, 3):
+            raise InputError(f"waypoint poses have shape {poses.shape}: expected ({times.size}, 3) [x, y, yaw]")
+        if not (np.isfinite(times).all() and np.isfinite(poses).all()):
+            raise InputError("waypoint times and poses must be finite")
+        if times.size > 1 and np.any(np.diff(times) <= 0):
+            k = int(np.argmax(np.diff(times) <= 0))
+            raise InputError(f"waypoint times must increase strictly; times[{k}]={times[k]} >= times[{k + 1}]={times[k + 1]}")
+        if not (math.isfinite(self.hold) and self.hold >= 0):
+            raise InputError(f"hold={self.hold!r}: expected a time >= 0 s")
+        times.setflags(write=False)
+        poses.setflags(write=False)
+        object.__setattr__(self, "times", times)
+        object.__setattr__(self, "poses", poses)
+
+    @property
+    def start_time(self) -> float:  # type: ignore[override]
+        return float(self.times[0])
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1] - self.times[0]) + self.hold
+
+    def _segment(self, t: float) -> int:
+        """Index k of the segment [times[k], times[k+1]) holding t (right-continuous at knots)."""
+        return int(np.searchsorted(self.times, t, side="right")) - 1
+
+    def pose_at(self, t: float) -> ToolPose:
+        """Pose at ``t``: the first pose before ``times[0]``, the last after ``times[-1]``."""
+        times, poses = self.times, self.poses
+        if t <= times[0]:
+            return ToolPose(*map(float, poses[0]))
+        if t >= times[-1]:
+            return ToolPose(*map(float, poses[-1]))
+        k = self._segment(t)
+        s = (t - times[k]) / (times[k + 1] - times[k])
+        p0, p1 = poses[k], poses[k + 1]
+        yaw = wrap_angle(p0[2] + s * wrap_angle(p1[2] - p0[2]))
+        return ToolPose(float(p0[0] + s * (p1[0] - p0[0])), float(p0[1] + s * (p1[1] - p0[1])), yaw)
+
+    def twist_at(self, t: float) -> ToolTwist:
+        """Velocity of the segment holding ``t`` (constant per segment); zero outside [times[0], times[-1])."""
+        times, poses = self.times, self.poses
+        if t < times[0] or t >= times[-1]:
+            return ToolTwist()
+        k = self._segment(t)
+        h = times[k + 1] - times[k]
+        p0, p1 = poses[k], poses[k + 1]
+        return ToolTwist(float((p1[0] - p0[0]) / h), float((p1[1] - p0[1]) / h), wrap_angle(p1[2] - p0[2]) / h)
