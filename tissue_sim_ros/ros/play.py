@@ -1,0 +1,186 @@
+"""``tissue-sim play``: publish a bag's tool topics into a live ROS graph with the recorded timing.
+
+The bytes stored in the bag are published as they are (rclpy's
+``Publisher.publish`` accepts serialized messages), so nothing is decoded or
+re-encoded and header stamps stay as recorded. By default the tool topics are
+played: every topic of a pose or twist type (PoseStamped, Pose,
+TransformStamped, TFMessage, TwistStamped, Twist...); ``--topics`` chooses
+others. ``--remap FROM:=TO`` publishes a bag topic under another name (a
+robot's ``/ee_pose`` as the node's ``/tool/pose``).
+
+Timing: message i goes out at start + (t_i - t_0) / rate of the bag's receive
+times; ``--rate 2`` plays twice as fast. ``--loop`` repeats. ``--clock``
+publishes ``/clock`` (rosgraph_msgs/Clock) at ``--clock-rate`` Hz with the bag
+time (continuing across loops), so nodes with ``use_sim_time:=true`` follow
+the bag. Before starting, play waits up to ``--wait`` seconds for every played
+topic to have a subscriber, so the first messages are not lost.
+"""
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+from typing import Any
+
+from ..core.errors import InputError
+from .bags import POSE_TYPES, TWIST_TYPES, Bag
+from .record import message_class
+
+HELP = "publish a bag's tool topics into a live ROS graph with the recorded timing"
+DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("bag", help="a rosbag2 directory, or a .mcap/.db3 file")
+    parser.add_argument("--topics", nargs="+", default=None, help="bag topics to play (default: its tool topics)")
+    parser.add_argument("--remap", nargs="+", default=[], metavar="FROM:=TO", help="publish bag topic FROM as TO")
+    parser.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
+    parser.add_argument("--loop", action="store_true", help="play again from the start at the end")
+    parser.add_argument("--clock", action="store_true", help="publish /clock with the bag time")
+    parser.add_argument("--clock-rate", type=float, default=100.0, help="/clock messages per second (default 100)")
+    parser.add_argument("--wait", type=float, default=5.0,
+                        help="seconds to wait for subscribers on the played topics before starting (default 5)")
+
+
+def _parse_remaps(items: list[str]) -> dict[str, str]:
+    out = {}
+    for item in items:
+        if ":=" not in item:
+            raise InputError(f"--remap {item!r}: expected FROM:=TO")
+        src, dst = item.split(":=", 1)
+        if not src or not dst:
+            raise InputError(f"--remap {item!r}: expected FROM:=TO with both names")
+        out[src] = dst
+    return out
+
+
+def load_messages(bag: Bag, topics: list[str]) -> list[tuple[str, int, bytes]]:
+    """All (topic, t_ns, raw) of ``topics`` in receive-time order (held in memory: tool topics are small)."""
+    return [(topic, t, bytes(raw)) for topic, _, t, raw in bag.messages(topics)]
+
+
+def choose_topics(bag: Bag, requested: list[str] | None) -> list[str]:
+    """The topics to play: the requested ones (checked), else every pose/twist topic of the bag."""
+    topics = bag.topics
+    if requested:
+        missing = [t for t in requested if t not in topics]
+        if missing:
+            raise InputError(f"bag {str(bag.path)!r} has no topic {', '.join(missing)}; it has: {bag.describe_topics()}")
+        return list(requested)
+    chosen = [t for t, ty in sorted(topics.items()) if ty in POSE_TYPES + TWIST_TYPES]
+    if not chosen:
+        raise InputError(f"bag {str(bag.path)!r} has no tool topic (pose or twist types); it has: "
+                         f"{bag.describe_topics()}; choose topics with --topics")
+    return chosen
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.rate > 0:
+        raise InputError(f"--rate {args.rate}: expected a speed factor > 0")
+    if not args.clock_rate > 0:
+        raise InputError(f"--clock-rate {args.clock_rate}: expected > 0 Hz")
+    remaps = _parse_remaps(args.remap)
+    with Bag(args.bag) as bag:
+        topics = choose_topics(bag, args.topics)
+        types = {t: bag.topics[t] for t in topics}
+        classes = {t: message_class(types[t]) for t in topics}
+        messages = load_messages(bag, topics)
+    if not messages:
+        raise InputError(f"bag {args.bag!r}: topics {', '.join(topics)} hold no messages")
+
+    import rclpy  # noqa: PLC0415
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: PLC0415
+    from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415
+
+    stop = threading.Event()
+
+    def on_signal(_signum: int, _frame: Any) -> None:
+        stop.set()
+
+    old_handlers = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    rclpy.init(args=None, signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    sent = 0
+    try:
+        node = rclpy.create_node("tissue_sim_player", namespace="/")
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+        pubs = {t: node.create_publisher(classes[t], remaps.get(t, t), qos) for t in topics}
+        clock_pub = None
+        if args.clock:
+            from rosgraph_msgs.msg import Clock  # noqa: PLC0415
+
+            clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10))
+        deadline = time.monotonic() + max(0.0, args.wait)
+        while not stop.is_set() and time.monotonic() < deadline:
+            if all(p.get_subscription_count() > 0 for p in pubs.values()):
+                break
+            stop.wait(0.02)  # polling the graph; a signal ends the wait at once
+        waiting = [remaps.get(t, t) for t, p in pubs.items() if p.get_subscription_count() == 0]
+        if waiting and args.wait > 0:
+            print(f"play: no subscriber on {', '.join(waiting)} after {args.wait} s; playing anyway", flush=True)
+        print(f"playing {len(messages)} messages on {', '.join(remaps.get(t, t) for t in topics)} at {args.rate}x"
+              + (" with /clock" if clock_pub else "") + (", looping" if args.loop else ""), flush=True)
+
+        t0 = messages[0][1]
+        span = messages[-1][1] - t0
+        period_ns = int(1e9 / args.clock_rate)
+        loop_offset = 0  # bag-time offset of the current loop, so /clock keeps increasing
+        while not stop.is_set():
+            start = time.monotonic()
+            next_clock = t0
+            for topic, t_ns, raw in messages:
+                # /clock ticks up to this message's time, each at its own wall time
+                while clock_pub is not None and next_clock <= t_ns and not stop.is_set():
+                    _sleep_until(start + (next_clock - t0) * 1e-9 / args.rate, stop)
+                    _publish_clock(clock_pub, next_clock + loop_offset)
+                    next_clock += period_ns
+                _sleep_until(start + (t_ns - t0) * 1e-9 / args.rate, stop)
+                if stop.is_set():
+                    break
+                if clock_pub is not None:
+                    _publish_clock(clock_pub, t_ns + loop_offset)
+                pubs[topic].publish(raw)
+                sent += 1
+            if not args.loop:
+                break
+            loop_offset += span + period_ns
+        # let the middleware hand the last reliable messages over before the node goes
+        end = time.monotonic() + 0.5
+        while time.monotonic() < end and any(p.get_subscription_count() > 0 for p in pubs.values()) \
+                and not stop.is_set():
+            if all(p.wait_for_all_acked(rclpy.duration.Duration(seconds=0.1)) for p in pubs.values()):
+                break
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+        for s, h in old_handlers.items():
+            signal.signal(s, h)
+    print(f"play: published {sent} messages", flush=True)
+    return 0
+
+
+def _sleep_until(when: float, stop: threading.Event) -> None:
+    delay = when - time.monotonic()
+    if delay > 0:
+        stop.wait(delay)
+
+
+def _publish_clock(pub: Any, t_ns: int) -> None:
+    from builtin_interfaces.msg import Time  # noqa: PLC0415
+    from rosgraph_msgs.msg import Clock  # noqa: PLC0415
+
+    pub.publish(Clock(clock=Time(sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000))))
+
+
+def main() -> int:  # pragma: no cover
+    from ..cli import main as cli_main  # noqa: PLC0415
+
+    return cli_main(["play", *sys.argv[1:]])
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

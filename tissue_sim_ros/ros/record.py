@@ -1,0 +1,221 @@
+"""``tissue-sim record``: record the node's topics to a rosbag2 bag (MCAP, or sqlite3 on request).
+
+Subscribes with ``raw=True`` and writes the serialized bytes as they arrive
+(no decoding, no re-encoding), with the type names read from the live graph
+and the Jazzy message definitions, so the bag opens in ``ros2 bag``, Foxglove
+and PlotJuggler. Topics: the node's tool input and outputs (:data:`DEFAULT_TOPICS`,
+resolved in ``--namespace``) plus anything else under ``tissue/`` and
+``tool/`` there; ``--topics`` names them explicitly, ``--all`` takes every
+topic in the graph. Topics that appear later (a node started after the
+recorder) are picked up as they show up.
+
+SIGINT (Ctrl-C) and SIGTERM end the recording and close the bag properly;
+``--duration`` stops after that many seconds. The bag is flushed to disk every
+second, so even a killed recorder leaves what it wrote (sqlite3: readable as
+it is; MCAP: :func:`~tissue_sim_ros.ros.bags.recover_mcap`).
+
+Each subscription's QoS follows its publishers (as ``ros2 bag record`` does):
+reliable when every publisher is reliable, else best effort; transient local
+when every publisher is (a latched rest mesh is then recorded too).
+"""
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from ..core.errors import InputError
+from .bags import STORAGES, BagWriter, typestore
+
+HELP = "record the node's topics to a rosbag2 bag (MCAP or sqlite3)"
+DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP
+
+#: The node's topics (relative to its namespace): tool input, then outputs (msg_docs/).
+DEFAULT_TOPICS = (
+    "tool/pose", "tool/twist",
+    "tissue/markers", "tissue/points", "tissue/rest_mesh",
+    "tissue/energy", "tissue/energy/inertial", "tissue/energy/spring", "tissue/energy/area", "tissue/energy/bodies",
+    "tool/wrench",
+)
+_PREFIXES = ("tissue/", "tool/")
+_IGNORED = ("/rosout", "/parameter_events")
+
+
+def resolve(name: str, namespace: str) -> str:
+    """Absolute topic name of a relative ``name`` in ``namespace``."""
+    if name.startswith("/"):
+        return name
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    return f"{ns}/{name}"
+
+
+def message_class(msgtype: str) -> Any:
+    """The rclpy message class of ``pkg/msg/Type``; InputError when its package is not installed."""
+    import importlib  # noqa: PLC0415
+
+    try:
+        pkg, kind, name = msgtype.split("/")
+        return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+    except (ValueError, ImportError, AttributeError):
+        raise InputError(f"message type {msgtype!r}: its Python package is not installed "
+                         f"(e.g. pip install ros-jazzy-{msgtype.split('/')[0].replace('_', '-')})") from None
+
+
+class Recorder:
+    """Subscribes (raw) to topics as they appear and writes them to a :class:`BagWriter`.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node to subscribe with (a helper takes the node, it does not subclass it).
+    writer : BagWriter
+        Where messages go; receive times from ``node``'s clock.
+    wanted : set of str or None
+        Absolute topic names to record; None = every topic (except /rosout, /parameter_events).
+    prefixes : tuple of str
+        Absolute prefixes also recorded (``/ns/tissue/``, ``/ns/tool/``).
+    """
+
+    def __init__(self, node: Any, writer: BagWriter, wanted: set[str] | None, prefixes: tuple[str, ...] = ()) -> None:
+        self.node = node
+        self.writer = writer
+        self.wanted = wanted
+        self.prefixes = prefixes
+        self.subscriptions: dict[str, Any] = {}
+        self.skipped_types: dict[str, str] = {}
+        self._lock = threading.Lock()
+
+    def _want(self, topic: str) -> bool:
+        if self.wanted is None:
+            return topic not in _IGNORED
+        return topic in self.wanted or any(topic.startswith(p) for p in self.prefixes)
+
+    def _qos(self, topic: str) -> Any:
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: PLC0415
+
+        infos = self.node.get_publishers_info_by_topic(topic)
+        reliable = bool(infos) and all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+        latched = bool(infos) and all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
+        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                          reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+                          durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+    def discover(self) -> list[str]:
+        """Subscribe to wanted topics that appeared in the graph since the last call; returns the new ones."""
+        new = []
+        for topic, types in self.node.get_topic_names_and_types():
+            if topic in self.subscriptions or topic in self.skipped_types or not self._want(topic):
+                continue
+            if not self.node.get_publishers_info_by_topic(topic):
+                continue  # only subscribers so far (e.g. our own, or the node's inputs): wait for a publisher
+            msgtype = types[0]
+            if msgtype not in typestore().fielddefs:
+                self.skipped_types[topic] = msgtype
+                self.node.get_logger().warning(f"not recording {topic}: type {msgtype} is not in the Jazzy typestore")
+                continue
+            try:
+                cls = message_class(msgtype)
+            except InputError as exc:
+                self.skipped_types[topic] = msgtype
+                self.node.get_logger().warning(f"not recording {topic}: {exc}")
+                continue
+            self.writer.add_topic(topic, msgtype)
+            self.subscriptions[topic] = self.node.create_subscription(
+                cls, topic, lambda data, t=topic: self._on_message(t, data), self._qos(topic), raw=True)
+            new.append(topic)
+        return new
+
+    def _on_message(self, topic: str, data: bytes) -> None:
+        if self.writer.closed:
+            return
+        self.writer.write(topic, data, self.node.get_clock().now().nanoseconds)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--output", "-o", default=None,
+                        help="bag directory to create (default: tissue_sim_YYYYmmdd_HHMMSS)")
+    parser.add_argument("--storage", choices=STORAGES, default="mcap", help="storage plugin (default mcap)")
+    parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    parser.add_argument("--namespace", default="", help="namespace of the node whose topics to record")
+    parser.add_argument("--topics", nargs="+", default=None,
+                        help="topics to record (relative names resolve in --namespace); default: the node's topics")
+    parser.add_argument("--all", action="store_true", help="record every topic in the graph")
+    parser.add_argument("--flush-period", type=float, default=1.0, help="seconds between flushes to disk")
+    parser.add_argument("--quiet", action="store_true", help="no per-second status line")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.duration is not None and not args.duration > 0:
+        raise InputError(f"--duration {args.duration}: expected seconds > 0")
+    output = Path(args.output or time.strftime("tissue_sim_%Y%m%d_%H%M%S"))
+    writer = BagWriter(output, args.storage, flush_period=args.flush_period)
+
+    import rclpy  # noqa: PLC0415
+    from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
+    from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415
+
+    stop = threading.Event()
+    received: list[int] = []
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        received.append(signum)
+        stop.set()
+
+    # our own handlers, so a signal ends the loop and the bag is closed here, not mid-write
+    old_handlers = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    rclpy.init(args=None, signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    try:
+        node = rclpy.create_node("tissue_sim_recorder", namespace="/")
+        if args.all:
+            wanted, prefixes = None, ()
+        elif args.topics:
+            wanted, prefixes = {resolve(t, args.namespace) for t in args.topics}, ()
+        else:
+            wanted = {resolve(t, args.namespace) for t in DEFAULT_TOPICS}
+            prefixes = tuple(resolve(p, args.namespace) for p in _PREFIXES)
+        recorder = Recorder(node, writer, wanted, prefixes)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        print(f"recording to {output} ({args.storage}); Ctrl-C to stop", flush=True)
+        start = time.monotonic()
+        next_discovery = 0.0
+        next_status = start + 1.0
+        while not stop.is_set():
+            now = time.monotonic()
+            if args.duration is not None and now - start >= args.duration:
+                break
+            if now >= next_discovery:
+                for topic in recorder.discover():
+                    print(f"  + {topic} ({writer.topics[topic]})", flush=True)
+                next_discovery = now + 0.2
+            executor.spin_once(timeout_sec=0.05)
+            if not args.quiet and now >= next_status:
+                next_status = now + 1.0
+                print(f"  {now - start:6.1f} s  {sum(writer.counts.values())} messages", flush=True)
+    finally:
+        writer.close()
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+        for s, h in old_handlers.items():
+            signal.signal(s, h)
+    why = f" on {signal.Signals(received[0]).name}" if received else ""
+    counts = writer.counts
+    print(f"closed {output}{why}: {sum(counts.values())} messages; "
+          + (", ".join(f"{t} {n}" for t, n in sorted(counts.items())) or "no topics found"), flush=True)
+    return 0
+
+
+def main() -> int:  # pragma: no cover
+    from ..cli import main as cli_main  # noqa: PLC0415
+
+    return cli_main(["record", *sys.argv[1:]])
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())
