@@ -86,9 +86,11 @@ def run(args: argparse.Namespace) -> int:
         color = _parse_color(args.color)
         grading = Grading(*args.grade) if args.grade is not None else None
         image = read_image(source)
-        mask = tissue_mask(image, threshold=args.threshold, tissue_color=color, color_tolerance=args.tolerance)
+        name = f"image {str(source)!r}"
+        mask = tissue_mask(image, threshold=args.threshold, tissue_color=color, color_tolerance=args.tolerance,
+                           name=name)
         mesh = mesh_from_mask(mask, spacing=args.spacing, scale=args.scale, origin=tuple(args.origin),
-                              grading=grading, name=f"image {str(source)!r}")
+                              grading=grading, name=name)
         pixel_area = float(mask.sum()) * args.scale ** 2
         what = (f"image {source} ({image.shape[1]} x {image.shape[0]} px at {args.scale:g} m/px, "
                 f"spacing {args.spacing:g} m{', graded' if grading else ''})")

@@ -478,7 +478,8 @@ def _image_header_size(path: Path) -> tuple[int, int] | None:
 
 def tissue_mask(image: str | Path | np.ndarray, *, threshold: float | None = None,
                 tissue_color: tuple[int, int, int] | None = None, color_tolerance: float = 40.0,
-                min_region_px: int = MIN_REGION_PX, max_pixels: int = MAX_PIXELS) -> np.ndarray:
+                min_region_px: int = MIN_REGION_PX, max_pixels: int = MAX_PIXELS,
+                name: str | None = None) -> np.ndarray:
     """Which pixels are tissue, shape (H, W), bool.
 
     Tissue is what differs from the background, decided by (in order of precedence)
@@ -489,11 +490,13 @@ def tissue_mask(image: str | Path | np.ndarray, *, threshold: float | None = Non
     * neither: Otsu's threshold on the grey image, background side again from the border.
 
     Regions and holes with fewer than ``min_region_px`` pixels are image noise: dropped / filled.
+    ``name`` names the image in error messages (default: its path).
     """
     import cv2  # noqa: PLC0415
 
     img = read_image(image, max_pixels=max_pixels)
-    name = f"image {str(image)!r}" if not isinstance(image, np.ndarray) else "image array"
+    if name is None:
+        name = f"image {str(image)!r}" if not isinstance(image, np.ndarray) else "image array"
     if tissue_color is not None:
         color = np.asarray(tissue_color, dtype=np.float64).ravel()
         if color.size != 3 or not np.all((color >= 0) & (color <= 255)):
@@ -507,6 +510,15 @@ def tissue_mask(image: str | Path | np.ndarray, *, threshold: float | None = Non
                 raise InputError(f"{name} is one flat grey level ({int(grey.min())}): expected tissue that "
                                  "differs from the background")
             t, _ = cv2.threshold(grey, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+            # Otsu always splits; on an image of noise alone the two classes overlap. Tissue on a
+            # background gives classes many standard deviations apart (>= 8 on the shipped image).
+            g = grey.astype(np.float64)
+            lo_c, hi_c = g[g <= t], g[g > t]
+            sep = abs(hi_c.mean() - lo_c.mean()) / max(np.sqrt(0.5 * (lo_c.var() + hi_c.var())), 1e-9)
+            if sep < 4.0:
+                raise InputError(f"{name} has no clear tissue: Otsu's threshold {t:g} splits the grey levels into "
+                                 f"classes only {sep:.1f} standard deviations apart (expected >= 4); "
+                                 "give a threshold or a tissue colour")
         else:
             t = float(threshold)
             if not 0 <= t <= 255:
@@ -587,9 +599,9 @@ def mesh_from_image(image: str | Path | np.ndarray, *, spacing: float = 0.05, sc
     if not (np.isfinite(ox) and np.isfinite(oy)):
         raise InputError(f"origin {origin!r}: expected two finite numbers [m]")
     g = _as_grading(grading, spacing)
-    mask = tissue_mask(image, threshold=threshold, tissue_color=tissue_color, color_tolerance=color_tolerance,
-                       max_pixels=max_pixels)
     name = f"image {str(image)!r}" if not isinstance(image, np.ndarray) else "image array"
+    mask = tissue_mask(image, threshold=threshold, tissue_color=tissue_color, color_tolerance=color_tolerance,
+                       max_pixels=max_pixels, name=name)
     return mesh_from_mask(mask, spacing=spacing, scale=scale, origin=(ox, oy), grading=g, name=name)
 
 
