@@ -1,0 +1,127 @@
+"""``tissue-sim mesh`` run in-process through tissue_sim_ros.cli.main."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from tissue_sim_ros.cli import main
+from tissue_sim_ros.core.mesh import load_mesh, mesh_from_image, write_gmsh, write_triangle
+
+
+def run(capsys, *argv: str) -> tuple[int, str, str]:
+    rc = main(["mesh", *map(str, argv)])
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+@pytest.fixture
+def disc_png(tmp_path: Path) -> Path:
+    img = np.full((200, 200, 3), 255, dtype=np.uint8)
+    cv2.circle(img, (100, 100), 70, (150, 135, 225), -1)
+    path = tmp_path / "disc.png"
+    cv2.imwrite(str(path), img)
+    return path
+
+
+def table_rows(out: str) -> dict[str, list[str]]:
+    rows = {}
+    for line in out.splitlines():
+        f = line.split()
+        if f and (f[0].isdigit() or f[0] == "all") and len(f) >= 9:
+            rows[f[0]] = f
+    return rows
+
+
+def test_default_image_writes_mesh_and_picture(tmp_path: Path, capsys):
+    rc, out, err = run(capsys, "--out", tmp_path / "m.npz", "--png", tmp_path / "m.png")
+    assert rc == 0, err
+    rows = table_rows(out)
+    assert set(rows) == {"0", "1", "all"}
+    assert int(rows["all"][1]) == int(rows["0"][1]) + int(rows["1"][1])
+    assert "targets" in out and ": met" in out
+    mesh = load_mesh(tmp_path / "m.npz")
+    assert mesh.n_bodies == 2 and len(mesh.vertices) == int(rows["all"][1])
+    png = cv2.imread(str(tmp_path / "m.png"))
+    assert png is not None and png.shape[0] > 300 and png.std() > 10
+
+
+def test_image_options(disc_png: Path, tmp_path: Path, capsys):
+    rc, out, err = run(capsys, disc_png, "--spacing", 0.05, "--scale", 0.005, "--origin", 1, 2,
+                       "--color", "150,135,225", "--grade", 1.5, 2.2, 0.05, 0.02, "--out", tmp_path / "d.npz",
+                       "--png", tmp_path / "d.png")
+    assert rc == 0, err
+    mesh = load_mesh(tmp_path / "d.npz")
+    # the disc (centre pixel (100, 100), radius 70 px) in the world: centre (1.5, 2.5), radius 0.35 m
+    lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    assert 0.5 * (lo + hi) == pytest.approx([1.5, 2.5], abs=0.005)
+    assert 0.5 * (hi - lo) == pytest.approx([0.35, 0.35], abs=0.005)
+    same_api = mesh_from_image(disc_png, spacing=0.05, scale=0.005, origin=(1, 2), tissue_color=(150, 135, 225),
+                               grading=(1.5, 2.2, 0.05, 0.02))
+    assert np.array_equal(mesh.triangles, same_api.triangles)
+    assert (tmp_path / "d.png").stat().st_size > 1000
+    rc, out, err = run(capsys, disc_png, "--scale", 0.005, "--threshold", 200)
+    assert rc == 0 and table_rows(out)["all"][-1].endswith("%")
+
+
+@pytest.mark.parametrize("kind", ["npz", "node", "ele", "msh"])
+def test_mesh_files_are_loaded_and_reported(tmp_path: Path, disc_png: Path, capsys, kind: str):
+    mesh = mesh_from_image(disc_png, spacing=0.05, scale=0.005)
+    if kind == "npz":
+        path = tmp_path / "m.npz"
+        mesh.save(path)
+    elif kind in ("node", "ele"):
+        path = write_triangle(mesh, tmp_path / "m")[0 if kind == "node" else 1]
+    else:
+        path = write_gmsh(mesh, tmp_path / "m.msh", "4.1")
+    rc, out, err = run(capsys, path, "--out", tmp_path / "again.npz", "--png", tmp_path / "again.png")
+    assert rc == 0, err
+    assert f"mesh file {path}" in out
+    assert int(table_rows(out)["all"][2]) == len(mesh.triangles)
+    assert np.array_equal(load_mesh(tmp_path / "again.npz").triangles, mesh.triangles)
+
+
+def bad_inputs(tmp_path: Path, disc_png: Path) -> list[tuple[list, str]]:
+    (tmp_path / "text.png").write_text("no pixels here")
+    cv2.imwrite(str(tmp_path / "white.png"), np.full((60, 60), 255, np.uint8))
+    thin = np.full((100, 200), 255, np.uint8)
+    thin[40:44, 10:190] = 0
+    cv2.imwrite(str(tmp_path / "thin.png"), thin)
+    (tmp_path / "huge.png").write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR" + (9000).to_bytes(4, "big") * 2
+                                        + b"\x08\x02\x00\x00\x00")
+    return [
+        ([tmp_path / "missing.png"], "missing.png' does not exist"),
+        ([tmp_path / "missing.msh"], "missing.msh' does not exist"),
+        ([tmp_path / "text.png"], "text.png' is not an image"),
+        ([tmp_path / "white.png"], "white.png' is one flat grey level"),
+        ([disc_png, "--color", "0,255,0"], "disc.png' has no tissue"),
+        ([tmp_path / "thin.png"], "thinner than the spacing"),
+        ([disc_png, "--spacing", 0], "--spacing 0.0: expected a number > 0"),
+        ([disc_png, "--scale", -0.001], "--scale -0.001: expected a number > 0"),
+        ([disc_png, "--color", "red"], "--color 'red': expected B,G,R"),
+        ([disc_png, "--threshold", 300], "threshold 300.0: expected a grey level in [0, 255]"),
+        ([tmp_path / "huge.png"], "81000000 pixels: the limit is 50000000"),
+        ([disc_png, "--scale", 0.005, "--grade", 0.5, 0.5, 0.1, 0.5], "fine_spacing=0.5"),
+    ]
+
+
+def test_bad_input_exits_2_with_one_line(tmp_path: Path, disc_png: Path, capsys):
+    for argv, message in bad_inputs(tmp_path, disc_png):
+        rc, out, err = run(capsys, *argv)
+        assert rc == 2, (argv, out, err)
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("tissue-sim: error: "), (argv, err)
+        assert message in lines[0], (argv, err)
+        assert "Traceback" not in err and not (tmp_path / "out.npz").exists()
+
+
+def test_help_explains_the_command(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["mesh", "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    for word in ("--spacing", "--scale", "--origin", "--threshold", "--color", "--grade", "--out", "--png",
+                 "bottom-left", ".msh"):
+        assert word in out
