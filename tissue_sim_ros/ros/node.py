@@ -1,0 +1,519 @@
+"""TissueSimNode: tool pose in, tissue, energy and reaction out, at a fixed rate.
+
+Run it::
+
+    tissue_sim_node --ros-args --params-file config/tissue_sim.yaml
+
+Every topic, frame, unit, QoS, parameter and service is described in
+``msg_docs/``. The node converts messages and calls the library
+(:class:`~tissue_sim_ros.core.simulation.Simulation`); all physics lives there.
+
+Timing: a timer at 1/dt of the node's clock (``use_sim_time`` honoured) steps
+the simulation with the newest valid tool pose; in lock-step mode
+(``lock_step: true``) every valid tool pose is one step and the outputs carry
+that pose's stamp, so replaying a bag reproduces the run exactly. rcl timers
+skip ticks that were missed rather than firing them back to back, so a slow
+step never piles up: the node counts the overrun and the skipped ticks and
+reports them on ``/diagnostics``.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.time import Time
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import Float64, Float64MultiArray
+from std_srvs.srv import SetBool, Trigger
+from visualization_msgs.msg import MarkerArray
+
+from ..core.errors import InputError
+from ..core.model import SimParams
+from ..core.scene import build_simulation, default_params
+from ..core.simulation import Simulation, StepReport
+from ..core.tool import ToolPose, ToolTwist
+from . import messages, qos
+from .parameters import BY_NAME, PARAMETERS, SIM_NAMES, coerce, validate
+
+#: Prefixes of parameters a parameter file may hold that this node does not declare itself.
+_FOREIGN_PARAMETER_PREFIXES = ("qos_overrides.", "use_sim_time", "start_type_description_service")
+
+ENERGY_TERMS = ("inertial", "spring", "area", "total")
+
+
+@dataclass
+class NodeStats:
+    """Counters reported on /diagnostics (cumulative since start)."""
+
+    steps: int = 0
+    overruns: int = 0
+    """Steps whose processing (step + publishing) took longer than dt of wall time."""
+    missed_ticks: int = 0
+    """Timer ticks skipped because the previous one ran late."""
+    divergences: int = 0
+    clamped_jumps: int = 0
+    dropped: dict[str, int] = field(default_factory=lambda: {
+        "nonfinite": 0, "frame": 0, "stale": 0, "out_of_order": 0, "unpublished_nonfinite": 0})
+    window_steps: int = 0
+    window_step_time_sum: float = 0.0
+    window_step_time_max: float = 0.0
+    window_start: float = field(default_factory=time.monotonic)
+
+
+@dataclass
+class ToolInput:
+    """The newest accepted tool pose and twist."""
+
+    pose: ToolPose | None = None
+    pose_stamp: tuple[int, int] = (0, 0)
+    twist: ToolTwist | None = None
+    twist_stamp: tuple[int, int] = (0, 0)
+    twist_received: float = -math.inf
+    """Node-clock time the twist arrived [s]."""
+
+
+def _stamp_of(t: Time) -> tuple[int, int]:
+    sec, nsec = t.seconds_nanoseconds()
+    return int(sec), int(nsec)
+
+
+def _yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
+    """Rotation about +z of a quaternion (its heading in the tissue plane)."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+class TissueSimNode(Node):
+    """The simulation as a ROS 2 node.
+
+    Parameters
+    ----------
+    node_name : str
+        Default ``tissue_sim_node`` (the section name in ``config/tissue_sim.yaml``).
+    **kwargs
+        Passed to :class:`rclpy.node.Node` (namespace, context, parameter_overrides, ...).
+
+    Raises
+    ------
+    InputError
+        A parameter has a bad value or the scene cannot be built; the message names it.
+    """
+
+    def __init__(self, node_name: str = "tissue_sim_node", **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self._values = self._declare_parameters()
+        self.sim: Simulation = build_simulation({k: self._values[k] for k in SIM_NAMES})
+        self._warm_up()
+        self.stats = NodeStats()
+        self.tool = ToolInput()
+        self.last_report: StepReport | None = None
+        self._last_warn: dict[str, float] = {}
+        self._last_tick: Time | None = None
+        self._steps_since_points = 0
+        self._steps_since_markers = 0
+        self._encoder = self._make_encoder()
+
+        self.pub_markers = self.create_publisher(MarkerArray, "tissue/markers", qos.state_stream())
+        self.pub_points = self.create_publisher(PointCloud2, "tissue/points", qos.state_stream())
+        self.pub_rest = self.create_publisher(MarkerArray, "tissue/rest_mesh", qos.latched())
+        self.pub_wrench = self.create_publisher(WrenchStamped, "tool/wrench", qos.state_stream())
+        self.pub_energy = self.create_publisher(Float64, "tissue/energy", qos.energy())
+        self.pub_energy_terms = {term: self.create_publisher(Float64, f"tissue/energy/{term}", qos.energy())
+                                 for term in ENERGY_TERMS[:3]}
+        self.pub_energy_bodies = self.create_publisher(Float64MultiArray, "tissue/energy/bodies", qos.energy())
+        self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", qos.diagnostics())
+        lock_step = self._values["lock_step"]
+        self.create_subscription(PoseStamped, "tool/pose", self._on_pose, qos.tool_input(lock_step))
+        self.create_subscription(TwistStamped, "tool/twist", self._on_twist, qos.tool_input(lock_step))
+        self.create_service(Trigger, "~/reset", self._on_reset)
+        self.create_service(SetBool, "~/pause", self._on_pause)
+        self.step_timer = None if lock_step else self.create_timer(self.sim.params.dt, self._on_tick)
+        self.diagnostics_timer = self.create_timer(1.0 / self._values["diagnostics_rate"], self._publish_diagnostics)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+
+        self._publish_rest_mesh()
+        m = self.sim.model
+        self.get_logger().info(
+            f"{m.n_particles} particles, {m.n_triangles} triangles, {m.n_bodies} bodies; method "
+            f"{self.sim.params.method}/{self.sim.params.scheme}, {self.sim.params.iterations} iterations, contact "
+            f"{self.sim.params.contact_model}; {'lock-step' if lock_step else f'{1.0 / self.sim.params.dt:g} Hz'} "
+            f"in frame '{self._values['frame_id']}'")
+
+    def _warm_up(self) -> None:
+        """Take a few throwaway steps (tool in the tissue) and reset, so JIT loading is not the first step's overrun."""
+        q0 = self.sim.model.particle_q0
+        if len(q0) == 0:
+            return
+        cx, cy = (q0.min(axis=0) + q0.max(axis=0)) / 2.0
+        self.sim.step(None)
+        if self.sim.tool is not None:
+            self.sim.step(ToolPose(float(cx), float(cy), 0.0))
+            self.sim.step(ToolPose(float(cx) + 1e-3, float(cy), 0.0))
+        self.sim.reset()
+
+    # ------------------------------------------------------------------ parameters
+
+    def _declare_parameters(self) -> dict[str, Any]:
+        """Declare every parameter of the table; return the checked values (InputError names a bad one)."""
+        shipped = default_params()
+        overrides = getattr(self, "_parameter_overrides", {})  # rclpy keeps the file's values here
+        unknown = sorted(n for n in overrides if n not in BY_NAME and not n.startswith(_FOREIGN_PARAMETER_PREFIXES))
+        if unknown:
+            raise InputError(f"unknown parameter {unknown[0]!r} for {self.get_name()}: expected one of the names in "
+                             "msg_docs/parameters.md")
+        values: dict[str, Any] = {}
+        for spec in PARAMETERS:
+            default = shipped.get(spec.name, spec.default)
+            descriptor = ParameterDescriptor(
+                name=spec.name, description=f"{spec.description}" + (f" [{spec.unit}]" if spec.unit else ""),
+                read_only=spec.read_only,
+                # dynamic typing: a YAML `1` for a float must not abort with rclpy's type error;
+                # coerce() checks the type and names the parameter instead
+                dynamic_typing=True)
+            param = self.declare_parameter(spec.name, default, descriptor)
+            values[spec.name] = param.value
+        return validate(values)
+
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        """Check a set of tunable parameters as a whole; apply it only if all are fine."""
+        new = dict(self._values)
+        try:
+            for p in params:
+                spec = BY_NAME.get(p.name)
+                if spec is None:
+                    continue  # use_sim_time and friends: rclpy handles them
+                if spec.read_only:
+                    return SetParametersResult(successful=False, reason=f"parameter {p.name} is read-only: restart the node to change it")
+                new[p.name] = coerce(spec, p.value)
+            validate(new)
+            sim_changed = any(new[k] != self._values[k] for k in SIM_NAMES
+                              if not (isinstance(new[k], float) and math.isnan(new[k]) and math.isnan(self._values[k])))
+            sim = self._rebuilt_simulation(new) if sim_changed else None
+        except InputError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        old = self._values
+        self._values = new
+        if sim is not None:
+            self.sim = sim
+        if any(new[k] != old[k] for k in ("strain_color_max", "wire_width", "markers_wireframe")):
+            self._encoder = self._make_encoder()
+        if new["frame_id"] != old["frame_id"]:
+            self._publish_rest_mesh()
+        if new["diagnostics_rate"] != old["diagnostics_rate"]:
+            self.destroy_timer(self.diagnostics_timer)
+            self.diagnostics_timer = self.create_timer(1.0 / new["diagnostics_rate"], self._publish_diagnostics)
+        if new["paused"] != old["paused"]:
+            self.get_logger().info("paused" if new["paused"] else "running")
+        return SetParametersResult(successful=True)
+
+    def _rebuilt_simulation(self, values: dict[str, Any]) -> Simulation:
+        """A Simulation with the new tunable values on the same mesh, continuing from the current state."""
+        params = SimParams.from_mapping({k: values[k] for k in SIM_NAMES})
+        sim = Simulation(self.sim.model.with_params(params), tool=self.sim.tool)
+        sim.set_state(self.sim.state)
+        sim.step_count, sim.time, sim.tool_pose = self.sim.step_count, self.sim.time, self.sim.tool_pose
+        return sim
+
+    def _make_encoder(self) -> messages.SceneEncoder:
+        m = self.sim.model
+        return messages.SceneEncoder(
+            m.tri_indices, m.edge_indices, m.edge_rest_length, m.particle_body,
+            tool_rounded_box=self.sim.tool.rounded_box() if self.sim.tool is not None else None,
+            strain_color_max=self._values["strain_color_max"], wire_width=self._values["wire_width"],
+            wireframe=self._values["markers_wireframe"])
+
+    @property
+    def frame_id(self) -> str:
+        return self._values["frame_id"]
+
+    @property
+    def paused(self) -> bool:
+        return bool(self._values["paused"])
+
+    # ------------------------------------------------------------------ input
+
+    def _warn(self, kind: str, message: str) -> None:
+        """Log a warning at most once per ``warn_period`` for each kind."""
+        now = time.monotonic()
+        if now - self._last_warn.get(kind, -math.inf) >= self._values["warn_period"]:
+            self._last_warn[kind] = now
+            self.get_logger().warning(message)
+
+    def _drop(self, kind: str, message: str) -> None:
+        self.stats.dropped[kind] += 1
+        self._warn(kind, f"dropped: {message} ({self.stats.dropped[kind]} dropped so far)")
+
+    def _check_header(self, topic: str, stamp: tuple[int, int], frame: str, last: tuple[int, int]) -> bool:
+        """Frame, order and age of an input message; False (and counted) when it must be dropped."""
+        if frame != self.frame_id:
+            self._drop("frame", f"{topic} in frame '{frame}', expected '{self.frame_id}'")
+            return False
+        if stamp == (0, 0):
+            return True  # unstamped: no order or age to check
+        if last != (0, 0) and stamp <= last:
+            self._drop("out_of_order", f"{topic} stamped {messages.stamp_to_seconds(stamp):.6f} s, not after the "
+                                       f"previous {messages.stamp_to_seconds(last):.6f} s")
+            return False
+        max_age = self._values["max_stamp_age"]
+        if not self._values["lock_step"] and max_age > 0:
+            age = (self.get_clock().now() - Time(seconds=stamp[0], nanoseconds=stamp[1],
+                                                 clock_type=self.get_clock().clock_type)).nanoseconds * 1e-9
+            if age > max_age:
+                self._drop("stale", f"{topic} is {age:.3f} s old (max_stamp_age {max_age} s)")
+                return False
+        return True
+
+    def _on_pose(self, msg: PoseStamped) -> None:
+        p, o = msg.pose.position, msg.pose.orientation
+        values = (p.x, p.y, p.z, o.x, o.y, o.z, o.w)
+        if not all(math.isfinite(v) for v in values) or (o.x * o.x + o.y * o.y + o.z * o.z + o.w * o.w) < 1e-12:
+            self._drop("nonfinite", "tool/pose with a NaN/inf value or a zero quaternion")
+            return
+        stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+        if not self._check_header("tool/pose", stamp, msg.header.frame_id, self.tool.pose_stamp):
+            return
+        self.tool.pose = ToolPose(p.x, p.y, _yaw_from_quaternion(o.x, o.y, o.z, o.w))
+        self.tool.pose_stamp = stamp
+        if self._values["lock_step"] and not self.paused:
+            twist = self.tool.twist if (self._values["twist_source"] == "auto" and stamp != (0, 0)
+                                        and self.tool.twist_stamp == stamp) else None
+            self._step(stamp if stamp != (0, 0) else _stamp_of(self.get_clock().now()), twist)
+
+    def _on_twist(self, msg: TwistStamped) -> None:
+        v, w = msg.twist.linear, msg.twist.angular
+        if not all(math.isfinite(x) for x in (v.x, v.y, v.z, w.x, w.y, w.z)):
+            self._drop("nonfinite", "tool/twist with a NaN/inf value")
+            return
+        stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+        if not self._check_header("tool/twist", stamp, msg.header.frame_id, self.tool.twist_stamp):
+            return
+        self.tool.twist = ToolTwist(v.x, v.y, w.z)
+        self.tool.twist_stamp = stamp
+        self.tool.twist_received = self.get_clock().now().nanoseconds * 1e-9
+
+    def _tool_for_step(self) -> tuple[ToolPose | None, ToolTwist | None]:
+        """The pose to use this step (clamped if it jumps) and the twist (None: derive from poses)."""
+        pose = self.tool.pose
+        if pose is None:
+            return None, None
+        last = self.sim.tool_pose
+        if last is not None:
+            dx, dy = pose.x - last.x, pose.y - last.y
+            dist = math.hypot(dx, dy)
+            max_jump = self._values["max_tool_jump"]
+            if dist > max_jump:
+                self.stats.clamped_jumps += 1
+                self._warn("jump", f"tool/pose jumps {dist:.3f} m in one step (max_tool_jump {max_jump} m): "
+                                   f"moving {max_jump} m toward it ({self.stats.clamped_jumps} clamped so far)")
+                s = max_jump / dist
+                return ToolPose(last.x + s * dx, last.y + s * dy, pose.yaw), None
+        twist = None
+        if self._values["twist_source"] == "auto" and self.tool.twist is not None:
+            age = self.get_clock().now().nanoseconds * 1e-9 - self.tool.twist_received
+            if age <= self._values["twist_timeout"]:
+                twist = self.tool.twist
+        return pose, twist
+
+    # ------------------------------------------------------------------ stepping
+
+    def _on_tick(self) -> None:
+        now = self.get_clock().now()
+        if self._last_tick is not None:
+            gap = (now - self._last_tick).nanoseconds * 1e-9
+            missed = int(round(gap / self.sim.params.dt)) - 1
+            if missed > 0:
+                self.stats.missed_ticks += missed
+        self._last_tick = now
+        if self.paused:
+            return
+        self._step(_stamp_of(now), None, from_timer=True)
+
+    def _step(self, stamp: tuple[int, int], twist: ToolTwist | None, from_timer: bool = False) -> None:
+        """One simulation step and its messages; ``stamp`` stamps every output."""
+        t0 = time.perf_counter()
+        if from_timer:
+            pose, twist = self._tool_for_step()
+        else:
+            pose, clamped_twist = self._tool_for_step()
+            twist = twist if pose == self.tool.pose else clamped_twist
+        report = self.sim.step(pose, twist)
+        self.last_report = report
+        self.stats.steps += 1
+        if report.diverged:
+            self.stats.divergences += 1
+            self._warn("diverged", f"step {report.step}: the solver diverged; restored the last good state "
+                                   f"({self.stats.divergences} divergences so far)")
+        self._publish_step(stamp, report)
+        elapsed = time.perf_counter() - t0
+        s = self.stats
+        s.window_steps += 1
+        s.window_step_time_sum += elapsed
+        s.window_step_time_max = max(s.window_step_time_max, elapsed)
+        if elapsed > self.sim.params.dt:
+            s.overruns += 1
+            self._warn("overrun", f"step {report.step} took {elapsed * 1e3:.1f} ms > dt {self.sim.params.dt * 1e3:.1f} ms "
+                                  f"({s.overruns} overruns in {s.steps} steps)")
+
+    def _every(self, rate: float) -> int:
+        """Publish every this many steps for a rate [Hz] (at least every step)."""
+        return max(1, int(round(1.0 / (self.sim.params.dt * rate))))
+
+    def _publish_step(self, stamp: tuple[int, int], report: StepReport) -> None:
+        q = self.sim.state.particle_q
+        frame = self.frame_id
+        if not np.isfinite(q).all():
+            # the Simulation restores the last good state, so this is a bug guard: never publish NaN
+            self._drop("unpublished_nonfinite", f"step {report.step} left non-finite positions; nothing published")
+            return
+        e = report.energy
+        if not report.diverged:
+            terms = np.stack([e.inertial, e.spring, e.area, e.total], axis=1)  # (B, 4)
+            if np.isfinite(terms).all():
+                self.pub_energy.publish(messages.encode_float64(float(terms[:, 3].sum())))
+                for i, term in enumerate(ENERGY_TERMS[:3]):
+                    self.pub_energy_terms[term].publish(messages.encode_float64(float(terms[:, i].sum())))
+                self.pub_energy_bodies.publish(messages.encode_float64_multiarray(
+                    terms, ["body", "term:" + ",".join(ENERGY_TERMS)]))
+            else:
+                self._drop("unpublished_nonfinite", f"step {report.step}: non-finite energy not published")
+        f, tz = report.reaction_force, report.reaction_torque
+        if np.isfinite(f).all() and math.isfinite(tz):
+            self.pub_wrench.publish(messages.encode_wrench_stamped(stamp, frame, (float(f[0]), float(f[1]), 0.0),
+                                                                   (0.0, 0.0, float(tz))))
+        self._steps_since_points += 1
+        self._steps_since_markers += 1
+        publish_points = self._steps_since_points >= self._every(self._values["points_rate"])
+        publish_markers = self._steps_since_markers >= self._every(self._values["marker_rate"])
+        if not (publish_points or publish_markers):
+            return
+        strain = self._encoder.vertex_strain(q)
+        if publish_points:
+            self._steps_since_points = 0
+            self.pub_points.publish(self._encoder.point_cloud(stamp, frame, q, strain))
+        if publish_markers:
+            self._steps_since_markers = 0
+            pose = self.sim.tool_pose
+            self.pub_markers.publish(self._encoder.markers(
+                stamp, frame, q, strain,
+                tool_pose=None if pose is None else (pose.x, pose.y, pose.yaw),
+                tool_stamp=self.tool.pose_stamp if pose is not None else None,
+                contact_particles=report.contact_particles))
+
+    def _publish_rest_mesh(self) -> None:
+        m = self.sim.model
+        self.pub_rest.publish(self._encoder.rest_markers(_stamp_of(self.get_clock().now()), self.frame_id,
+                                                         m.particle_q0, m.particle_pinned))
+
+    def _publish_state_now(self) -> None:
+        """Points and markers of the current state, outside the step cadence (after a reset)."""
+        q = self.sim.state.particle_q
+        stamp = _stamp_of(self.get_clock().now())
+        strain = self._encoder.vertex_strain(q)
+        self.pub_points.publish(self._encoder.point_cloud(stamp, self.frame_id, q, strain))
+        self.pub_markers.publish(self._encoder.markers(stamp, self.frame_id, q, strain))
+
+    # ------------------------------------------------------------------ services
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self.sim.reset()
+        self.tool = ToolInput()
+        self._last_tick = None
+        self._publish_state_now()
+        response.success = True
+        response.message = f"reset to the rest mesh ({self.sim.model.n_particles} particles), t = 0"
+        self.get_logger().info(response.message)
+        return response
+
+    def _on_pause(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
+        result = self.set_parameters([Parameter("paused", Parameter.Type.BOOL, bool(request.data))])[0]
+        response.success = result.successful
+        response.message = ("paused" if request.data else "running") if result.successful else result.reason
+        return response
+
+    # ------------------------------------------------------------------ diagnostics
+
+    def _publish_diagnostics(self) -> None:
+        s = self.stats
+        now = time.monotonic()
+        window = max(now - s.window_start, 1e-9)
+        r = self.last_report
+        level = DiagnosticStatus.OK
+        message = "paused" if self.paused else "running"
+        if s.window_steps and s.window_step_time_max > self.sim.params.dt:
+            level, message = DiagnosticStatus.WARN, f"{message}; a step overran dt in the last {window:.1f} s"
+        if r is not None and r.diverged:
+            level, message = DiagnosticStatus.ERROR, f"{message}; the last step diverged (state restored)"
+        values = {
+            "steps": s.steps,
+            "step_rate_hz": s.window_steps / window,
+            "step_time_mean_ms": 1e3 * s.window_step_time_sum / max(s.window_steps, 1),
+            "step_time_max_ms": 1e3 * s.window_step_time_max,
+            "overruns": s.overruns,
+            "missed_ticks": s.missed_ticks,
+            "divergences": s.divergences,
+            "clamped_tool_jumps": s.clamped_jumps,
+            **{f"dropped_{k}": v for k, v in s.dropped.items()},
+            "paused": self.paused,
+            "lock_step": self._values["lock_step"],
+            "sim_time_s": self.sim.time,
+        }
+        if r is not None:
+            values.update({
+                "in_contact": ",".join(str(bool(c)).lower() for c in r.in_contact),
+                "d_star_m": ",".join(f"{d:.6g}" for d in r.d_star),
+                "contact_particles": r.n_contact_particles,
+                "residual": r.residual,
+                "inverted_triangles": r.n_inverted,
+                "energy_total": r.energy.scene_total,
+            })
+        status = DiagnosticStatus(level=level, name=f"{self.get_fully_qualified_name()}: simulation",
+                                  message=message, hardware_id="tissue_sim",
+                                  values=[KeyValue(key=k, value=f"{v:.6g}" if isinstance(v, float) else str(v).lower()
+                                                   if isinstance(v, bool) else str(v)) for k, v in values.items()])
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diagnostics.publish(array)
+        s.window_steps, s.window_step_time_sum, s.window_step_time_max, s.window_start = 0, 0.0, 0.0, now
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``tissue_sim_node``: exit 0 on SIGINT/SIGTERM, 2 on a bad parameter (named)."""
+    try:
+        rclpy.init(args=args)
+    except Exception as exc:  # noqa: BLE001  rcl's parse errors (a missing or malformed --params-file)
+        print(f"tissue_sim_node: error: {exc}", file=sys.stderr)
+        return 2
+    node = None
+    code = 0
+    try:
+        node = TissueSimNode()
+        rclpy.spin(node)
+    except InputError as exc:
+        print(f"tissue_sim_node: error: {exc}", file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except _rclpy_impl.RCLError:
+        # SIGTERM/SIGINT shut the context down while a callback was publishing: a clean shutdown
+        if rclpy.ok():
+            raise
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,57 @@
+"""The QoS profiles of the node's topics, chosen once here and passed in.
+
+* Tool input (``tool/pose``, ``tool/twist``): BEST_EFFORT subscriptions, so
+  both reliable and best-effort publishers match (a best-effort reader accepts
+  either; a reliable reader would refuse a best-effort writer). Keep-last: the
+  timer uses the newest pose; in lock-step every pose is a step, so the queue
+  is deep enough for a bag replayed at speed.
+* Per-step output (``tissue/markers``, ``tissue/points``, ``tool/wrench``):
+  RELIABLE keep-last, VOLATILE. Reliable writers match both reliable readers
+  (RViz's default) and best-effort readers (plotters, sensor-data QoS);
+  keep-last means a slow reader only ever gets the newest states, the
+  simulation never waits for it.
+* Energy (``tissue/energy*``): RELIABLE, deeper history, so a plot gets every
+  step.
+* Rest mesh (``tissue/rest_mesh``): RELIABLE, TRANSIENT_LOCAL, depth 1 - latched
+  like ``/tf_static``: a late subscriber still gets the one message.
+* Diagnostics: the ROS default (reliable, depth 10), as diagnostic_aggregator expects.
+"""
+from __future__ import annotations
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+
+def tool_input(lock_step: bool = False) -> QoSProfile:
+    """Subscriptions to tool/pose and tool/twist: best effort, keep last 10 (1000 in lock-step)."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000 if lock_step else 10,
+                      reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+
+
+def state_stream() -> QoSProfile:
+    """Markers, points, wrench: reliable, keep last 2, volatile."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2,
+                      reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+
+
+def energy() -> QoSProfile:
+    """Energy totals and terms: reliable, keep last 100, volatile."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                      reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+
+
+def latched() -> QoSProfile:
+    """Published once (rest mesh): reliable, transient local, keep last 1."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                      reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def diagnostics() -> QoSProfile:
+    """/diagnostics: reliable, keep last 10, volatile."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                      reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+
+
+def tool_output() -> QoSProfile:
+    """The tool driver's tool/pose and tool/twist publishers: reliable, keep last 10 (matches any reader)."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                      reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)

@@ -1,0 +1,201 @@
+"""ToolDriver: plays a scripted tool trajectory on ``tool/pose`` and ``tool/twist``.
+
+So a newcomer sees the simulation work without a robot::
+
+    tissue_sim_node --ros-args --params-file config/tissue_sim.yaml &
+    tool_driver --ros-args -p angle:=30.0 -p speed:=0.1
+
+The trajectory is a straight insertion (:class:`~tissue_sim_ros.core.tool.StraightInsertion`)
+toward ``target_x, target_y`` at ``angle`` [deg] over ``distance`` [m], or a
+named experiment preset (``preset``; resolved by
+``tissue_sim_ros.experiments.trajectories.preset``). Messages go out at 1/dt
+of the node's clock, stamped with that clock; in ``lock_step`` mode the driver
+sends the next pose only once the simulation has published the energy of the
+previous step (or after ``lock_step_timeout``), stamps poses k*dt after the
+start, and so drives the simulation as fast as it steps.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from typing import Any
+
+import rclpy
+from geometry_msgs.msg import PoseStamped, TwistStamped
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.task import Future
+from rclpy.time import Time
+from std_msgs.msg import Float64
+
+from ..core.errors import InputError
+from ..core.scene import default_params, tool_from_mapping
+from . import messages, qos
+
+#: name -> (default, description); defaults of the tool and dt come from config/tissue_sim.yaml.
+DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
+    "preset": ("", "Name of an experiment trajectory (tissue_sim_ros.experiments.trajectories.preset); empty = straight insertion from the parameters below."),
+    "target_x": (0.5, "Tip position at the end of the insertion, x [m]."),
+    "target_y": (0.5, "Tip position at the end of the insertion, y [m]."),
+    "angle": (0.0, "Insertion direction (the tool's yaw) [deg]; 0 = moving toward +x."),
+    "distance": (0.3, "Distance the tip travels [m]."),
+    "speed": (0.1, "Tip speed [m/s]."),
+    "hold": (0.5, "Time held at the target after arriving [s]."),
+    "dt": (0.01, "Publishing period [s] (default: dt of config/tissue_sim.yaml)."),
+    "frame_id": ("world", "frame_id of the published messages."),
+    "tool_shape": ("box", "Tool shape (the tip is length/2 ahead of the centre for box and capsule)."),
+    "tool_length": (0.8, "Tool length [m]."),
+    "wait_for_subscriber": (True, "Wait until a subscriber of tool/pose matches before starting."),
+    "wait_timeout": (30.0, "Give up waiting for a subscriber after this long [s]; 0 = forever."),
+    "exit_when_done": (True, "Exit when the trajectory ends (else keep publishing the last pose)."),
+    "lock_step": (False, "Send the next pose only after the simulation published tissue/energy for the previous one."),
+    "lock_step_timeout": (1.0, "Lock-step: send the next pose anyway after this long without a step [s]."),
+    "publish_twist": (True, "Also publish tool/twist (false: the node derives velocity from poses)."),
+}
+
+
+def _trajectory(values: dict[str, Any]):
+    """The trajectory the parameters describe (a preset or a straight insertion)."""
+    if values["preset"]:
+        try:
+            from ..experiments.trajectories import preset  # noqa: PLC0415  (written alongside; optional here)
+        except ImportError as exc:
+            raise InputError(f"parameter preset={values['preset']!r}: presets are not available in this build ({exc})") from None
+        return preset(values["preset"])
+    from ..core import tool as tool_module  # noqa: PLC0415
+
+    straight = getattr(tool_module, "StraightInsertion", None)
+    if straight is None:
+        raise InputError("tool_driver needs tissue_sim_ros.core.tool.StraightInsertion, which this build lacks")
+    tool = tool_from_mapping({"tool_shape": values["tool_shape"], "tool_length": values["tool_length"]})
+    return straight.from_angle(tool, (values["target_x"], values["target_y"]), math.radians(values["angle"]),
+                               values["distance"], values["speed"], hold=values["hold"])
+
+
+class ToolDriver(Node):
+    """Publishes a trajectory's poses and twists; ``done`` completes when it has played."""
+
+    def __init__(self, node_name: str = "tool_driver", **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        shipped = default_params()
+        self.values: dict[str, Any] = {}
+        for name, (default, description) in DRIVER_PARAMETERS.items():
+            default = shipped.get(name, default) if name in ("dt", "tool_shape", "tool_length") else default
+            if isinstance(default, float):
+                default = float(default)
+            value = self.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=True,
+                                                                              dynamic_typing=True)).value
+            if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+                value = float(value)
+            if type(value) is not type(default):
+                raise InputError(f"parameter {name}={value!r}: expected a {type(default).__name__}")
+            if isinstance(value, float) and not math.isfinite(value):
+                raise InputError(f"parameter {name}={value!r}: expected a finite number")
+            self.values[name] = value
+        if self.values["dt"] <= 0:
+            raise InputError(f"parameter dt={self.values['dt']!r}: expected a period > 0 s")
+        self.trajectory = _trajectory(self.values)
+        self.dt: float = self.values["dt"]
+        self.n_steps = max(1, math.ceil(self.trajectory.duration / self.dt - 1e-9))
+        self.k = 0
+        self.done = Future()
+        self.steps_seen = 0
+        self._sent_at: Time | None = None
+        self._start_ns: int | None = None
+        self.pub_pose = self.create_publisher(PoseStamped, "tool/pose", qos.tool_output())
+        self.pub_twist = self.create_publisher(TwistStamped, "tool/twist", qos.tool_output())
+        if self.values["lock_step"]:
+            self.create_subscription(Float64, "tissue/energy", self._on_energy, qos.energy())
+        self._wait_start = self.get_clock().now()
+        self.timer = self.create_timer(self.dt, self._on_tick)
+        self.get_logger().info(f"{type(self.trajectory).__name__}: {self.n_steps} steps of {self.dt} s "
+                               f"({'lock-step' if self.values['lock_step'] else 'timed'})")
+
+    def _on_energy(self, msg: Float64) -> None:
+        self.steps_seen += 1
+        if self.values["lock_step"] and self._start_ns is not None:
+            self._publish_next()
+
+    def _ready(self) -> bool:
+        """True once a subscriber matches (or waiting is off or timed out)."""
+        if not self.values["wait_for_subscriber"] or self.pub_pose.get_subscription_count() > 0:
+            return True
+        waited = (self.get_clock().now() - self._wait_start).nanoseconds * 1e-9
+        timeout = self.values["wait_timeout"]
+        if timeout > 0 and waited > timeout:
+            self.get_logger().error(f"no subscriber on {self.pub_pose.topic_name} after {timeout} s")
+            self.done.set_result(False)
+        return False
+
+    def _on_tick(self) -> None:
+        if self.done.done():
+            return
+        if self._start_ns is None:
+            if not self._ready():
+                return
+            self._start_ns = self.get_clock().now().nanoseconds
+            self._publish_next()
+            return
+        if self.values["lock_step"]:
+            # resend only when the simulation has not stepped for lock_step_timeout
+            if self._sent_at is not None and (self.get_clock().now() - self._sent_at).nanoseconds * 1e-9 \
+                    > self.values["lock_step_timeout"]:
+                self.get_logger().warning(f"no step for {self.values['lock_step_timeout']} s; sending the next pose")
+                self._publish_next()
+            return
+        self._publish_next()
+
+    def _publish_next(self) -> None:
+        if self.done.done():
+            return
+        if self.k > self.n_steps:
+            if self.values["exit_when_done"]:
+                self.get_logger().info(f"trajectory done after {self.n_steps} steps")
+                self.done.set_result(True)
+                return
+            self.k = self.n_steps  # keep holding the last pose
+        t = min(self.k * self.dt, self.trajectory.duration)
+        pose = self.trajectory.pose_at(self.trajectory.start_time + t)
+        twist = self.trajectory.twist_at(self.trajectory.start_time + t)
+        now = self.get_clock().now()
+        stamp_ns = self._start_ns + round(self.k * self.dt * 1e9) if self.values["lock_step"] else now.nanoseconds
+        stamp = (stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000)
+        frame = self.values["frame_id"]
+        if self.values["publish_twist"]:
+            self.pub_twist.publish(messages.encode_twist_stamped(stamp, frame, twist.vx, twist.vy, twist.wz))
+        self.pub_pose.publish(messages.encode_pose_stamped(stamp, frame, pose.x, pose.y, pose.yaw))
+        self._sent_at = now
+        self.k += 1
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``tool_driver``: 0 when the trajectory played, 1 if no subscriber came, 2 on a bad parameter."""
+    try:
+        rclpy.init(args=args)
+    except Exception as exc:  # noqa: BLE001  rcl's argument/parameter-file errors
+        print(f"tool_driver: error: {exc}", file=sys.stderr)
+        return 2
+    node = None
+    code = 0
+    try:
+        node = ToolDriver()
+        if node.values["exit_when_done"]:
+            rclpy.spin_until_future_complete(node, node.done)
+            code = 0 if node.done.done() and node.done.result() else 1
+        else:
+            rclpy.spin(node)
+    except InputError as exc:
+        print(f"tool_driver: error: {exc}", file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())
