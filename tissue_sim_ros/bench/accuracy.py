@@ -1,0 +1,568 @@
+"""``tissue-sim bench accuracy``: error against the exact Newton solve versus time per step.
+
+Every method (the paper's PBD Gauss-Seidel and Jacobi, XPBD Gauss-Seidel and
+Jacobi, substepped XPBD, and Newton itself stopped after a few iterations) runs
+the standard tool trajectory (experiment a: the tool, in the gap between the
+tissues, pushes the bottom tissue down) at several iteration / substep
+counts, time steps and mesh resolutions. For each setting it measures
+
+* the median wall time of one solver step (contact detection excluded: it is
+  the same for every method);
+* the per-step error: from the method's own state at every step, the method
+  and the exact reference (:mod:`~tissue_sim_ros.bench.reference`) each take
+  one step with the same contacts; error = ||x_method - x_ref|| / ||x_ref - x_start||;
+* the accumulated error: the method's run against the reference's own run,
+  ||x_method(k) - x_ref(k)|| / ||x_ref(k) - x(0)||, at the end of the trajectory.
+
+The reference minimises the implicit Euler energy with the physical XPBD
+stiffnesses; the paper's PBD minimises nothing of the kind (its stiffness
+depends on the iteration count), so its error does not fall to zero as
+iterations grow. Physical accuracy against refinement compares the reference
+solutions at 1x, 2x, 4x mesh resolution (and a graded mesh) with the finest.
+
+Writes ``accuracy.csv``, ``accuracy_refinement.csv``, ``accuracy.png`` and
+prints the Pareto front (the settings no other setting beats on both time and
+error) and the cheapest setting for each error tolerance.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..core.collision import ContactModel, Contacts
+from ..core.errors import InputError
+from ..core.mesh import TissueMesh, mesh_rectangle
+from ..core.model import Model, SimParams, State
+from ..core.tool import ToolPose, ToolShape, ToolTwist
+from .reference import reference_step, relative_error
+
+HELP = "error against an exact Newton solve versus time per step, Pareto front"
+DESCRIPTION = __doc__
+
+#: Method names of the chart, in drawing order.
+METHOD_NAMES = ("pbd", "pbd_jacobi", "xpbd", "xpbd_jacobi", "xpbd_substep", "newton")
+METHOD_LABELS = {
+    "pbd": "paper PBD, Gauss-Seidel",
+    "pbd_jacobi": "paper PBD, Jacobi",
+    "xpbd": "XPBD, Gauss-Seidel",
+    "xpbd_jacobi": "XPBD, Jacobi",
+    "xpbd_substep": "XPBD, substeps of 1 iteration",
+    "newton": "Newton (reference), capped iterations",
+}
+
+
+# ----------------------------------------------------------------------------- scenes and settings
+
+
+@dataclass
+class Scene:
+    """A mesh, base parameters, a tool and its trajectory: what every method is run on."""
+
+    name: str
+    mesh: TissueMesh
+    params: SimParams
+    """Base parameters (physics, boundary lines, contact model); method fields are overridden per setting."""
+    tool: ToolShape
+    poses: list[ToolPose]
+    """Tool pose at the end of each step; ``poses[0]`` is also the pose before the first step."""
+    spacing: float
+    """Target edge length of the mesh [m] (of the coarse region for a graded mesh)."""
+    graded: bool = False
+    focus: tuple[float, float] = (0.0, 0.0)
+    """Where the tool works [m] (the centre of the error measured 'near the tool')."""
+
+    @property
+    def n_particles(self) -> int:
+        return int(self.mesh.vertices.shape[0])
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One point of the chart: a method and its iteration (or substep) count, on a scene."""
+
+    method: str
+    """One of :data:`METHOD_NAMES`."""
+    count: int
+    """Iterations per step (substeps for ``xpbd_substep``; Newton iterations for ``newton``)."""
+
+    def params(self, base: SimParams) -> SimParams:
+        """The base parameters with this method and count."""
+        if self.method == "xpbd_substep":
+            return base.with_(method="xpbd", scheme="gauss_seidel", iterations=1, substeps=self.count)
+        method, scheme = {"pbd": ("pbd", "gauss_seidel"), "pbd_jacobi": ("pbd", "jacobi"),
+                          "xpbd": ("xpbd", "gauss_seidel"), "xpbd_jacobi": ("xpbd", "jacobi"),
+                          "newton": ("xpbd", "gauss_seidel")}[self.method]
+        return base.with_(method=method, scheme=scheme, iterations=self.count, substeps=1)
+
+    @property
+    def label(self) -> str:
+        unit = {"xpbd_substep": "substeps", "newton": "Newton it."}.get(self.method, "it.")
+        return f"{self.method} {self.count} {unit}"
+
+
+def push_poses(mesh: TissueMesh, tool: ToolShape, n_steps: int, speed: float, approach: float = 0.02,
+               tip_fraction: float = 0.6) -> tuple[list[ToolPose], tuple[float, float]]:
+    """Experiment a's motion: the tool lies horizontally in from the left and pushes the bottom tissue down.
+
+    The tool (yaw 0) reaches from the left edge to ``tip_fraction`` of the
+    tissue's width; it starts ``approach`` above the bottom body's top surface
+    under it and moves down by ``speed`` [m per step] each step.
+
+    Returns
+    -------
+    poses : list of ToolPose, length n_steps + 1 (the pose before step 1, then one per step)
+    focus : (float, float), the tool tip's position at the end [m]
+    """
+    v = mesh.vertices
+    centroid_y = [v[mesh.body == b, 1].mean() for b in range(mesh.n_bodies)]
+    bottom = int(np.argmin(centroid_y))
+    x_min, x_max = float(v[:, 0].min()), float(v[:, 0].max())
+    tip_x = x_min + tip_fraction * (x_max - x_min)
+    half = 0.5 * tool.length if tool.kind != "sphere" else 0.0
+    under = (mesh.body == bottom) & (v[:, 0] <= tip_x) & (v[:, 0] >= tip_x - 2 * half)
+    top = float(v[under, 1].max()) if under.any() else float(v[mesh.body == bottom, 1].max())
+    hy = tool.rounded_box()[1] + tool.rounded_box()[2]
+    y0 = top + approach + hy
+    poses = [ToolPose(tip_x - half, y0 - k * speed, 0.0) for k in range(n_steps + 1)]
+    return poses, (tip_x, poses[-1].y)
+
+
+def default_scene(spacing: float = 0.05, dt: float = 0.01, n_steps: int = 40, speed: float = 0.002,
+                  grading: tuple[float, float, float, float] | None = None,
+                  overrides: dict[str, Any] | None = None) -> Scene:
+    """The shipped tissue image and parameters (config/tissue_sim.yaml) with experiment a's push.
+
+    ``grading`` = (x, y, radius, fine_spacing) meshes finer near a point (H1's graded mesh).
+    """
+    from ..core.scene import SceneConfig, default_params, tool_from_mapping  # noqa: PLC0415
+
+    values = default_params()
+    values.update(overrides or {})
+    values["spacing"] = spacing
+    values["dt"] = dt
+    cfg = SceneConfig.from_mapping(values)
+    if grading is None:
+        mesh = cfg.build_mesh()
+    else:
+        from ..core.mesh import mesh_from_image  # noqa: PLC0415
+        from ..resources import DEFAULT_IMAGE, config_path  # noqa: PLC0415
+
+        mesh = mesh_from_image(cfg.image or str(config_path(DEFAULT_IMAGE)), spacing=spacing, scale=cfg.scale,
+                               origin=(cfg.origin_x, cfg.origin_y),
+                               threshold=None if cfg.threshold < 0 else cfg.threshold, grading=grading)
+    params = SimParams.from_mapping(values)
+    tool = tool_from_mapping(values)
+    poses, focus = push_poses(mesh, tool, n_steps, speed)
+    return Scene("tissue image", mesh, params, tool, poses, spacing, graded=grading is not None, focus=focus)
+
+
+def strip_scene(spacing: float = 0.05, dt: float = 0.01, n_steps: int = 20, speed: float = 0.002,
+                width: float = 1.0, height: float = 0.3, overrides: dict[str, Any] | None = None) -> Scene:
+    """A structured strip pinned along its bottom, pushed down from above by a box tool (small, for tests)."""
+    mesh = mesh_rectangle(width, height, spacing)
+    values: dict[str, Any] = {"dt": dt, "boundary_y_bottom": 0.5 * spacing, "contact_model": "paper"}
+    values.update(overrides or {})
+    params = SimParams.from_mapping(values)
+    tool = ToolShape("box", length=0.4 * width, width=0.005)
+    # a single body: push its top surface (push_poses picks the bottom body, which here is the only one)
+    poses, focus = push_poses(mesh, tool, n_steps, speed)
+    return Scene("strip", mesh, params, tool, poses, spacing, focus=focus)
+
+
+# ----------------------------------------------------------------------------- stepping
+
+
+class Stepper:
+    """One method on one scene: contact detection and a step, with the solve timed."""
+
+    def __init__(self, scene: Scene, setting: Setting, solver_options: dict[str, Any] | None = None) -> None:
+        from ..core.solvers import Solver  # noqa: PLC0415
+
+        self.scene = scene
+        self.setting = setting
+        self.model = Model.from_mesh(scene.mesh, setting.params(scene.params))
+        self.contact = ContactModel(self.model, scene.tool) if scene.params.contact_model != "none" else None
+        self.newton = setting.method == "newton"
+        self.solver = None if self.newton else Solver(self.model, **(solver_options or {}))
+        self._out = self.model.state()
+
+    def detect(self, state: State, pose0: ToolPose, pose1: ToolPose) -> Contacts:
+        """The scene's contacts for a step from ``state`` moving the tool from pose0 to pose1."""
+        if self.contact is None:
+            return Contacts.empty(self.model.n_bodies)
+        dt = self.model.params.dt
+        twist = ToolTwist((pose1.x - pose0.x) / dt, (pose1.y - pose0.y) / dt, (pose1.yaw - pose0.yaw) / dt)
+        return self.contact.detect(state, pose0, pose1, twist, dt)
+
+    def step(self, state: State, contacts: Contacts) -> tuple[State, float]:
+        """One step from ``state``; returns the new state (a fresh copy) and the solve's wall time [s]."""
+        dt = self.model.params.dt
+        if self.newton:
+            t0 = time.perf_counter()
+            ref = reference_step(self.model, state, contacts, dt, max_iterations=self.setting.count)
+            elapsed = time.perf_counter() - t0
+            return State(ref.particle_q, ref.particle_qd), elapsed
+        t0 = time.perf_counter()
+        with np.errstate(all="ignore"):
+            self.solver.step(state, self._out, contacts, dt)
+        elapsed = time.perf_counter() - t0
+        return self._out.copy(), elapsed
+
+
+def reference_run(scene: Scene, progress: Callable[[], None] | None = None) -> tuple[list[np.ndarray], float]:
+    """The exact reference's own run along the scene's trajectory.
+
+    Returns
+    -------
+    positions : list of (N, 2) arrays, [x(0), x(1), ..., x(n)]
+    ms_per_step : float, median wall time of one exact Newton step [ms]
+    """
+    stepper = Stepper(scene, Setting("newton", 200))
+    state = stepper.model.state()
+    out = [state.particle_q.copy()]
+    times = []
+    for k in range(1, len(scene.poses)):
+        contacts = stepper.detect(state, scene.poses[k - 1], scene.poses[k])
+        state, elapsed = stepper.step(state, contacts)
+        times.append(elapsed)
+        out.append(state.particle_q.copy())
+        if progress:
+            progress()
+    return out, 1e3 * float(np.median(times)) if times else math.nan
+
+
+def measure_setting(scene: Scene, setting: Setting, ref_positions: Sequence[np.ndarray] | None,
+                    per_step_every: int = 1, progress: Callable[[], None] | None = None) -> dict[str, Any]:
+    """Run one setting along the scene's trajectory and measure its time and errors.
+
+    Parameters
+    ----------
+    scene : Scene
+    setting : Setting
+    ref_positions : list of (N, 2) arrays, optional
+        The reference's own run (:func:`reference_run`) for the accumulated error.
+    per_step_every : int
+        Measure the per-step error at every this many steps (each costs a Newton solve).
+
+    Returns
+    -------
+    dict: one CSV row (scene, spacing, particles, dt, method, count, ms_per_step, err_step_median,
+    err_step_max, err_accum_final, err_accum_max, diverged).
+    """
+    stepper = Stepper(scene, setting)
+    model = stepper.model
+    dt = model.params.dt
+    state = model.state()
+    x0 = state.particle_q.copy()
+    times: list[float] = []
+    err_step: list[float] = []
+    err_accum: list[float] = []
+    diverged = False
+    for k in range(1, len(scene.poses)):
+        contacts = stepper.detect(state, scene.poses[k - 1], scene.poses[k])
+        new_state, elapsed = stepper.step(state, contacts)
+        times.append(elapsed)
+        if not np.isfinite(new_state.particle_q).all():
+            diverged = True
+            err_step.append(math.inf)
+            err_accum.append(math.inf)
+            if progress:
+                progress()
+            break
+        if k % per_step_every == 0 or k == 1:
+            exact = reference_step(model, state, contacts, dt)
+            err_step.append(relative_error(new_state.particle_q, exact.particle_q, state.particle_q))
+        if ref_positions is not None:
+            err_accum.append(relative_error(new_state.particle_q, ref_positions[k], x0))
+        state = new_state
+        if progress:
+            progress()
+    p = setting.params(scene.params)
+    return {
+        "scene": scene.name + (" graded" if scene.graded else ""), "spacing": scene.spacing,
+        "particles": scene.n_particles, "dt": dt, "method": setting.method, "count": setting.count,
+        "iterations": p.iterations if setting.method != "newton" else 0,
+        "substeps": p.substeps if setting.method != "newton" else 0,
+        "ms_per_step": 1e3 * float(np.median(times)) if times else math.nan,
+        "err_step_median": float(np.median(err_step)) if err_step else math.nan,
+        "err_step_max": float(np.max(err_step)) if err_step else math.nan,
+        "err_accum_final": err_accum[-1] if err_accum else math.nan,
+        "err_accum_max": float(np.max(err_accum)) if err_accum else math.nan,
+        "diverged": diverged,
+    }
+
+
+# ----------------------------------------------------------------------------- physical accuracy
+
+
+def displacement_error(scene: Scene, positions: np.ndarray, fine: Scene, fine_positions: np.ndarray,
+                       near_radius: float | None = None) -> float:
+    """Displacement of ``scene``'s particles against the finest scene's displacement field at the same points.
+
+    The fine mesh's displacement is interpolated linearly (on its rest
+    triangles) at the coarse particles' rest positions; the error is
+    ||u_coarse - u_fine|| / ||u_fine|| over the particles (within
+    ``near_radius`` of the scene's focus when given) that lie inside the fine mesh.
+    """
+    import matplotlib.tri as mtri  # noqa: PLC0415
+
+    fm = fine.mesh
+    tri = mtri.Triangulation(fm.vertices[:, 0], fm.vertices[:, 1], fm.triangles)
+    u_fine = fine_positions - fm.vertices
+    rest = scene.mesh.vertices
+    ux = mtri.LinearTriInterpolator(tri, u_fine[:, 0])(rest[:, 0], rest[:, 1])
+    uy = mtri.LinearTriInterpolator(tri, u_fine[:, 1])(rest[:, 0], rest[:, 1])
+    inside = ~(np.ma.getmaskarray(ux) | np.ma.getmaskarray(uy))
+    if near_radius is not None:
+        inside &= np.hypot(rest[:, 0] - scene.focus[0], rest[:, 1] - scene.focus[1]) <= near_radius
+    u_ref = np.stack([np.asarray(ux.filled(0.0)), np.asarray(uy.filled(0.0))], axis=1)[inside]
+    u = (positions - rest)[inside]
+    den = float(np.linalg.norm(u_ref))
+    return float(np.linalg.norm(u - u_ref)) / den if den > 0 else math.nan
+
+
+# ----------------------------------------------------------------------------- Pareto front and choice
+
+
+def pareto_front(rows: Sequence[dict[str, Any]], error_key: str = "err_step_median") -> list[int]:
+    """Indices of rows on the front: no other row is both faster and more accurate; sorted by time."""
+    ok = [i for i, r in enumerate(rows) if math.isfinite(r["ms_per_step"]) and math.isfinite(r[error_key])]
+    ok.sort(key=lambda i: (rows[i]["ms_per_step"], rows[i][error_key]))
+    front: list[int] = []
+    best = math.inf
+    for i in ok:
+        if rows[i][error_key] < best:
+            front.append(i)
+            best = rows[i][error_key]
+    return front
+
+
+def cheapest(rows: Sequence[dict[str, Any]], tolerance: float, error_key: str = "err_step_median",
+             exclude: Sequence[str] = ("newton",)) -> dict[str, Any] | None:
+    """The fastest row whose error is at most ``tolerance`` (None if none is)."""
+    ok = [r for r in rows if r["method"] not in exclude and math.isfinite(r[error_key])
+          and r[error_key] <= tolerance and math.isfinite(r["ms_per_step"])]
+    return min(ok, key=lambda r: r["ms_per_step"]) if ok else None
+
+
+# ----------------------------------------------------------------------------- output
+
+
+def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
+    """Rows (dicts with the same keys) as CSV."""
+    if not rows:
+        return
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0].keys()))
+        w.writeheader()
+        w.writerows(rows)
+
+
+def plot_chart(path: Path, rows: Sequence[dict[str, Any]], title: str, error_key: str = "err_step_median") -> None:
+    """Log error against log time per step, one curve per method and resolution, Pareto front marked."""
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    fig, ax = plt.subplots(figsize=(9, 6.5))
+    colours = dict(zip(METHOD_NAMES, ("tab:red", "tab:orange", "tab:blue", "tab:green", "tab:purple", "black")))
+    markers = ["o", "s", "^", "D", "v"]
+    groups: dict[tuple[str, str, float, float], list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault((r["method"], r["scene"], r["particles"], r["dt"]), []).append(r)
+    resolutions = sorted({(r["scene"], r["particles"]) for r in rows}, key=lambda s: s[1])
+    dts = sorted({r["dt"] for r in rows}, reverse=True)
+    for (method, scene, particles, dt), g in sorted(groups.items(), key=lambda kv: (METHOD_NAMES.index(kv[0][0]), kv[0][2])):
+        g = [r for r in g if math.isfinite(r[error_key]) and r[error_key] > 0]
+        if not g:
+            continue
+        g.sort(key=lambda r: r["count"])
+        res_i = resolutions.index((scene, particles))
+        style = "-" if dt == dts[0] else "--"
+        ax.plot([r["ms_per_step"] for r in g], [r[error_key] for r in g], style,
+                marker=markers[res_i % len(markers)], color=colours.get(method, "grey"), alpha=0.85, ms=4,
+                label=f"{METHOD_LABELS.get(method, method)}, {scene} {particles} p., dt {dt:g}")
+        for r in (g[0], g[-1]):
+            ax.annotate(str(r["count"]), (r["ms_per_step"], r[error_key]), fontsize=6, xytext=(2, 2),
+                        textcoords="offset points")
+    front = [rows[i] for i in pareto_front(rows, error_key)]
+    if front:
+        ax.step([r["ms_per_step"] for r in front], [r[error_key] for r in front], where="post", color="k",
+                lw=2.5, alpha=0.35, label="Pareto front")
+        ax.scatter([r["ms_per_step"] for r in front], [r[error_key] for r in front], s=70, facecolors="none",
+                   edgecolors="k", zorder=5)
+    newton = sorted({(r["particles"], r["newton_ms"]) for r in rows if math.isfinite(r.get("newton_ms", math.nan))})
+    for i, (particles, ms) in enumerate(newton):
+        ax.axvline(ms, color="k", ls=":", lw=1)
+        ax.annotate(f"exact Newton\n{particles} p.", (ms, 0.02 + 0.08 * (i % 3)), xycoords=("data", "axes fraction"),
+                    fontsize=6, rotation=90, ha="right")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("median wall time per step [ms] (solve only)")
+    ax.set_ylabel({"err_step_median": "per-step error vs exact Newton (median, relative to step)",
+                   "err_accum_final": "accumulated error vs exact run (relative to displacement)"}.get(error_key, error_key))
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=6, loc="best", ncol=1)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
+def format_table(rows: Sequence[dict[str, Any]], columns: Sequence[str]) -> str:
+    """A plain-text table of some columns."""
+    def fmt(v: Any) -> str:
+        if isinstance(v, float):
+            return f"{v:.3g}"
+        return str(v)
+
+    cells = [[fmt(r[c]) for c in columns] for r in rows]
+    widths = [max(len(c), *(len(row[i]) for row in cells)) if cells else len(c) for i, c in enumerate(columns)]
+    lines = ["  ".join(c.ljust(w) for c, w in zip(columns, widths))]
+    lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths)) for row in cells]
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- the command
+
+
+@dataclass
+class Plan:
+    """What one run of the benchmark measures."""
+
+    counts: list[int]
+    counts_fine: list[int]
+    newton_counts: list[int]
+    spacings: list[float]
+    dts: list[float]
+    n_steps: int
+    per_step_every: int
+    per_step_every_fine: int
+    graded: bool
+    methods: list[str] = field(default_factory=lambda: list(METHOD_NAMES))
+
+
+def make_plan(quick: bool) -> Plan:
+    if quick:
+        return Plan(counts=[1, 10], counts_fine=[10], newton_counts=[1], spacings=[0.1, 0.05], dts=[0.01],
+                    n_steps=4, per_step_every=2, per_step_every_fine=2, graded=False)
+    return Plan(counts=[1, 2, 5, 10, 20, 50, 100, 200], counts_fine=[5, 20, 50, 200], newton_counts=[1, 2, 3, 5],
+                spacings=[0.05, 0.025, 0.0125], dts=[0.01, 0.005], n_steps=30, per_step_every=3,
+                per_step_every_fine=10, graded=True)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", default="bench_out/accuracy", help="output directory (CSV, PNG)")
+    parser.add_argument("--quick", action="store_true", help="a few settings on a coarse mesh (smoke test)")
+    parser.add_argument("--tolerance", type=float, action="append",
+                        help="error tolerance to pick the cheapest setting for (repeatable; default 0.3, 0.1, 0.01, 1e-3)")
+    parser.add_argument("--steps", type=int, default=None, help="trajectory length in steps (default 30; quick 4)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm  # noqa: PLC0415
+
+    plan = make_plan(args.quick)
+    if args.steps is not None:
+        if args.steps < 1:
+            raise InputError(f"--steps={args.steps}: expected at least 1 step")
+        plan.n_steps = args.steps
+    tolerances = args.tolerance or [0.3, 0.1, 0.01, 1e-3]
+    for tol in tolerances:
+        if not (math.isfinite(tol) and tol > 0):
+            raise InputError(f"--tolerance={tol}: expected an error > 0")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    # the scenes: every resolution at the first dt; the other dts at the base resolution; graded at base spacing
+    base_speed = 0.002  # m per step at dt 0.01 (0.2 m/s); the same speed in m/s at every dt
+    scenes: list[tuple[Scene, list[Setting], int]] = []
+    finest: Scene | None = None
+    refinement: list[Scene] = []
+    for si, spacing in enumerate(plan.spacings):
+        dts = plan.dts if si == 0 else plan.dts[:1]
+        for dt in dts:
+            n_steps = int(round(plan.n_steps * plan.dts[0] / dt))
+            scene = default_scene(spacing, dt, n_steps, base_speed * dt / plan.dts[0])
+            counts = plan.counts if si == 0 else plan.counts_fine
+            settings = [Setting(m, c) for m in plan.methods if m != "newton" for c in counts]
+            if si == 0 and dt == plan.dts[0]:
+                settings += [Setting("newton", c) for c in plan.newton_counts]
+            scenes.append((scene, settings, plan.per_step_every if si == 0 else plan.per_step_every_fine))
+            if dt == plan.dts[0]:
+                refinement.append(scene)
+    finest = refinement[-1]
+    if plan.graded:
+        focus = refinement[0].focus
+        graded = default_scene(plan.spacings[0], plan.dts[0], plan.n_steps, base_speed,
+                               grading=(focus[0], focus[1], 0.15, plan.spacings[-1]))
+        refinement.insert(-1, graded)
+        scenes.append((graded, [Setting(m, c) for m in ("xpbd", "xpbd_substep") for c in plan.counts_fine],
+                       plan.per_step_every_fine))
+
+    total = sum(len(s.poses) - 1 for s in refinement) + sum(len(s.poses) - 1 for s, _, _ in scenes
+                                                         if s not in refinement)
+    total += sum((len(s.poses) - 1) * len(st) for s, st, _ in scenes)
+    rows: list[dict[str, Any]] = []
+    ref_runs: dict[int, list[np.ndarray]] = {}
+    newton_ms: dict[int, float] = {}
+    with tqdm(total=total, desc="accuracy", unit="step", dynamic_ncols=True) as bar:
+        for scene in refinement + [s for s, _, _ in scenes if s not in refinement]:
+            bar.set_postfix_str(f"reference {scene.name} {scene.n_particles} p. dt {scene.params.dt:g}")
+            ref_runs[id(scene)], newton_ms[id(scene)] = reference_run(scene, bar.update)
+        for scene, settings, every in scenes:
+            for setting in settings:
+                bar.set_postfix_str(f"{setting.label}, {scene.n_particles} p., dt {scene.params.dt:g}")
+                row = measure_setting(scene, setting, ref_runs[id(scene)], every, bar.update)
+                # the exact solve's time on the same scene: the accuracy end of the front
+                row["newton_ms"] = newton_ms[id(scene)]
+                rows.append(row)
+
+    # physical accuracy: each resolution's exact run against the finest
+    ref_rows = []
+    for scene in refinement:
+        positions = ref_runs[id(scene)][-1]
+        ref_rows.append({
+            "scene": scene.name + (" graded" if scene.graded else ""), "spacing": scene.spacing,
+            "particles": scene.n_particles,
+            "err_vs_finest_all": displacement_error(scene, positions, finest, ref_runs[id(finest)][-1])
+            if scene is not finest else 0.0,
+            "err_vs_finest_near_tool": displacement_error(scene, positions, finest, ref_runs[id(finest)][-1],
+                                                          near_radius=0.15) if scene is not finest else 0.0,
+        })
+
+    write_csv(out / "accuracy.csv", rows)
+    write_csv(out / "accuracy_refinement.csv", ref_rows)
+    base_rows = [r for r in rows if r["particles"] == refinement[0].n_particles and r["dt"] == plan.dts[0]]
+    plot_chart(out / "accuracy.png", rows,
+               f"Error against the exact implicit Euler step vs time, {plan.n_steps}-step push (experiment a)")
+    plot_chart(out / "accuracy_accumulated.png", rows,
+               "Accumulated error of the run against the exact run", error_key="err_accum_final")
+
+    cols = ["method", "count", "particles", "dt", "ms_per_step", "err_step_median", "err_accum_final"]
+    front = [rows[i] for i in pareto_front(rows)]
+    print("\nPareto front (per-step error against exact Newton vs median solve time):")
+    print(format_table(front, cols))
+    if base_rows and "newton_ms" in base_rows[0]:
+        print(f"\nexact Newton solve: {base_rows[0]['newton_ms']:.3g} ms per step at {base_rows[0]['particles']} particles")
+    print("\ncheapest setting per error tolerance (per-step error; Newton excluded):")
+    for tol in tolerances:
+        best = cheapest(rows, tol)
+        if best is None:
+            print(f"  error <= {tol:g}: no measured setting")
+        else:
+            print(f"  error <= {tol:g}: {best['method']} count {best['count']} at {best['particles']} particles, "
+                  f"dt {best['dt']:g}: {best['ms_per_step']:.3g} ms/step (error {best['err_step_median']:.3g})")
+    print("\nphysical accuracy: exact run at each resolution against the finest (final displacement):")
+    print(format_table(ref_rows, ["scene", "spacing", "particles", "err_vs_finest_all", "err_vs_finest_near_tool"]))
+    print(f"\nwrote {out / 'accuracy.csv'}, {out / 'accuracy_refinement.csv'}, {out / 'accuracy.png'}, "
+          f"{out / 'accuracy_accumulated.png'}")
+    return 0
