@@ -1,0 +1,181 @@
+"""tissue-sim replay: offline runs on bags' tool trajectories (small strip mesh, short bags).
+
+The reference for "replay does what it says" is a Simulation stepped directly
+with the poses the test put into the bag.
+"""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from tissue_sim_ros.cli import main as cli
+from tissue_sim_ros.core.scene import build_simulation
+from tissue_sim_ros.core.tool import ToolPose, ToolTwist
+from tissue_sim_ros.ros import messages as m
+from tissue_sim_ros.ros.bags import Bag, read_tool_track
+from tissue_sim_ros.ros.replay import OUTPUT_TOPICS, replay, schedule
+
+from bag_fixtures import small_params, tool_bag, tool_msg, write_bag, write_params
+
+
+def _direct_energy(params, poses, twists=None) -> np.ndarray:
+    """Scene energy per step of a Simulation stepped with ``poses`` directly (no bag in between)."""
+    sim = build_simulation(params)
+    out = []
+    for i, (x, y, yaw) in enumerate(poses):
+        tw = None if twists is None or not np.isfinite(twists[i]).all() else ToolTwist(*map(float, twists[i]))
+        out.append(sim.step(ToolPose(float(x), float(y), float(yaw)), tw).energy.scene_total)
+    return np.array(out)
+
+
+def test_per_message_replay_equals_direct_stepping(tmp_path):
+    path, times, poses = tool_bag(tmp_path / "in", n=45, rate_hz=37.0)
+    params = small_params(tmp_path)
+    result = replay(build_simulation(params), read_tool_track(path), progress=False)
+    assert result.n_steps == 45
+    np.testing.assert_array_equal(result.t_ns, times)
+    np.testing.assert_array_equal(result.rollout.scene_total, _direct_energy(params, poses))
+    assert result.rollout.in_contact.any(), "the trajectory should reach the tissue, or the test checks little"
+    np.testing.assert_array_equal(result.rollout.tool_pose, read_tool_track(path).pose)
+
+
+def test_replay_is_bit_identical_twice(tmp_path):
+    path, _, _ = tool_bag(tmp_path / "in", n=40, rate_hz=37.0)
+    params = small_params(tmp_path)
+    track = read_tool_track(path)
+    a = replay(build_simulation(params), track, progress=False).rollout
+    b = replay(build_simulation(params), track, progress=False).rollout
+    for name in ("inertial", "spring", "area", "reaction_force"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
+def test_cli_twice_gives_identical_csv_and_bag_energy(tmp_path, capsys):
+    path, _, _ = tool_bag(tmp_path / "in", n=30, rate_hz=37.0)
+    params = write_params(tmp_path)
+    for out in ("o1", "o2"):
+        assert cli(["replay", str(path), "--params", str(params), "--out", str(tmp_path / out), "--no-progress",
+                    "--frame-every", "10"]) == 0
+    text = capsys.readouterr().out
+    assert "real-time factor" in text and "steps/s" in text
+    assert (tmp_path / "o1" / "energy.csv").read_bytes() == (tmp_path / "o2" / "energy.csv").read_bytes()
+    energies = []
+    for out in ("o1", "o2"):
+        with Bag(tmp_path / out / "replay_bag") as bag:
+            energies.append([raw for _, _, _, raw in bag.messages(["/tissue/energy"])])
+    assert energies[0] == energies[1] and len(energies[0]) == 30
+
+
+def test_cli_outputs(tmp_path, capsys):
+    path, times, poses = tool_bag(tmp_path / "in", n=25, rate_hz=37.0)
+    out = tmp_path / "out"
+    assert cli(["replay", str(path), "--params", str(write_params(tmp_path)), "--out", str(out), "--no-progress",
+                "--frame-every", "10"]) == 0
+    assert (out / "energy.png").stat().st_size > 1000
+    assert sorted(p.name for p in (out / "frames").glob("*.png")) == [
+        "frame_00000.png", "frame_00010.png", "frame_00020.png", "frame_00025.png"]
+    table = np.genfromtxt(out / "energy.csv", delimiter=",", names=True)
+    assert table.shape == (25,)
+    with Bag(out / "replay_bag") as bag:
+        assert bag.topics == OUTPUT_TOPICS
+        assert all(n == 25 for n in bag.message_counts.values())
+        got = list(bag.messages(["/tool/pose", "/tissue/energy", "/tissue/points"]))
+    # stamped with the input's times, the pose the step used, the energy of the CSV
+    pose_msgs = [(t, raw) for tp, _, t, raw in got if tp == "/tool/pose"]
+    assert [t for t, _ in pose_msgs] == list(times)
+    stamp, _, pos, _ = m.decode_pose_stamped(pose_msgs[3][1])
+    np.testing.assert_allclose(pos[:2], poses[3, :2])
+    energy = [m.decode_float64(raw) for tp, _, _, raw in got if tp == "/tissue/energy"]
+    np.testing.assert_array_equal(energy, table["energy_total"])
+    _, _, cloud = m.decode_point_cloud([raw for tp, _, _, raw in got if tp == "/tissue/points"][-1])
+    assert cloud.shape[0] == build_simulation(small_params(tmp_path)).model.n_particles
+    assert np.isfinite(cloud["x"]).all()
+
+
+def test_fixed_rate_mode_interpolates(tmp_path):
+    path, times, _ = tool_bag(tmp_path / "in", n=30, rate_hz=37.0)
+    params = small_params(tmp_path)
+    track = read_tool_track(path)
+    dt = build_simulation(params).params.dt
+    t, poses, twists = schedule(track, dt, "fixed-rate")
+    span = times[-1] - times[0]
+    assert t.shape[0] == span // int(round(dt * 1e9)) and twists is None
+    assert t[0] == times[0] + int(round(dt * 1e9))
+    # every scheduled pose lies on the segment between its neighbouring samples
+    k = np.searchsorted(times, t) - 1
+    w = (t - times[k]) / (times[k + 1] - times[k])
+    np.testing.assert_allclose(poses[:, 0], track.pose[k, 0] * (1 - w) + track.pose[k + 1, 0] * w, atol=1e-12)
+    result = replay(build_simulation(params), track, "fixed-rate", progress=False)
+    np.testing.assert_array_equal(result.rollout.scene_total, _direct_energy(params, poses))
+
+
+def test_twist_topic_is_used(tmp_path):
+    path, _, poses = tool_bag(tmp_path / "in", n=20, twist=True)
+    params = small_params(tmp_path)
+    track = read_tool_track(path, twist_topic="/tool/twist")
+    result = replay(build_simulation(params), track, progress=False)
+    np.testing.assert_array_equal(result.rollout.scene_total, _direct_energy(params, poses, track.twist))
+
+
+def test_tf_bag_with_frame(tmp_path, capsys):
+    path, _, poses = tool_bag(tmp_path / "in", "tf2_msgs/msg/TFMessage", topic="/tf", n=20)
+    params = write_params(tmp_path)
+    assert cli(["replay", str(path), "--params", str(params), "--out", str(tmp_path / "o"), "--no-progress",
+                "--frame-every", "-1", "--no-bag"]) == 2
+    assert "--frame base_link" in capsys.readouterr().err
+    assert cli(["replay", str(path), "--params", str(params), "--out", str(tmp_path / "o"), "--no-progress",
+                "--frame-every", "-1", "--no-bag", "--frame", "tool_tip"]) == 0
+    table = np.genfromtxt(tmp_path / "o" / "energy.csv", delimiter=",", names=True)
+    np.testing.assert_array_equal(table["energy_total"], _direct_energy(small_params(tmp_path), poses))
+
+
+def test_skips_are_reported_and_strict_refuses(tmp_path, capsys):
+    ty = "geometry_msgs/msg/PoseStamped"
+    stamps = [10, 20, 20, 30, 25, 40]
+    msgs = [("/tool/pose", ty, (i + 1) * 1_000_000, tool_msg(ty, s * 1_000_000, -0.3 + 0.01 * i, 0.15, 0.0))
+            for i, s in enumerate(stamps)]
+    path = write_bag(tmp_path / "in", msgs)
+    params = write_params(tmp_path)
+    args = ["replay", str(path), "--params", str(params), "--no-progress", "--frame-every", "-1", "--no-bag"]
+    assert cli(args + ["--out", str(tmp_path / "o")]) == 0
+    out = capsys.readouterr().out
+    assert "2 of 6 tool samples skipped (repeated: 1, out_of_order: 1)" in out
+    assert len(np.genfromtxt(tmp_path / "o" / "energy.csv", delimiter=",", names=True)) == 4
+    assert cli(args + ["--out", str(tmp_path / "o2"), "--strict"]) == 2
+    assert "equal to the previous sample" in capsys.readouterr().err
+
+
+def test_cli_bad_input(tmp_path, capsys, monkeypatch):
+    path, _, _ = tool_bag(tmp_path / "in", n=5)
+    params = str(write_params(tmp_path))
+    assert cli(["replay", str(path), "--params", params, "--out", str(tmp_path / "o"), "--tool-topic", "/nope"]) == 2
+    err = capsys.readouterr().err
+    assert "no topic '/nope'" in err and "/tool/pose (geometry_msgs/msg/PoseStamped, 5 msgs)" in err
+    assert "Traceback" not in err
+    assert cli(["replay", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    # an existing replay is never overwritten
+    (tmp_path / "o3" / "replay_bag").mkdir(parents=True)
+    assert cli(["replay", str(path), "--params", params, "--out", str(tmp_path / "o3")]) == 2
+    assert "exists already" in capsys.readouterr().err
+    # --video without imageio: a clear message before any work
+    monkeypatch.setitem(sys.modules, "imageio.v2", None)
+    monkeypatch.setitem(sys.modules, "imageio", None)
+    assert cli(["replay", str(path), "--params", params, "--out", str(tmp_path / "o4"), "--video"]) == 2
+    assert "pip install 'tissue_sim_ros[video]'" in capsys.readouterr().err
+    assert not (tmp_path / "o4").exists()
+    # fixed rate on a track shorter than one step
+    short = write_bag(tmp_path / "short", [("/tool/pose", "geometry_msgs/msg/PoseStamped", 1,
+                                            tool_msg("geometry_msgs/msg/PoseStamped", 5, 0.0, 0.0, 0.0))])
+    assert cli(["replay", str(short), "--params", params, "--out", str(tmp_path / "o5"), "--mode", "fixed-rate"]) == 2
+    assert "shorter than one step" in capsys.readouterr().err
+
+
+def test_video_when_imageio_is_installed(tmp_path):
+    pytest.importorskip("imageio.v2")
+    pytest.importorskip("imageio_ffmpeg")
+    path, _, _ = tool_bag(tmp_path / "in", n=12)
+    assert cli(["replay", str(path), "--params", str(write_params(tmp_path)), "--out", str(tmp_path / "o"),
+                "--no-progress", "--frame-every", "4", "--video", "--no-bag"]) == 0
+    assert (tmp_path / "o" / "replay.mp4").stat().st_size > 0
