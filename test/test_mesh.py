@@ -430,3 +430,36 @@ def test_bad_mesh_files(tmp_path: Path):
     (tmp_path / "d.obj").write_text("v 0 0 0\n")
     with pytest.raises(InputError, match="expected a .npz, Triangle"):
         load_mesh(tmp_path / "d.obj")
+
+
+# --------------------------------------------------------------------------- irregular shapes
+
+def random_blobs(seed: int) -> np.ndarray:
+    """1-3 overlapping wavy blobs (concave corners where they meet), sometimes with a hole."""
+    rng = np.random.default_rng(seed)
+    img = np.full((300, 300, 3), 255, dtype=np.uint8)
+    th = np.linspace(0, 2 * np.pi, 200, endpoint=False)
+    for _ in range(rng.integers(1, 4)):
+        c, r0 = rng.uniform(60, 240, 2), rng.uniform(30, 70)
+        r = r0 * (1 + sum(rng.uniform(0, 0.25) * np.sin(m * th + rng.uniform(0, 6)) for m in range(2, 6)))
+        cv2.fillPoly(img, [np.stack([c[0] + r * np.cos(th), c[1] + r * np.sin(th)], 1).astype(np.int32)], TISSUE_BGR)
+    if rng.random() < 0.5:
+        cv2.circle(img, tuple(int(v) for v in rng.uniform(120, 180, 2)), int(rng.uniform(10, 20)), (255, 255, 255), -1)
+    return img
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_irregular_shapes_meet_targets(seed: int):
+    img = random_blobs(seed)
+    check_mesh(mesh_from_image(img, spacing=0.05, scale=SCALE), img)
+    check_mesh(mesh_from_image(img, spacing=0.03, scale=SCALE, grading=(0.75, 0.75, 0.1, 0.01)), img)
+
+
+def test_hole_smaller_than_the_spacing_is_filled():
+    img = disc()
+    cv2.circle(img, (100, 100), 3, (255, 255, 255), -1)  # rim ~ 20 px < 3 spacings (30 px)
+    mesh = mesh_from_image(img, spacing=SPACING, scale=SCALE)
+    assert holes(mesh) == 0
+    assert mesh_quality(mesh)["n_min_angle_lt_10"] == 0
+    cv2.circle(img, (100, 100), 12, (255, 255, 255), -1)  # rim ~ 75 px: kept
+    assert holes(mesh_from_image(img, spacing=SPACING, scale=SCALE)) == 1

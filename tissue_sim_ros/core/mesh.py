@@ -579,7 +579,9 @@ def mesh_from_image(image: str | Path | np.ndarray, *, spacing: float = 0.05, sc
         map to ``x = ox + c*scale``, ``y = oy + (H - r)*scale`` (world y up), so
         the image's bottom-left corner lands at ``origin``. Each 8-connected
         tissue region is one body; bodies are numbered by descending centroid y
-        (the upper tissue is body 0), ties by ascending x. Holes stay holes.
+        (the upper tissue is body 0), ties by ascending x. Holes stay holes,
+        except holes whose rim is shorter than three spacings: too small for
+        the mesh to resolve, they are filled.
 
     Notes
     -----
@@ -669,6 +671,9 @@ def mesh_from_mask(mask: np.ndarray, *, spacing: float = 0.05, scale: float = 0.
         if thickness < local_h:
             raise InputError(f"{where} is thinner than the spacing {local_h * scale:.4g} m: expected tissue at "
                              "least one spacing thick (use a smaller --spacing or a larger --scale)")
+        # a hole whose rim is shorter than three local spacings cannot be resolved by the mesh: it is filled
+        holes = [hc for hc in holes
+                 if cv2.arcLength(hc, True) >= 3.0 * float(size(hc[:, 0, :].mean(axis=0) + 0.5)[0])]
         loops = [_boundary_loop(c, size, outer=True)] + [_boundary_loop(hc, size, outer=False) for hc in holes]
         pts, tris, n_bnd = _mesh_body(loops, size)
         if len(tris) < 3:
@@ -740,7 +745,24 @@ def _boundary_loop(contour: np.ndarray, size: _SizeField, outer: bool) -> np.nda
         if not outer and np.mean(np.sum((p - probe) * normal, axis=1)) > 0:
             normal = -normal
         p = p + (0.5 * np.maximum(np.abs(normal[:, 0]), np.abs(normal[:, 1])))[:, None] * normal
-    return _resample_loop(p, size)
+    q = _resample_loop(p, size)
+    if len(q) >= 3:
+        # chords cut off the bulges of a curved boundary (area ~ h^2 / (12 R) per edge); move the
+        # resampled points out along the normal so the polygon keeps the contour's area, by at most
+        # 0.4 px so the vertices stay within a pixel of the contour
+        def area(x: np.ndarray) -> float:
+            return 0.5 * abs(float(np.sum(x[:, 0] * np.roll(x[:, 1], -1) - np.roll(x[:, 0], -1) * x[:, 1])))
+
+        perimeter = float(np.sum(np.hypot(*(np.roll(q, -1, axis=0) - q).T)))
+        delta = (area(p) - area(q)) / perimeter * (1.0 if outer else -1.0)
+        t = np.roll(q, -1, axis=0) - np.roll(q, 1, axis=0)
+        t /= np.maximum(np.hypot(t[:, 0], t[:, 1]), 1e-12)[:, None]
+        n = np.stack([t[:, 1], -t[:, 0]], axis=1)
+        # orient n away from the tissue: outward for outer loops, into the hole for holes
+        if (np.mean(np.sum((q - q.mean(axis=0)) * n, axis=1)) < 0) == outer:
+            n = -n
+        q = q + np.clip(delta, -0.4, 0.4) * n
+    return q
 
 
 def _resample_loop(p: np.ndarray, size: _SizeField) -> np.ndarray:
