@@ -10,16 +10,19 @@ One step (the paper's Algorithm 1, with Macklin's multipliers for XPBD)::
     x* = x_t + dt damp v_t + dt^2 (0, g)            free particles; + held_dx (paper contact)
     for each of `substeps` substeps of h = dt / substeps:
         predict from the substep's start (h), reset multipliers
+        (held particles: the fraction (s+1)/substeps of their way from x_t to x*)
         `iterations` sweeps: edges, triangles, tool (projection contact)
         v = (x - x_start) / h; boundary lines clamp and stop particles
     residual = RMS(C / rest size)
 
 Orders. ``pbd`` Gauss-Seidel sweeps the constraints in mesh order, as the
-paper does. The coloured parallel path sorts constraints by colour (no two
-constraints of one colour share a particle) and projects each colour on all
-threads: still Gauss-Seidel, in a different order, so results differ from the
-serial sweep by round-off-sized amounts per iteration that converge to the
-same solution, not bit for bit.
+paper does. ``xpbd`` (and the parallel path of both) sorts constraints by
+colour (greedy: no two constraints of one colour share a particle) and, in
+parallel, projects each colour on all threads. That is still Gauss-Seidel, in
+another order: a step's result differs from the mesh-order sweep by what the
+remaining iterations have not converged (both approach the same solution),
+not bit for bit. Serial and parallel colour order give the same result up to
+round-off (within a colour the projections are independent).
 """
 from __future__ import annotations
 
@@ -96,9 +99,11 @@ class Solver:
         from :data:`PARALLEL_MIN_PARTICLES` particles when numba has two or
         more threads (Jacobi is always serial).
     order : {"mesh", "colour"}, optional
-        Serial Gauss-Seidel order: mesh order (the paper's, default) or sorted
-        by colour (independent neighbours pipeline better on one core). The
-        parallel path always uses colour order.
+        Serial Gauss-Seidel order: mesh order (default for ``pbd``, the
+        paper's) or sorted by colour (default for ``xpbd``: consecutive
+        projections share no particle, so they overlap in the CPU's pipeline
+        instead of waiting on each other's stores; ~1.5x faster on one core).
+        The parallel path always uses colour order.
     jacobi_relaxation : {"stiffness", "uniform"}
         XPBD Jacobi relaxation: per-constraint omega_c = 2 relaxation / r_c from
         a Gershgorin bound r_c (default; stable at any stiffness, see
@@ -125,7 +130,10 @@ class Solver:
         if parallel is None:
             parallel = (not self.jacobi and n >= PARALLEL_MIN_PARTICLES and numba.get_num_threads() >= 2)
         self.parallel = bool(parallel) and not self.jacobi
-        self.order = "colour" if self.parallel else (order or "mesh")
+        if self.parallel:
+            self.order = "colour"
+        else:
+            self.order = order or ("mesh" if p.method == "pbd" else "colour")
         self.jacobi_relaxation = jacobi_relaxation
         self.jacobi_average = jacobi_average
         # Stiffness-aware Jacobi: omega_c = 2 relaxation / r_c; steps below 2 / r_c converge for the
@@ -261,7 +269,7 @@ class Solver:
                 np.copyto(x, self.x_pred)
             else:
                 kernels.predict(self.x_start, v, inv_mass, h, p.gravity, max(0.0, 1.0 - p.damping * h), x)
-                kernels.hold_displaced(x, inv_mass, held_idx, held_dx, 1.0 / n_sub, w)
+                kernels.place_held(x, x0, self.x_pred, inv_mass, held_idx, (sub + 1) / n_sub)
             self.lam_e.fill(0.0)
             self.lam_t.fill(0.0)
             if projection:

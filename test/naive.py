@@ -1,0 +1,413 @@
+"""Slow, obvious NumPy references for the numba kernels of ``tissue_sim_ros.core.kernels``.
+
+Written from the equations (textbook gradient form), not from the kernels:
+each projection computes C, its gradient per particle, the denominator
+sum w |grad|^2 + alpha and the correction dx_i = w_i s grad_i. Inputs are
+copied; results are returned. Tests compare these with the kernels on random
+and degenerate inputs.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: Same degeneracy threshold as the kernels (squared length [m^2]).
+EPS_LEN2 = 1e-30
+
+
+def cross2(a: np.ndarray, b: np.ndarray) -> float:
+    return float(a[0] * b[1] - a[1] * b[0])
+
+
+def predict(x, v, inv_mass, dt, gravity, damp):
+    """x* = x + dt damp v + dt^2 (0, g) where inv_mass > 0, else x."""
+    x_pred = x + dt * damp * v + dt * dt * np.array([0.0, gravity])
+    return np.where((inv_mass > 0)[:, None], x_pred, x)
+
+
+def hold_displaced(x_pred, inv_mass, held_idx, held_dx, scale):
+    """(x_pred with held free particles moved by scale*held_dx, inverse masses with held zeroed)."""
+    x = x_pred.copy()
+    w = inv_mass.copy()
+    for k, i in enumerate(held_idx):
+        if inv_mass[i] > 0:
+            x[i] += scale * held_dx[k]
+        w[i] = 0.0
+    return x, w
+
+
+def edge_projection(x, w, i, j, d0, k, alpha, lam):
+    """One distance projection: returns (dx_i, dx_j, dlam) or None when skipped."""
+    d = x[i] - x[j]
+    if w[i] + w[j] == 0 or d @ d <= EPS_LEN2:
+        return None
+    length = np.linalg.norm(d)
+    grad_i = d / length
+    grad_j = -grad_i
+    C = length - d0
+    denom = w[i] * grad_i @ grad_i + w[j] * grad_j @ grad_j + alpha
+    s = k * (-C - alpha * lam) / denom
+    return w[i] * s * grad_i, w[j] * s * grad_j, s
+
+
+def area_value(x, a, b, c):
+    return 0.5 * cross2(x[b] - x[a], x[c] - x[a])
+
+
+def area_projection(x, w, a, b, c, A0, k, alpha, lam, signed):
+    """One area projection: returns ((dx_a, dx_b, dx_c), dlam) or None when skipped."""
+    if w[a] + w[b] + w[c] == 0:
+        return None
+    A = area_value(x, a, b, c)
+    rot = np.array([[0.0, 1.0], [-1.0, 0.0]])  # rot @ (u, v) = (v, -u)
+    # dA/dx_b = 1/2 (e2_y, -e2_x), dA/dx_c = 1/2 (-e1_y, e1_x), dA/dx_a = -(dA/dx_b + dA/dx_c)
+    e1 = x[b] - x[a]
+    e2 = x[c] - x[a]
+    g_b = 0.5 * (rot @ e2)
+    g_c = -0.5 * (rot @ e1)
+    g_a = -(g_b + g_c)
+    if signed:
+        C = A - A0
+        sign = 1.0
+    else:
+        C = abs(A) - abs(A0)
+        sign = float(np.sign(A))
+    grads = [sign * g_a, sign * g_b, sign * g_c]
+    if sum(g @ g for g in grads) <= EPS_LEN2:
+        return None
+    denom = sum(w[p] * g @ g for p, g in zip((a, b, c), grads)) + alpha
+    if denom <= 0:
+        return None
+    s = k * (-C - alpha * lam) / denom
+    return tuple(w[p] * s * g for p, g in zip((a, b, c), grads)), s
+
+
+def solve_edges(x, inv_mass, edges, rest, k, alpha, lam):
+    """Gauss-Seidel sweep in array order; returns (x, lam)."""
+    x = x.copy()
+    lam = lam.copy()
+    for e, (i, j) in enumerate(edges):
+        r = edge_projection(x, inv_mass, i, j, rest[e], k, alpha, lam[e])
+        if r is None:
+            continue
+        x[i] += r[0]
+        x[j] += r[1]
+        lam[e] += r[2]
+    return x, lam
+
+
+def solve_areas(x, inv_mass, tris, area0, k, alpha, lam, signed):
+    """Gauss-Seidel sweep in array order; returns (x, lam)."""
+    x = x.copy()
+    lam = lam.copy()
+    for t, (a, b, c) in enumerate(tris):
+        r = area_projection(x, inv_mass, a, b, c, area0[t], k, alpha, lam[t], signed)
+        if r is None:
+            continue
+        for p, dx in zip((a, b, c), r[0]):
+            x[p] += dx
+        lam[t] += r[1]
+    return x, lam
+
+
+def jacobi_edges(x, inv_mass, edges, rest, k, alpha, lam, omega):
+    """Jacobi pass: (summed corrections (N, 2), new lam); multiplier increments scaled by omega."""
+    dx = np.zeros_like(x)
+    lam = lam.copy()
+    for e, (i, j) in enumerate(edges):
+        r = edge_projection(x, inv_mass, i, j, rest[e], k, alpha, lam[e])
+        if r is None:
+            continue
+        dx[i] += omega[e] * r[0]
+        dx[j] += omega[e] * r[1]
+        lam[e] += omega[e] * r[2]
+    return dx, lam
+
+
+def jacobi_areas(x, inv_mass, tris, area0, k, alpha, lam, signed, omega):
+    dx = np.zeros_like(x)
+    lam = lam.copy()
+    for t, (a, b, c) in enumerate(tris):
+        r = area_projection(x, inv_mass, a, b, c, area0[t], k, alpha, lam[t], signed)
+        if r is None:
+            continue
+        for p, d in zip((a, b, c), r[0]):
+            dx[p] += omega[t] * d
+        lam[t] += omega[t] * r[1]
+    return dx, lam
+
+
+def jacobi_relaxation(x, inv_mass, edges, alpha_e, tris, alpha_t, signed, scale):
+    """Per-constraint omega = scale / r_c, r_c the Gershgorin bound of kernels.jacobi_relaxation.
+
+    Built as explicit per-constraint gradient-norm lists |g_cp| (edges 1, triangle
+    vertex |opposite edge| / 2, 0 when degenerate), then the two sums.
+    """
+    n = x.shape[0]
+    cons = []  # (particles, gradient norms, alpha)
+    for i, j in edges:
+        d = x[i] - x[j]
+        g = 1.0 if d @ d > EPS_LEN2 else 0.0
+        cons.append(((i, j), (g, g), alpha_e))
+    for a, b, c in tris:
+        norms = (0.5 * np.linalg.norm(x[c] - x[b]), 0.5 * np.linalg.norm(x[c] - x[a]), 0.5 * np.linalg.norm(x[b] - x[a]))
+        if not signed and cross2(x[b] - x[a], x[c] - x[a]) == 0.0:
+            norms = (0.0, 0.0, 0.0)
+        cons.append(((a, b, c), norms, alpha_t))
+    D = np.array([sum(inv_mass[p] * g * g for p, g in zip(ps, gs)) + al for ps, gs, al in cons])
+    G = np.zeros(n)
+    for (ps, gs, _), d in zip(cons, D):
+        if d > 0:
+            for p, g in zip(ps, gs):
+                G[p] += g / math.sqrt(d)
+    omega = np.zeros(len(cons))
+    for m, ((ps, gs, al), d) in enumerate(zip(cons, D)):
+        if d <= 0:
+            continue
+        r = al / d + sum(inv_mass[p] * g * G[p] for p, g in zip(ps, gs)) / math.sqrt(d)
+        omega[m] = scale / r if r > 0 else scale
+    return omega[:len(edges)], omega[len(edges):]
+
+
+def update_velocity(x, x_start, dt):
+    return (x - x_start) / dt
+
+
+def apply_boundary_lines(x, v, inv_mass, y_top, y_bottom):
+    """Clamp free particles at/past a line onto it with zero velocity; returns (x, v, n_held)."""
+    x = x.copy()
+    v = v.copy()
+    free = inv_mass != 0
+    top = free & (x[:, 1] >= y_top) if not math.isnan(y_top) else np.zeros(len(x), bool)
+    bottom = free & ~top & (x[:, 1] <= y_bottom) if not math.isnan(y_bottom) else np.zeros(len(x), bool)
+    x[top, 1] = y_top
+    x[bottom, 1] = y_bottom
+    v[top | bottom] = 0.0
+    return x, v, int((top | bottom).sum())
+
+
+def signed_areas(x, tris):
+    a, b, c = x[tris[:, 0]], x[tris[:, 1]], x[tris[:, 2]]
+    return 0.5 * np.cross(np.c_[b - a, np.zeros(len(a))], np.c_[c - a, np.zeros(len(a))])[:, 2]
+
+
+def energy_terms(x, x_pred, mass, particle_body, edges, rest, edge_body, tris, area0, tri_body,
+                 k_spring, k_area, dt, signed, n_bodies):
+    """(inertial, spring, area) per body, vectorised."""
+    inertial = np.bincount(particle_body, 0.5 * mass * ((x - x_pred) ** 2).sum(axis=1), minlength=n_bodies)
+    C_e = np.linalg.norm(x[edges[:, 0]] - x[edges[:, 1]], axis=1) - rest
+    spring = dt ** 2 * np.bincount(edge_body, 0.5 * k_spring * C_e ** 2, minlength=n_bodies)
+    A = signed_areas(x, tris)
+    C_t = A - area0 if signed else np.abs(A) - np.abs(area0)
+    area = dt ** 2 * np.bincount(tri_body, 0.5 * k_area * C_t ** 2, minlength=n_bodies)
+    return inertial, spring, area
+
+
+def constraint_residual(x, edges, rest, tris, area0, signed):
+    C_e = np.linalg.norm(x[edges[:, 0]] - x[edges[:, 1]], axis=1) - rest
+    C_e = np.where(rest > 0, C_e / np.where(rest > 0, rest, 1.0), C_e)
+    A = signed_areas(x, tris) if len(tris) else np.zeros(0)
+    C_t = A - area0 if signed else np.abs(A) - np.abs(area0)
+    C_t = np.where(area0 != 0, C_t / np.where(area0 != 0, np.abs(area0), 1.0), C_t)
+    allc = np.concatenate([C_e, C_t])
+    return float(np.sqrt(np.mean(allc ** 2))) if allc.size else 0.0
+
+
+def greedy_colour(indices, n_particles):
+    """Smallest colour not used at any particle of the constraint, constraints in array order."""
+    used = [set() for _ in range(n_particles)]
+    colour = np.zeros(len(indices), dtype=np.int64)
+    for m, ps in enumerate(indices):
+        taken = set().union(*(used[p] for p in ps))
+        c = 0
+        while c in taken:
+            c += 1
+        colour[m] = c
+        for p in ps:
+            used[p].add(c)
+    return colour, int(colour.max()) + 1 if len(indices) else 0
+
+
+# =========================================================================== contact (helper H3)
+# References for tissue_sim_ros.core.collision's kernels. Written from the
+# geometry, not from the kernels: the rounded box's signed distance by clamping
+# to the core box, path crossings by golden-section minimisation of that
+# (convex) distance along the path and bisection for the entry point, instead
+# of the kernels' exact line/primitive intersections.
+
+
+def tool_local(p, shape):
+    """World point(s) p (..., 2) into the frame of a packed tool shape (7,)."""
+    c, s = shape[2], shape[3]
+    d = np.asarray(p, dtype=float) - shape[:2]
+    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
+
+
+def tool_world(p, shape):
+    """Tool-frame point p (2,) back into the world."""
+    c, s = shape[2], shape[3]
+    return np.array([shape[0] + c * p[0] - s * p[1], shape[1] + s * p[0] + c * p[1]])
+
+
+def rounded_box_sdf_local(p, hx, hy, r):
+    """Signed distance of tool-frame point p (2,) to the rounded box: distance to the core box minus r."""
+    core = np.array([hx, hy])
+    clamped = np.clip(p, -core, core)
+    if np.any(np.abs(p) > core):
+        return float(np.linalg.norm(p - clamped)) - r
+    return float(np.max(np.abs(p) - core)) - r
+
+
+def rounded_box_normal_local(p, hx, hy):
+    """Outward unit normal at tool-frame point p: from the nearest core point, or the nearest face inside (ties: y)."""
+    core = np.array([hx, hy])
+    clamped = np.clip(p, -core, core)
+    if np.any(np.abs(p) > core):
+        d = p - clamped
+        return d / np.linalg.norm(d)
+    q = np.abs(p) - core
+    n = np.array([1.0, 0.0]) if q[0] > q[1] else np.array([0.0, 1.0])
+    return n * np.where(p < 0, -1.0, 1.0)
+
+
+def rounded_box_sdf(points, shape):
+    """Signed distance of world points (N, 2) to the posed tool (7,), shape (N,)."""
+    loc = tool_local(points, shape)
+    return np.array([rounded_box_sdf_local(p, shape[4], shape[5], shape[6]) for p in loc])
+
+
+def _golden_min(f, a, b, iters=200):
+    """Minimiser of a convex function on [a, b] by golden-section search."""
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    c, d = b - g * (b - a), a + g * (b - a)
+    for _ in range(iters):
+        if f(c) < f(d):
+            b = d
+        else:
+            a = c
+        c, d = b - g * (b - a), a + g * (b - a)
+    return 0.5 * (a + b)
+
+
+def _bisect_root(f, a, b, iters=200):
+    """A root of f on [a, b] with f(a) and f(b) of opposite signs (or zero)."""
+    fa = f(a)
+    for _ in range(iters):
+        m = 0.5 * (a + b)
+        fm = f(m)
+        if (fm > 0) == (fa > 0):
+            a, fa = m, fm
+        else:
+            b = m
+    return 0.5 * (a + b)
+
+
+def project_tool(x, x_start, inv_mass, candidates, shape0, shape1, inside_tol=1e-9):
+    """Reference of collision.project_tool: returns (x, dx_accum, moved) with x and dx_accum new arrays.
+
+    Path p(s) = p0 + s (p1 - p0) in the tool frame (p0 = x_start vs shape0, p1 = x vs shape1).
+    Started inside (f(p0) < -tol): nearest surface point of p1. Otherwise, if
+    min_s f(p(s)) < 0 (the path enters the shape): entry point e (first root),
+    outward normal n there, and p1 moved along n to where the line leaves the
+    shape (largest root of f(p1 + t n)), or to e if that line misses the shape.
+    """
+    x = np.array(x, dtype=float)
+    acc = np.zeros_like(x)
+    hx, hy, r = shape1[4], shape1[5], shape1[6]
+    moved = 0
+    for i in candidates:
+        if inv_mass[i] == 0:
+            continue
+        p0 = tool_local(x_start[i], shape0)
+        p1 = tool_local(x[i], shape1)
+        f = lambda p: rounded_box_sdf_local(p, hx, hy, r)  # noqa: E731
+        f0, f1 = f(p0), f(p1)
+        if f0 < -inside_tol:
+            if f1 >= 0:
+                continue
+            core = np.array([hx, hy])
+            if np.all(np.abs(p1) <= core):
+                # inside the core box: out through the face with the least slack (ties: y)
+                slack = core - np.abs(p1) + r
+                axis = 0 if slack[0] < slack[1] else 1
+                target = p1.copy()
+                target[axis] = (core[axis] + r) * (1.0 if p1[axis] >= 0 else -1.0)
+            else:
+                c = np.clip(p1, -core, core)
+                target = c + r * (p1 - c) / np.linalg.norm(p1 - c)
+        else:
+            d = p1 - p0
+            path = lambda s: f(p0 + s * d)  # noqa: E731
+            s_min = _golden_min(path, 0.0, 1.0)
+            if min(path(s_min), f1) >= 0.0:
+                continue
+            if f1 < path(s_min):
+                s_min = 1.0
+            s_e = 0.0 if f0 <= 0.0 else _bisect_root(path, 0.0, s_min)
+            e = p0 + s_e * d
+            n = rounded_box_normal_local(e, hx, hy)
+            span = 4.0 * (hx + hy + r) + np.linalg.norm(d) + 1.0
+            line = lambda t: f(p1 + t * n)  # noqa: E731
+            t_min = _golden_min(line, -span, span)
+            if line(t_min) < 0.0:
+                t_out = _bisect_root(line, t_min, span)
+                if t_out <= inside_tol:
+                    continue
+                target = p1 + t_out * n
+            else:
+                target = e
+        w = tool_world(target, shape1)
+        acc[i] += w - x[i]
+        x[i] = w
+        moved += 1
+    return x, acc, moved
+
+
+def near_triangles(x, tris, sdf, grad, reach, tol=1e-9):
+    """Indices of triangles whose tangent-plane lower bound max_k [f_k + min_j g_k.(v_j - v_k)] <= reach + tol."""
+    keep = []
+    for t, tri in enumerate(tris):
+        v = x[tri]
+        bounds = [sdf[k] + min(0.0, float(np.min((v - x[k]) @ grad[k]))) for k in tri]
+        if max(bounds) <= reach + tol:
+            keep.append(t)
+    return np.array(keep, dtype=np.int64)
+
+
+def compact_triangles(x, tris, sel):
+    """(vertices (V, 3) with z = 0, their particle ids (V,), triangles renumbered) of tris[sel], ids in first-use order."""
+    flat = tris[sel].ravel()
+    _, first = np.unique(flat, return_index=True)
+    ids = flat[np.sort(first)]
+    lookup = {int(p): k for k, p in enumerate(ids)}
+    new_tris = np.array([[lookup[int(p)] for p in tri] for tri in tris[sel]], dtype=np.int64).reshape(-1, 3)
+    verts = np.zeros((len(ids), 3))
+    verts[:, :2] = x[ids]
+    return verts, ids, new_tris
+
+
+def swept_candidates(x, inv_mass, shape0, shape1, reach):
+    """Free particles with min(sdf0, sdf1) <= reach + sweep / 2 (sweep: centre travel + rotation x bounding radius)."""
+    dang = abs(math.atan2(shape0[2] * shape1[3] - shape0[3] * shape1[2], shape0[2] * shape1[2] + shape0[3] * shape1[3]))
+    radius = math.hypot(shape1[4], shape1[5]) + shape1[6]
+    sweep = math.hypot(*(shape1[:2] - shape0[:2])) + dang * radius
+    d = np.minimum(rounded_box_sdf(x, shape0), rounded_box_sdf(x, shape1))
+    return np.flatnonzero((d <= reach + 0.5 * sweep) & (inv_mass > 0))
+
+
+def paper_displacement(x, body_particles, q, d_star, v, r):
+    """Eq. (3) of the paper for one body: (indices, displacements) of particles within r of x_q.
+
+    dx_i = (r - |x_q - x_i|) / r * d_star * v / |v| for |x_q - x_i| <= r; nothing for |v| = 0.
+    """
+    speed = float(np.hypot(*v))
+    if speed == 0.0:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 2))
+    idx, dx = [], []
+    for i in body_particles:
+        dist = float(np.hypot(*(x[q] - x[i])))
+        if r - dist >= 0.0:
+            idx.append(i)
+            dx.append((r - dist) / r * d_star * np.asarray(v) / speed)
+    return np.array(idx, dtype=np.int64), np.array(dx).reshape(-1, 2)
