@@ -1,8 +1,13 @@
-"""Tissue meshes: the TissueMesh type, structured test meshes, and image -> mesh.
+"""Tissue meshes: the TissueMesh type, structured test meshes, image -> mesh, quality, mesh files.
 
 Vertices are in metres in the world frame (x right, y up). Triangles are
 counter-clockwise; edges are unique and sorted (i < j); every vertex belongs to
 one body (a connected tissue region).
+
+* :func:`mesh_from_image` (the paper's "Mesh Generation"): tissue image -> TissueMesh;
+* :func:`mesh_quality`: angles, area error, per-body counts (``tissue-sim mesh`` prints them);
+* :func:`load_mesh`: .npz, Triangle .node/.ele/.poly, Gmsh .msh 2.2/4.1;
+  :func:`write_triangle`, :func:`write_gmsh` for exchange and round trips.
 """
 from __future__ import annotations
 
@@ -636,7 +641,7 @@ def mesh_from_mask(mask: np.ndarray, *, spacing: float = 0.05, scale: float = 0.
     if not contours:
         raise InputError(f"{name} has no tissue: expected tissue that differs from the background")
     hier = hierarchy[0]
-    n_labels, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    _, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
     dist = cv2.distanceTransform(np.pad(mask, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
 
     bodies = []
@@ -658,7 +663,7 @@ def mesh_from_mask(mask: np.ndarray, *, spacing: float = 0.05, scale: float = 0.
         info.append((rows.mean(), cols.mean()))
     order = sorted(range(len(bodies)), key=lambda k: (round(info[k][0], 6), round(info[k][1], 6)))
 
-    all_v, all_t, all_b, all_body = [], [], [], []
+    all_v, all_t, all_body = [], [], []
     offset = 0
     for bid, k in enumerate(order):
         c, holes, region = bodies[k]
@@ -675,21 +680,18 @@ def mesh_from_mask(mask: np.ndarray, *, spacing: float = 0.05, scale: float = 0.
         holes = [hc for hc in holes
                  if cv2.arcLength(hc, True) >= 3.0 * float(size(hc[:, 0, :].mean(axis=0) + 0.5)[0])]
         loops = [_boundary_loop(c, size, outer=True)] + [_boundary_loop(hc, size, outer=False) for hc in holes]
-        pts, tris, n_bnd = _mesh_body(loops, size)
+        pts, tris = _mesh_body(loops, size)
         if len(tris) < 3:
             raise InputError(f"{where} gives only {len(tris)} triangles at spacing {spacing:.4g} m: "
                              "expected at least 3 (use a smaller --spacing)")
-        is_b = np.zeros(len(pts), dtype=bool)
-        is_b[:n_bnd] = True
         all_v.append(pts)
         all_t.append(tris + offset)
-        all_b.append(is_b)
         all_body.append(np.full(len(pts), bid, dtype=np.int32))
         offset += len(pts)
     v_px = np.concatenate(all_v)
     world = np.stack([ox + v_px[:, 0] * scale, oy + (H - v_px[:, 1]) * scale], axis=1)
-    mesh = mesh_from_arrays(world, np.concatenate(all_t), np.concatenate(all_body))
-    return mesh
+    # boundary flags come from the topology (edges used by one triangle), as for every TissueMesh
+    return mesh_from_arrays(world, np.concatenate(all_t), np.concatenate(all_body))
 
 
 class _SizeField:
@@ -823,10 +825,6 @@ class _Polygon:
             out[near] = _inside(p[near], self.a, self.b)
         return out
 
-    def distance(self, p: np.ndarray) -> np.ndarray:
-        """Distance [px] of points (n, 2) to the boundary, exact within ``limit`` px, (n,) float64."""
-        return _distance(p, self.a, self.b)
-
     def clear_of_boundary(self, p: np.ndarray, clearance: np.ndarray) -> np.ndarray:
         """True for points inside and at least ``clearance`` (n,) [px] from the boundary, (n,) bool."""
         s = self._raster(p)
@@ -893,8 +891,8 @@ def _delaunay(points: np.ndarray) -> np.ndarray:
     return tris[np.all(found, axis=1)].astype(np.int64)
 
 
-def _mesh_body(loops: list[np.ndarray], size: _SizeField) -> tuple[np.ndarray, np.ndarray, int]:
-    """Mesh one body from its boundary loops [px]: points (N, 2) with the boundary first, triangles (T, 3), n_boundary."""
+def _mesh_body(loops: list[np.ndarray], size: _SizeField) -> tuple[np.ndarray, np.ndarray]:
+    """Mesh one body from its boundary loops [px]: points (N, 2), boundary first, and triangles (T, 3)."""
     poly = _Polygon(loops)
     lo, hi = np.concatenate(loops).min(axis=0), np.concatenate(loops).max(axis=0)
     if size.grade is None:
@@ -927,8 +925,7 @@ def _mesh_body(loops: list[np.ndarray], size: _SizeField) -> tuple[np.ndarray, n
     used = np.zeros(len(pts), dtype=bool)
     used[tris.ravel()] = True
     remap = np.cumsum(used) - 1
-    n_bnd = int(used[:len(bnd)].sum())
-    return pts[used], remap[tris], n_bnd
+    return pts[used], remap[tris]
 
 
 def _edge_keys(tris: np.ndarray, n: int) -> np.ndarray:
