@@ -411,3 +411,12 @@ def paper_displacement(x, body_particles, q, d_star, v, r):
             idx.append(i)
             dx.append((r - dist) / r * d_star * np.asarray(v) / speed)
     return np.array(idx, dtype=np.int64), np.array(dx).reshape(-1, 2)
+
+
+def wavefront_levels(indices, n_particles):
+    """level(c) = 1 + max(level(d) for earlier d sharing a particle with c), 0 if none."""
+    level = np.zeros(len(indices), dtype=np.int64)
+    for m, ps in enumerate(indices):
+        earlier = [level[d] for d in range(m) if set(indices[d]) & set(ps)]
+        level[m] = max(earlier) + 1 if earlier else 0
+    return level, int(level.max()) + 1 if len(indices) else 0

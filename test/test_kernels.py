@@ -265,3 +265,29 @@ def test_greedy_colour(seed: int) -> None:
         for c in range(n_col):  # the property the parallel sweep relies on
             members = idx[colour == c].ravel()
             assert len(members) == len(np.unique(members))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_wavefront_levels_and_schedule_reproduce_mesh_order_exactly(seed: int) -> None:
+    from tissue_sim_ros.core.solvers import wavefront_order
+
+    s = random_scene(seed, n=40, n_edges=120, n_tris=50)
+    for idx in (s["edges"], s["tris"]):
+        level = np.zeros(len(idx), np.int64)
+        n_lv = kernels.wavefront_levels(idx, len(s["x"]), level)
+        ref, ref_n = naive.wavefront_levels(idx, len(s["x"]))
+        np.testing.assert_array_equal(level, ref)
+        assert n_lv == ref_n
+    # a sweep in the wavefront schedule equals the mesh-order sweep bit for bit
+    pe, pt = wavefront_order(s["edges"], len(s["x"])), wavefront_order(s["tris"], len(s["x"]))
+    assert not (pe == np.arange(len(pe))).all()
+    x_mesh, x_wave = s["x"].copy(), s["x"].copy()
+    lam_mesh, lam_wave = np.zeros(len(pe)), np.zeros(len(pe))
+    kernels.solve_edges(x_mesh, s["inv_mass"], s["edges"], s["rest"], 1.0, 1e-2, lam_mesh)
+    kernels.solve_edges(x_wave, s["inv_mass"], np.ascontiguousarray(s["edges"][pe]), s["rest"][pe], 1.0, 1e-2, lam_wave)
+    np.testing.assert_array_equal(x_wave, x_mesh)
+    np.testing.assert_array_equal(lam_wave, lam_mesh[pe])
+    kernels.solve_areas(x_mesh, s["inv_mass"], s["tris"], s["area0"], 1.0, 0.0, np.zeros(len(pt)), True)
+    kernels.solve_areas(x_wave, s["inv_mass"], np.ascontiguousarray(s["tris"][pt]), s["area0"][pt], 1.0, 0.0,
+                        np.zeros(len(pt)), True)
+    np.testing.assert_array_equal(x_wave, x_mesh)

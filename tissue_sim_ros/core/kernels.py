@@ -723,3 +723,43 @@ def greedy_colour(indices: np.ndarray, n_particles: int, colour: np.ndarray) -> 
         if c + 1 > n_colours:
             n_colours = c + 1
     return n_colours
+
+
+@njit(cache=True)
+def wavefront_levels(indices: np.ndarray, n_particles: int, level: np.ndarray) -> int:
+    """Wavefront schedule of a Gauss-Seidel sweep: level(c) = 1 + max level of earlier constraints at c's particles.
+
+    Sorting constraints stably by level keeps, at every particle, the order of
+    the constraints that touch it, so a sweep in that order gives bit for bit
+    the result of the sweep in array (mesh) order. Constraints of one level
+    share no particle, so consecutive projections no longer wait for each
+    other's stores (the mesh-order sweep is latency-bound: ~17 ns each).
+
+    Parameters
+    ----------
+    indices : (M, K) int32
+        Particles of each constraint, in sweep order.
+    n_particles : int
+        Number of particles.
+    level : (M,) int64
+        Output: level of each constraint (0-based).
+
+    Returns
+    -------
+    int
+        Number of levels.
+    """
+    last = np.full(n_particles, -1, dtype=np.int64)
+    n_levels = 0
+    for m in range(indices.shape[0]):
+        lv = -1
+        for q in range(indices.shape[1]):
+            if last[indices[m, q]] > lv:
+                lv = last[indices[m, q]]
+        lv += 1
+        level[m] = lv
+        for q in range(indices.shape[1]):
+            last[indices[m, q]] = lv
+        if lv + 1 > n_levels:
+            n_levels = lv + 1
+    return n_levels
