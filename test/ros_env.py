@@ -90,7 +90,8 @@ class RosProcess:
 
     def output(self) -> str:
         """Everything the process printed so far (stdout and stderr)."""
-        self._log.flush()
+        if not self._log.closed:
+            self._log.flush()
         return self.log_path.read_text(errors="replace")
 
     def wait(self, timeout: float) -> int:

@@ -261,10 +261,6 @@ class TissueSimNode(Node):
             return False
         if stamp == (0, 0):
             return True  # unstamped: no order or age to check
-        if last != (0, 0) and stamp <= last:
-            self._drop("out_of_order", f"{topic} stamped {messages.stamp_to_seconds(stamp):.6f} s, not after the "
-                                       f"previous {messages.stamp_to_seconds(last):.6f} s")
-            return False
         max_age = self._values["max_stamp_age"]
         if not self._values["lock_step"] and max_age > 0:
             age = (self.get_clock().now() - Time(seconds=stamp[0], nanoseconds=stamp[1],
@@ -272,6 +268,10 @@ class TissueSimNode(Node):
             if age > max_age:
                 self._drop("stale", f"{topic} is {age:.3f} s old (max_stamp_age {max_age} s)")
                 return False
+        if last != (0, 0) and stamp <= last:
+            self._drop("out_of_order", f"{topic} stamped {messages.stamp_to_seconds(stamp):.6f} s, not after the "
+                                       f"previous {messages.stamp_to_seconds(last):.6f} s")
+            return False
         return True
 
     def _on_pose(self, msg: PoseStamped) -> None:

@@ -1,0 +1,404 @@
+"""tissue_sim_node in real processes over real DDS, driven from a test client.
+
+A small scene (a 0.4 m x 0.2 m strip, 66 particles, pinned along its top row)
+keeps every step far below dt; a box tool pushes the strip's lower edge up.
+One timer-mode node serves the tests of this module in turn (each starts from
+a reset); a lock-step node in another namespace runs beside it.
+"""
+from __future__ import annotations
+
+import math
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped  # noqa: E402
+from rcl_interfaces.msg import Parameter as ParameterMsg  # noqa: E402
+from rcl_interfaces.msg import ParameterType, ParameterValue  # noqa: E402
+from rcl_interfaces.srv import SetParameters  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from sensor_msgs.msg import PointCloud2  # noqa: E402
+from std_msgs.msg import Float64  # noqa: E402
+from std_srvs.srv import SetBool, Trigger  # noqa: E402
+from visualization_msgs.msg import MarkerArray  # noqa: E402
+
+from ros_env import RosClient, RosProcess, ros_client, ros_env, start_process  # noqa: E402,F401  (fixtures)
+from tissue_sim_ros.core.mesh import mesh_rectangle  # noqa: E402
+from tissue_sim_ros.ros import messages as M  # noqa: E402
+from tissue_sim_ros.ros import qos  # noqa: E402
+
+DT = 0.01
+TIMEOUT = 20.0  # discovery + start-up of a node process, generous for a loaded 2-core machine
+BEST_EFFORT = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+SCENE = {
+    "boundary_y_top": 0.19,  # the top row (y = 0.2) is pinned
+    "boundary_y_bottom": -1.0,  # nothing pinned below
+    # a 0.1 m x 0.02 m box pushed up into the lower edge; the projection contact
+    # deforms locally (the paper's eq. 3 moves particles by up to alpha per step
+    # whatever the tool's speed, which tears a mesh this coarse)
+    "tool_shape": "box",
+    "tool_length": 0.1,
+    "tool_width": 0.02,
+    "contact_model": "projection",
+    "diagnostics_rate": 10.0,
+    "max_tool_jump": 0.05,
+    "max_stamp_age": 0.5,
+}
+
+
+def write_params(path: Path, values: dict[str, Any], section: str = "/**") -> Path:
+    lines = [f"{section}:", "  ros__parameters:"]
+    for k, v in values.items():
+        lines.append(f"    {k}: {v!r}" if not isinstance(v, str) else f"    {k}: \"{v}\"")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def scene_files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    root = tmp_path_factory.mktemp("scene")
+    mesh = mesh_rectangle(0.4, 0.2, 0.04)
+    mesh.save(root / "strip.npz")
+    params = write_params(root / "params.yaml", {**SCENE, "mesh_file": str(root / "strip.npz")})
+    return {"root": root, "mesh": mesh, "params": params}
+
+
+class Node:
+    """The module's timer-mode node process and the client's handles on its interface."""
+
+    def __init__(self, proc: RosProcess, client: RosClient, ns: str = "") -> None:
+        self.proc, self.client, self.ns = proc, client, ns
+        n = client.node
+        self.points = client.raw_subscription(PointCloud2, f"{ns}/tissue/points", BEST_EFFORT)
+        self.markers = client.raw_subscription(MarkerArray, f"{ns}/tissue/markers", BEST_EFFORT)
+        self.energy = client.raw_subscription(Float64, f"{ns}/tissue/energy", qos.energy())
+        self.wrench = client.raw_subscription(WrenchStamped, f"{ns}/tool/wrench", BEST_EFFORT)
+        self.rest = client.raw_subscription(MarkerArray, f"{ns}/tissue/rest_mesh", qos.latched())
+        self.diagnostics: list[DiagnosticArray] = []
+        self.pose_pub = n.create_publisher(PoseStamped, f"{ns}/tool/pose", qos.tool_output())
+        self.twist_pub = n.create_publisher(TwistStamped, f"{ns}/tool/twist", qos.tool_output())
+        self.reset_srv = n.create_client(Trigger, f"{ns}/tissue_sim_node/reset")
+        self.pause_srv = n.create_client(SetBool, f"{ns}/tissue_sim_node/pause")
+        self.param_srv = n.create_client(SetParameters, f"{ns}/tissue_sim_node/set_parameters")
+
+    def wait_ready(self) -> None:
+        c = self.client
+        c.wait_for_subscriber(self.pose_pub, TIMEOUT, self.proc)
+        c.spin_until(lambda: self.points.messages and self.energy.messages, TIMEOUT, self.proc, "first outputs")
+
+    def pose(self, x: float, y: float, yaw: float = 0.0, frame: str = "world", stamp: Any = None) -> PoseStamped:
+        msg = PoseStamped()
+        msg.header.frame_id = frame
+        msg.header.stamp = self.client.node.get_clock().now().to_msg() if stamp is None else stamp
+        msg.pose.position.x, msg.pose.position.y = float(x), float(y)
+        msg.pose.orientation.z, msg.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+        return msg
+
+    def drive(self, path: np.ndarray) -> None:
+        """Publish the (K, 2) tool positions at 1/DT, spinning in between."""
+        for x, y in path:
+            self.pose_pub.publish(self.pose(x, y))
+            self.client.spin_for(DT)
+
+    def reset(self) -> None:
+        response = self.client.call(self.reset_srv, Trigger.Request(), TIMEOUT, self.proc)
+        assert response.success, response.message
+
+    def pause(self, on: bool) -> SetBool.Response:
+        return self.client.call(self.pause_srv, SetBool.Request(data=on), TIMEOUT, self.proc)
+
+    def set_param(self, name: str, value: Any) -> Any:
+        if isinstance(value, bool):
+            pv = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value)
+        elif isinstance(value, int):
+            pv = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
+        elif isinstance(value, float):
+            pv = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
+        else:
+            pv = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+        request = SetParameters.Request(parameters=[ParameterMsg(name=name, value=pv)])
+        return self.client.call(self.param_srv, request, TIMEOUT, self.proc).results[0]
+
+    def latest_points(self) -> np.ndarray:
+        _, frame, cloud = M.decode_point_cloud(self.points.messages[-1])
+        assert frame == "world"
+        return np.stack([cloud["x"], cloud["y"]], axis=1).astype(np.float64)
+
+    def energies(self) -> np.ndarray:
+        return np.array([M.decode_float64(m) for m in self.energy.messages])
+
+    def diag(self) -> dict[str, str]:
+        """Key-values of the newest diagnostics status of this node."""
+        self.client.spin_until(lambda: self.diagnostics, TIMEOUT, self.proc, "diagnostics")
+        status = self.diagnostics[-1].status[0]
+        return {kv.key: kv.value for kv in status.values}
+
+    def fresh_diag(self) -> dict[str, str]:
+        self.diagnostics.clear()
+        return self.diag()
+
+
+@pytest.fixture(scope="module")
+def node(ros_client: RosClient, ros_env: dict[str, str], scene_files: dict[str, Any],
+         tmp_path_factory: pytest.TempPathFactory) -> Any:
+    """One timer-mode node for the module (stopped at the end; test_sigterm checks its exit code)."""
+    from ros_env import console_script  # noqa: PLC0415
+
+    log = tmp_path_factory.mktemp("node") / "node.log"
+    proc = RosProcess([console_script("tissue_sim_node"), "--ros-args", "--params-file", str(scene_files["params"])],
+                      ros_env, log)
+    handle = Node(proc, ros_client)
+    ros_client.node.create_subscription(
+        DiagnosticArray, "/diagnostics",
+        lambda msg: handle.diagnostics.append(msg) if msg.status and msg.status[0].name.startswith("/tissue_sim_node") else None,
+        qos.diagnostics())
+    handle.wait_ready()
+    yield handle
+    proc.stop(signal.SIGTERM, timeout=10)
+
+
+def _start(node: Node) -> None:
+    """Each test starts from a running node at rest with empty buffers."""
+    node.pause(False)
+    node.reset()
+    for sub in (node.points, node.markers, node.energy, node.wrench):
+        sub.clear()
+
+
+def test_rest_mesh_is_latched(node: Node, scene_files: dict[str, Any]) -> None:
+    node.client.spin_until(lambda: node.rest.messages, TIMEOUT, node.proc, "tissue/rest_mesh")
+    rest = {m.ns: m for m in M.decode_marker_array(node.rest.messages[0])}
+    mesh = scene_files["mesh"]
+    assert rest["rest"].type == M.MARKER_LINE_LIST and rest["rest"].frame_id == "world"
+    np.testing.assert_allclose(rest["rest"].points[:, :2], mesh.vertices[mesh.edges].reshape(-1, 2))
+    assert len(rest["pinned"].points) == 11  # the top row
+
+
+def test_tool_push_deforms_locally_and_energy_follows_contact(node: Node, scene_files: dict[str, Any]) -> None:
+    _start(node)
+    q0 = scene_files["mesh"].vertices
+    node.client.spin_for(0.3)  # settle under gravity with the tool far away
+    baseline = node.energies()[-10:].mean()
+    # the box comes up from below at x = 0.2, 0.1 m/s, 3 cm into the lower edge (y = 0)
+    up = np.stack([np.full(80, 0.2), np.linspace(-0.06, 0.02, 80)], axis=1)
+    node.wrench.clear()
+    node.drive(up)
+    node.client.spin_for(0.1)
+    q = node.latest_points()
+    assert np.isfinite(q).all()
+    moved = np.linalg.norm(q - q0, axis=1)
+    near = np.hypot(q0[:, 0] - 0.2, q0[:, 1]) < 0.05
+    far = np.abs(q0[:, 0] - 0.2) > 0.15
+    assert moved[near].mean() > 0.015, f"particles under the tool moved only {moved[near].mean():.4f} m"
+    assert moved[near].mean() > 3 * moved[far].mean()
+    assert q[near][:, 1].mean() > q0[near][:, 1].mean() + 0.015  # pushed up, the way the tool moves
+    in_contact = node.energies()[-20:].mean()
+    assert in_contact > 2 * baseline, (in_contact, baseline)
+    forces = np.array([M.decode_wrench_stamped(m)[2] for m in node.wrench.messages])
+    assert np.isfinite(forces).all() and np.abs(forces[:, 1]).max() > 0  # the tissue pushes back on the tool
+    markers = M.decode_marker_array(node.markers.messages[-1])
+    by_ns = {m.ns: m for m in markers}
+    assert {"tool", "tissue", "wireframe", "contact"} <= set(by_ns)
+    assert all(np.isfinite(m.points).all() and np.isfinite(m.colors).all() for m in markers)
+    assert by_ns["tool"].action == M.ACTION_ADD
+    # the tool leaves: downward and away; the energy falls back toward rest
+    node.drive(np.stack([np.full(15, 0.2), np.linspace(0.02, -0.2, 15)], axis=1))
+    node.client.spin_for(1.5)
+    after = node.energies()[-20:].mean()
+    assert after < 0.5 * in_contact, (after, in_contact)
+    q_after = node.latest_points()
+    assert np.linalg.norm(q_after - q0, axis=1)[near].mean() < 0.5 * moved[near].mean()
+
+
+def test_pause_stops_stepping_and_reset_restores_rest_mesh(node: Node, scene_files: dict[str, Any]) -> None:
+    _start(node)
+    node.drive(np.stack([np.full(80, 0.2), np.linspace(-0.06, 0.02, 80)], axis=1))
+    assert node.pause(True).success
+    node.client.spin_for(0.2)  # let in-flight messages arrive
+    assert node.fresh_diag()["paused"] == "true"
+    count = len(node.energy.messages)
+    steps = int(node.fresh_diag()["steps"])
+    node.client.spin_for(0.3)
+    assert len(node.energy.messages) == count, "energy still published while paused"
+    assert int(node.fresh_diag()["steps"]) == steps
+    deformed = node.latest_points()
+    q0 = scene_files["mesh"].vertices
+    assert np.abs(deformed - q0).max() > 0.01
+    node.points.clear()
+    node.reset()
+    node.client.spin_until(lambda: node.points.messages, TIMEOUT, node.proc, "points after reset")
+    np.testing.assert_allclose(node.latest_points(), q0, atol=1e-6)  # float32 on the wire
+    assert node.pause(False).success
+    node.client.spin_until(lambda: len(node.energy.messages) > count + 5, TIMEOUT, node.proc, "steps after unpause")
+
+
+def test_parameters_are_validated_at_runtime(node: Node) -> None:
+    bad = node.set_param("k_spring", 1.5)
+    assert not bad.successful and "k_spring" in bad.reason and "[0, 1]" in bad.reason
+    bad = node.set_param("marker_rate", -5.0)
+    assert not bad.successful and "marker_rate" in bad.reason
+    bad = node.set_param("iterations", "many")
+    assert not bad.successful and "iterations" in bad.reason
+    read_only = node.set_param("dt", 0.02)
+    assert not read_only.successful and "read-only" in read_only.reason
+    ok = node.set_param("iterations", 10)
+    assert ok.successful, ok.reason
+    ok = node.set_param("contact_radius", 0.06)
+    assert ok.successful, ok.reason
+    node.energy.clear()
+    node.client.spin_until(lambda: len(node.energy.messages) > 5, TIMEOUT, node.proc, "steps after a rebuild")
+    assert np.isfinite(node.energies()).all()
+    assert node.set_param("iterations", 30).successful
+
+
+def test_bad_input_is_dropped_counted_and_survived(node: Node) -> None:
+    _start(node)
+    before = node.fresh_diag()
+    c = node.client
+    now = c.node.get_clock().now()
+    node.drive(np.array([[0.2, -0.1]] * 5))  # a valid tool far below the strip
+    bad_poses = [
+        node.pose(float("nan"), 0.0),
+        node.pose(0.2, float("inf")),
+        node.pose(0.2, -0.1, frame="map"),  # another frame
+        node.pose(0.2, -0.1, stamp=(now - rclpy_duration(5.0)).to_msg()),  # stale
+    ]
+    zero_quat = node.pose(0.2, -0.1)
+    zero_quat.pose.orientation.w = 0.0
+    bad_poses.append(zero_quat)
+    for msg in bad_poses:
+        node.pose_pub.publish(msg)
+        c.spin_for(DT)
+    # out of order: a newer pose, then an older one
+    newer = node.pose(0.2, -0.1)
+    older = node.pose(0.2, -0.1, stamp=(c.node.get_clock().now() - rclpy_duration(0.1)).to_msg())
+    node.pose_pub.publish(newer)
+    c.spin_for(DT)
+    node.pose_pub.publish(older)
+    c.spin_for(DT)
+    twist = TwistStamped()
+    twist.header.frame_id = "world"
+    twist.header.stamp = c.node.get_clock().now().to_msg()
+    twist.twist.linear.x = float("nan")
+    node.twist_pub.publish(twist)
+    c.spin_for(DT)
+    # a teleport: 0.5 m in one step is clamped to max_tool_jump per step
+    node.drive(np.array([[0.7, -0.1]] * 3))
+    c.spin_for(0.3)
+    assert node.proc.alive()
+    after = node.fresh_diag()
+    grew = {k: int(after[k]) - int(before[k]) for k in after if k.startswith("dropped_") or k == "clamped_tool_jumps"}
+    assert grew["dropped_nonfinite"] >= 4, grew  # 2 NaN/inf poses, the zero quaternion, the NaN twist
+    assert grew["dropped_frame"] >= 1, grew
+    assert grew["dropped_stale"] >= 1, grew
+    assert grew["dropped_out_of_order"] >= 1, grew
+    assert grew["clamped_tool_jumps"] >= 1, grew
+    assert grew["dropped_unpublished_nonfinite"] == 0
+    # the tool marker moved at most max_tool_jump per step toward the teleport target
+    tools = [m for m in (M.decode_marker_array(b)[0] for b in node.markers.messages[-30:]) if m.action == M.ACTION_ADD]
+    centres = np.array([t.points[0::3, 0].mean() for t in tools])
+    assert np.abs(np.diff(centres)).max() <= 0.05 + 1e-6
+    assert np.isfinite(node.latest_points()).all() and np.isfinite(node.energies()).all()
+    out = node.proc.output()
+    assert "dropped" in out and "Traceback" not in out
+
+
+def rclpy_duration(seconds: float) -> Any:
+    from rclpy.duration import Duration  # noqa: PLC0415
+
+    return Duration(seconds=seconds)
+
+
+def test_lock_step_node_beside_it_steps_once_per_pose_and_replays_exactly(
+        ros_client: RosClient, start_process: Any, scene_files: dict[str, Any], node: Node) -> None:
+    """A second node in namespace /left, lock-step: N poses -> N steps stamped like the poses; a replay is exact."""
+    proc = start_process(["tissue_sim_node", "--ros-args", "-r", "__ns:=/left", "--params-file",
+                          str(scene_files["params"]), "-p", "lock_step:=true"], name="lockstep")
+    left = Node(proc, ros_client, ns="/left")
+    ros_client.wait_for_subscriber(left.pose_pub, TIMEOUT, proc)
+    ros_client.spin_until(lambda: left.rest.messages, TIMEOUT, proc, "/left/tissue/rest_mesh")
+    ros_client.wait_for_publisher("/left/tissue/energy", TIMEOUT, proc)
+    ros_client.spin_for(0.3)  # let the energy reader match too
+    path = np.stack([np.full(60, 0.2), np.linspace(-0.06, 0.02, 60)], axis=1)
+    t0 = ros_client.node.get_clock().now()
+
+    def replay() -> tuple[np.ndarray, list[tuple[int, int]]]:
+        for sub in (left.points, left.energy, left.wrench):
+            sub.clear()
+        for k, (x, y) in enumerate(path):
+            left.pose_pub.publish(left.pose(x, y, stamp=(t0 + rclpy_duration(k * DT)).to_msg()))
+            # one pose per step: wait for its energy before sending the next (as tool_driver does)
+            ros_client.spin_until(lambda k=k: len(left.energy.messages) > k, TIMEOUT, proc, f"step {k}")
+        ros_client.spin_until(lambda: len(left.wrench.messages) >= len(path) and len(left.points.messages) >= len(path),
+                              TIMEOUT, proc, "all outputs")
+        return left.latest_points(), [M.decode_wrench_stamped(m)[0] for m in left.wrench.messages]
+
+    first, stamps = replay()
+    assert len(left.energy.messages) == len(path)
+    expected = [(t0 + rclpy_duration(k * DT)).seconds_nanoseconds() for k in range(len(path))]
+    assert stamps == [tuple(s) for s in expected]
+    assert np.abs(first - scene_files["mesh"].vertices).max() > 0.01
+    left.reset()
+    ros_client.spin_for(0.1)
+    second, _ = replay()
+    np.testing.assert_array_equal(first, second)
+    # the timer node in the root namespace kept its own state meanwhile
+    assert node.proc.alive()
+    assert proc.stop(signal.SIGTERM) == 0
+
+
+def test_tool_driver_plays_a_trajectory_in_lock_step(ros_client: RosClient, start_process: Any,
+                                                     scene_files: dict[str, Any]) -> None:
+    sim = start_process(["tissue_sim_node", "--ros-args", "-r", "__ns:=/drv", "--params-file",
+                         str(scene_files["params"]), "-p", "lock_step:=true"], name="sim_for_driver")
+    energy = ros_client.raw_subscription(Float64, "/drv/tissue/energy", qos.energy())
+    ros_client.wait_for_publisher("/drv/tissue/energy", TIMEOUT, sim)
+    # 0.05 m at 0.5 m/s = 0.1 s = 10 steps, then hold 0.05 s = 5 steps
+    driver = start_process(["tool_driver", "--ros-args", "-r", "__ns:=/drv", "-p", "lock_step:=true",
+                            "-p", "tool_length:=0.1", "-p", "target_x:=0.2", "-p", "target_y:=0.0",
+                            "-p", "angle:=90.0", "-p", "distance:=0.05", "-p", "speed:=0.5", "-p", "hold:=0.05"],
+                           name="driver")
+    ros_client.spin_until(lambda: driver.returncode is not None, TIMEOUT, None, "the driver to finish")
+    assert driver.returncode == 0, driver.output()
+    ros_client.spin_for(0.2)
+    assert len(energy.messages) == 16, driver.output()  # k = 0..15: the start pose, 10 moving, 5 holding
+    assert np.isfinite([M.decode_float64(m) for m in energy.messages]).all()
+
+
+@pytest.mark.parametrize("values, name", [
+    ({"dt": -0.01}, "dt"),
+    ({"iteratons": 3}, "iteratons"),
+    ({"tool_shape": "scalpel"}, "tool_shape"),
+    ({"marker_rate": 0.0}, "marker_rate"),
+])
+def test_bad_parameter_file_exits_2_naming_the_parameter(start_process: Any, tmp_path: Path,
+                                                         values: dict[str, Any], name: str) -> None:
+    path = write_params(tmp_path / "bad.yaml", {**SCENE, **values})
+    proc = start_process(["tissue_sim_node", "--ros-args", "--params-file", str(path)], name="bad")
+    code = proc.wait(timeout=60)
+    out = proc.output()
+    assert code == 2, out
+    assert name in out and "Traceback" not in out
+
+
+def test_malformed_parameter_file_exits_2(start_process: Any, tmp_path: Path) -> None:
+    path = tmp_path / "broken.yaml"
+    path.write_text("/**:\n  ros__parameters:\n    dt: [0.01,\n")
+    proc = start_process(["tissue_sim_node", "--ros-args", "--params-file", str(path)], name="broken")
+    assert proc.wait(timeout=60) == 2
+    assert "broken.yaml" in proc.output() and "Traceback" not in proc.output()
+
+
+def test_sigterm_ends_the_node_cleanly(node: Node) -> None:
+    assert node.proc.alive()
+    code = node.proc.stop(signal.SIGTERM, timeout=10)
+    assert code == 0, node.proc.output()[-2000:]
+    assert "Traceback" not in node.proc.output()
