@@ -1,0 +1,182 @@
+"""The paper's two experiments, offline (no ROS graph): run, write figures and CSV, summarise.
+
+Experiment a (Fig. 2): the tool approaches and pushes the bottom tissue;
+snapshots at steps 0, 150, 220, 270 and the energy over the steps with those
+steps marked, terms beside the total, for each tissue.
+
+Experiment b (Fig. 3): insertions from two angles toward one target (yellow
+circle); the final deformation for each angle and the energy curves; which
+angle costs less, and by how much.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from tqdm import tqdm
+
+from ..core.rollout import Rollout, rollout
+from ..core.scene import build_simulation
+from ..core.simulation import Simulation
+from ..core.tool import ToolPose, Trajectory
+from . import trajectories as tr
+
+BODY_NAMES = ("upper tissue", "lower tissue")
+
+
+@dataclass
+class ExperimentResult:
+    """What an experiment wrote and measured."""
+
+    name: str
+    files: list[Path] = field(default_factory=list)
+    summary: dict[str, Any] = field(default_factory=dict)
+    rollouts: dict[str, Rollout] = field(default_factory=dict)
+
+    def summary_text(self) -> str:
+        return "\n".join(f"  {k}: {v}" for k, v in self.summary.items())
+
+
+def insertion_cost(run: Rollout) -> float:
+    """The planning cost of a run: the implicit Euler energy of the scene summed over all steps."""
+    return float(run.scene_total.sum())
+
+
+def run_trajectory(sim: Simulation, traj: Trajectory, *, snapshot_steps: Sequence[int] = (),
+                   progress: bool | str = False) -> tuple[Rollout, float]:
+    """Roll ``sim`` out along ``traj``; returns the rollout and the wall time [s]."""
+    dt = sim.params.dt
+    n = traj.n_steps(dt)
+    bar = tqdm(total=n, desc=progress if isinstance(progress, str) else "steps", unit="step",
+               disable=not progress, leave=False)
+    t0 = time.perf_counter()
+    run = rollout(sim, traj.steps(dt), snapshot_steps=snapshot_steps, on_step=lambda r: bar.update(1))
+    wall = time.perf_counter() - t0
+    bar.close()
+    return run, wall
+
+
+def _pose_at_step(run: Rollout, step: int) -> ToolPose | None:
+    if step <= 0 or step > len(run.steps):
+        return None
+    x, y, yaw = run.tool_pose[step - 1]
+    return ToolPose(float(x), float(y), float(yaw)) if np.isfinite(x) else None
+
+
+def summarise(run: Rollout, wall: float, dt: float) -> dict[str, Any]:
+    """Steps, real-time factor, peak energy per body, contact steps, first contact."""
+    contact_any = run.in_contact.any(axis=1)
+    first = int(run.steps[np.argmax(contact_any)]) if contact_any.any() else None
+    total = run.total
+    return {
+        "steps": int(len(run.steps)),
+        "wall time [s]": round(wall, 3),
+        "real-time factor": round(len(run.steps) * dt / wall, 1) if wall > 0 else float("inf"),
+        "median step [ms]": round(float(np.median(run.step_time)) * 1e3, 3) if len(run.step_time) else None,
+        "peak energy per body": [float(f"{v:.4g}") for v in total.max(axis=0)] if len(total) else [],
+        "peak energy step per body": [int(run.steps[i]) for i in total.argmax(axis=0)] if len(total) else [],
+        "contact steps": int(contact_any.sum()),
+        "first contact step": first,
+        "diverged steps": int(run.diverged.sum()),
+        "energy finite": bool(np.isfinite(total).all()),
+    }
+
+
+def experiment_a(out: str | Path, *, params: Mapping[str, Any] | None = None, steps: int = tr.A_STEPS,
+                 snapshot_steps: Sequence[int] = tr.A_SNAPSHOTS, progress: bool = True,
+                 prefix: str = "experiment_a") -> ExperimentResult:
+    """Run experiment a and write ``{prefix}_snapshots.png``, ``{prefix}_energy.png``, ``{prefix}_energy.csv``."""
+    from ..render import plot_energy, save_snapshots  # noqa: PLC0415  (matplotlib only when drawing)
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    sim = build_simulation(dict(params or {}))
+    traj = tr.experiment_a(sim.tool, sim.params.dt, steps=steps)
+    snaps = [s for s in snapshot_steps if s <= steps]
+    run, wall = run_trajectory(sim, traj, snapshot_steps=snaps, progress="experiment a" if progress else False)
+    res = ExperimentResult("a", rollouts={"a": run})
+    res.summary = summarise(run, wall, sim.params.dt)
+    res.summary["contact model"] = sim.params.contact_model
+    res.summary["method"] = f"{sim.params.method} ({sim.params.scheme}, {sim.params.iterations} iterations)"
+    res.summary["particles"] = sim.model.n_particles
+    shots = [(s, run.snapshots[s], _pose_at_step(run, s)) for s in snaps if s in run.snapshots]
+    res.files.append(save_snapshots(out / f"{prefix}_snapshots.png", sim.model, shots, tool=sim.tool,
+                                    title=f"Experiment a: the tool approaches the bottom tissue "
+                                          f"({sim.params.contact_model} contact)"))
+    res.files.append(plot_energy(out / f"{prefix}_energy.png", run.steps,
+                                 {"inertial": run.inertial, "spring": run.spring, "area": run.area},
+                                 body_names=BODY_NAMES[: sim.model.n_bodies], markers=[s for s in snaps if s > 0],
+                                 contact=run.in_contact, title="Experiment a: implicit Euler energy"))
+    csv = out / f"{prefix}_energy.csv"
+    run.write_csv(csv)
+    res.files.append(csv)
+    return res
+
+
+def experiment_b(out: str | Path, *, params: Mapping[str, Any] | None = None,
+                 angles_deg: Sequence[float] = tr.B_ANGLES_DEG, target: tuple[float, float] = tr.B_TARGET,
+                 speed: float = tr.B_SPEED, distance: float = tr.B_DISTANCE, progress: bool = True,
+                 prefix: str = "experiment_b") -> ExperimentResult:
+    """Run experiment b: the same target from each angle; figure of final states and energy curves."""
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    from ..render import TERM_STYLES, draw_scene  # noqa: PLC0415
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    values = {"tool_shape": tr.B_TOOL.kind, "tool_length": tr.B_TOOL.length, "tool_width": tr.B_TOOL.width}
+    values.update(params or {})
+    res = ExperimentResult("b")
+    runs: list[tuple[float, Rollout, Simulation, float]] = []
+    for angle in angles_deg:
+        sim = build_simulation(values)
+        traj = tr.experiment_b(sim.tool, sim.params.dt, angle, speed=speed, target=target, distance=distance)
+        run, wall = run_trajectory(sim, traj, progress=f"experiment b {angle:+.0f} deg" if progress else False)
+        runs.append((angle, run, sim, wall))
+        res.rollouts[f"{angle:+.0f}deg"] = run
+        run.write_csv(out / f"{prefix}_{angle:+.0f}deg_energy.csv")
+        res.files.append(out / f"{prefix}_{angle:+.0f}deg_energy.csv")
+
+    n = len(runs)
+    fig, axes = plt.subplots(2, n, figsize=(4.6 * n, 8.2), squeeze=False)
+    ymax = max(float(r.scene_total.max()) for _, r, _, _ in runs) * 1.08 or 1.0
+    for j, (angle, run, sim, _) in enumerate(runs):
+        pose = _pose_at_step(run, len(run.steps))
+        draw_scene(axes[0, j], sim.model, sim.state.particle_q, tool=sim.tool, pose=pose, target=target,
+                   contact=None)
+        axes[0, j].set_title(f"insertion at {angle:+.0f} deg: final state", fontsize=10)
+        ax = axes[1, j]
+        ax.plot(run.steps, run.scene_total, color="#c62828", lw=2.0, label="total")
+        for name, arr in (("inertial", run.inertial), ("spring", run.spring), ("area", run.area)):
+            colour, ls = TERM_STYLES[name]
+            ax.plot(run.steps, arr.sum(axis=1), color=colour, ls=ls, lw=1.2, label=name)
+        ax.set_ylim(0, ymax)
+        ax.set_xlabel("step")
+        ax.set_ylabel("implicit Euler energy (scene)")
+        ax.set_title(f"{angle:+.0f} deg: cost (sum of energy) {insertion_cost(run):.3g}", fontsize=10)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="upper left")
+    fig.suptitle("Experiment b: two insertion angles, same target (yellow)", fontsize=11)
+    fig.tight_layout()
+    fig_path = out / f"{prefix}.png"
+    fig.savefig(fig_path, dpi=120)
+    plt.close(fig)
+    res.files.insert(0, fig_path)
+
+    costs = {angle: insertion_cost(run) for angle, run, _, _ in runs}
+    best = min(costs, key=costs.get)
+    worst = max(costs, key=costs.get)
+    res.summary = {
+        "target": target,
+        "angles [deg]": list(angles_deg),
+        "cost (energy summed over steps)": {f"{a:+.0f} deg": float(f"{c:.4g}") for a, c in costs.items()},
+        "peak energy": {f"{a:+.0f} deg": float(f"{r.scene_total.max():.4g}") for a, r, _, _ in runs},
+        "contact steps": {f"{a:+.0f} deg": int(r.in_contact.any(axis=1).sum()) for a, r, _, _ in runs},
+        "cheaper angle [deg]": best,
+        "saving vs the other": (f"{(1 - costs[best] / costs[worst]) * 100:.1f}% less energy than {worst:+.0f} deg"
+                                if costs[worst] > 0 else "no energy at either angle"),
+    }
+    return res
