@@ -1,0 +1,304 @@
+"""``tissue-sim bench solver``: the speed of every method on meshes of 500 to 20k particles.
+
+For each mesh (a 1 m x 0.5 m strip, ``mesh_rectangle``, pinned along its top
+and bottom rows, sagging under gravity) and each method it times single solver
+steps (``Solver.step``: prediction, constraint solve, velocity, boundary,
+residual; 30 iterations unless ``--iterations``) and reports the median:
+
+* ms per step and steps per second;
+* ns per constraint projection (step time / (constraints x iterations x substeps));
+* the real-time factor at dt = 0.01 s (simulated time per wall time);
+* ``x_numpy``: how many times faster per projection than the vectorised NumPy
+  Jacobi baseline (:mod:`~tissue_sim_ros.bench.numpy_baseline`) measured in the
+  same run on the same mesh.
+
+It also runs the paper-sized scene (the shipped default image, 320 particles,
+two bodies, boundary lines, the authors' 0.8 m box tool) along experiment a's
+trajectory and, over the steps with the tool in contact, reports the contact
+model's cost (``timings['contact']``) against the whole ``Simulation.step``.
+
+Timings are medians over ``--steps`` steps after two warm-up steps (the first
+call compiles or loads the numba cache). The machine's other load shows up as
+spread, not in the median. Writes ``solver.csv`` and ``solver.png``.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numba
+import numpy as np
+
+from ..core.collision import Contacts
+from ..core.errors import InputError
+from ..core.mesh import TissueMesh, mesh_rectangle
+from ..core.model import Model, SimParams
+from ..core.solvers import Solver
+from .numpy_baseline import NumpyJacobiSolver
+
+HELP = "ms per step, ns per projection and ratio to NumPy, per method and mesh size"
+DESCRIPTION = __doc__
+
+SIZES = (500, 2000, 8000, 20000)
+QUICK_SIZES = (150, 500)
+DT = 0.01
+
+
+@dataclass(frozen=True)
+class Method:
+    """One row kind of the table: parameters and solver options."""
+
+    name: str
+    label: str
+    params: dict[str, Any]
+    solver: dict[str, Any] = field(default_factory=dict)
+    numpy: bool = False
+
+
+METHODS = (
+    Method("pbd_gs", "paper PBD, Gauss-Seidel, serial", dict(method="pbd"), dict(parallel=False)),
+    Method("pbd_jacobi", "paper PBD, Jacobi (averaged)", dict(method="pbd", scheme="jacobi")),
+    Method("xpbd_gs", "XPBD Gauss-Seidel, serial (mesh order, wavefront schedule)", dict(method="xpbd"),
+           dict(parallel=False)),
+    Method("xpbd_gs_stored", "XPBD Gauss-Seidel, serial, plain mesh-order loop", dict(method="xpbd"),
+           dict(parallel=False, order="stored")),
+    Method("xpbd_gs_colour", "XPBD Gauss-Seidel, colour order, 1 thread", dict(method="xpbd"),
+           dict(parallel=False, order="colour")),
+    Method("xpbd_gs_parallel", "XPBD Gauss-Seidel, coloured, all threads", dict(method="xpbd"), dict(parallel=True)),
+    Method("xpbd_gs_auto", "XPBD Gauss-Seidel, default choice", dict(method="xpbd")),
+    Method("xpbd_jacobi", "XPBD Jacobi (stiffness-aware relaxation)", dict(method="xpbd", scheme="jacobi")),
+    Method("xpbd_substep", "XPBD, 30 substeps x 1 iteration", dict(method="xpbd", substeps=30, iterations=1)),
+    Method("numpy_jacobi", "NumPy XPBD Jacobi (baseline)", dict(method="xpbd", scheme="jacobi"), numpy=True),
+)
+
+COLUMNS = ("scene", "particles", "constraints", "method", "iterations", "substeps", "threads", "steps_timed",
+           "ms_per_step", "steps_per_s", "ns_per_projection", "realtime_factor", "x_numpy",
+           "contact_ms", "total_ms", "contact_share")
+
+
+def strip_for(n_target: int) -> TissueMesh:
+    """A 1 m x 0.5 m strip whose particle count is close to ``n_target``: (nx + 1)(nx / 2 + 1) ~ n."""
+    nx = max(2, int(round((-3 + math.sqrt(9 + 8 * (n_target - 1))) / 2)))  # (nx+1)(nx/2+1) = n
+    nx += nx % 2
+    return mesh_rectangle(1.0, 0.5, 1.0 / nx)
+
+
+def strip_model(mesh: TissueMesh, params: SimParams) -> Model:
+    y = mesh.vertices[:, 1]
+    return Model.from_mesh(mesh, params, pinned=(y <= y.min() + 1e-9) | (y >= y.max() - 1e-9))
+
+
+def time_solver(model: Model, method: Method, steps: int) -> tuple[float, int, int]:
+    """Median seconds of one ``step``, projections per step and threads used, stepping the strip from rest."""
+    solver = NumpyJacobiSolver(model) if method.numpy else Solver(model, **method.solver)
+    a, b = model.state(), model.state()
+    contacts = Contacts.empty(model.n_bodies)
+    for _ in range(2):  # compile / load the cache, touch the workspaces
+        solver.step(a, b, contacts, DT)
+        a, b = b, a
+    times = np.empty(steps)
+    for k in range(steps):
+        t0 = time.perf_counter()
+        solver.step(a, b, contacts, DT)
+        times[k] = time.perf_counter() - t0
+        a, b = b, a
+    if not np.isfinite(a.particle_q).all():
+        raise RuntimeError(f"{method.name} diverged on {model.n_particles} particles")
+    return float(np.median(times)), solver.n_projections_per_step, _threads(solver)
+
+
+def _threads(solver: Any) -> int:
+    return numba.get_num_threads() if getattr(solver, "parallel", False) else 1
+
+
+def paper_scene_rows(methods: list[Method], iterations: int, steps: int, progress) -> list[dict[str, Any]]:
+    """Experiment a on the default scene: solve and contact cost over the steps in contact."""
+    from ..core.scene import build_simulation  # noqa: PLC0415
+    from ..experiments.trajectories import experiment_a  # noqa: PLC0415
+
+    rows = []
+    for method in methods:
+        flat = dict(method.params)
+        flat.setdefault("iterations", iterations)
+        for key in ("scheme", "substeps"):
+            flat.setdefault(key, SimParams.__dataclass_fields__[key].default)
+        sim = build_simulation(flat)
+        if method.numpy:
+            sim.solver = NumpyJacobiSolver(sim.model)
+        else:
+            sim.solver = Solver(sim.model, **method.solver)
+        traj = experiment_a(sim.tool, sim.params.dt)
+        solve, contact, total = [], [], []
+        for pose, twist in traj.steps(sim.params.dt):
+            report = sim.step(pose, twist)
+            if report.n_contact_particles > 0:
+                solve.append(report.timings["solve"])
+                contact.append(report.timings["contact"])
+                total.append(report.timings["total"])
+                if len(solve) >= steps:
+                    break
+        progress.update(1)
+        n_proj = (sim.model.n_edges + sim.model.n_triangles) * sim.params.iterations * sim.params.substeps
+        if not solve:
+            rows.append(dict(scene="paper", particles=sim.model.n_particles, method=method.name,
+                             contact_ms="n/a (no contact along experiment a)"))
+            continue
+        med = float(np.median(solve))
+        rows.append(dict(
+            scene=f"paper ({sim.params.contact_model} contact)", particles=sim.model.n_particles,
+            constraints=sim.model.n_edges + sim.model.n_triangles, method=method.name,
+            iterations=sim.params.iterations, substeps=sim.params.substeps, threads=_threads(sim.solver),
+            steps_timed=len(solve), ms_per_step=1e3 * med, steps_per_s=1.0 / med, ns_per_projection=1e9 * med / n_proj,
+            realtime_factor=DT / float(np.median(total)), contact_ms=1e3 * float(np.median(contact)),
+            total_ms=1e3 * float(np.median(total)),
+            contact_share=float(np.median(np.asarray(contact) / np.asarray(total)))))
+    return rows
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", default="bench_out/solver", help="output directory (CSV, PNG)")
+    parser.add_argument("--sizes", type=int, nargs="+", default=None,
+                        help=f"approximate particle counts (default {' '.join(map(str, SIZES))})")
+    parser.add_argument("--steps", type=int, default=None, help="steps timed per method and size (default 20; quick 3)")
+    parser.add_argument("--iterations", type=int, default=30, help="solver iterations per step (default 30)")
+    parser.add_argument("--quick", action="store_true", help=f"small sizes only ({' '.join(map(str, QUICK_SIZES))}), few steps")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm  # noqa: PLC0415
+
+    sizes = args.sizes or (QUICK_SIZES if args.quick else SIZES)
+    steps = args.steps if args.steps is not None else (3 if args.quick else 20)
+    if steps < 1:
+        raise InputError(f"--steps={steps}: expected at least 1 step")
+    if args.iterations < 1:
+        raise InputError(f"--iterations={args.iterations}: expected at least 1 iteration")
+    for s in sizes:
+        if s < 4:
+            raise InputError(f"--sizes {s}: expected particle counts >= 4")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    rows: list[dict[str, Any]] = []
+    paper_methods = [m for m in METHODS if m.name in ("pbd_gs", "xpbd_gs", "xpbd_jacobi", "numpy_jacobi")]
+    progress = tqdm(total=len(sizes) * len(METHODS) + len(paper_methods) + 1, desc="bench solver", unit="run")
+    for size in sizes:
+        mesh = strip_for(size)
+        size_rows = []
+        for method in METHODS:
+            params = dict(method.params)
+            params.setdefault("iterations", args.iterations)
+            model = strip_model(mesh, SimParams(**params))
+            # the NumPy baseline is ~20x slower: fewer steps keep the run short, the median stays robust
+            n_steps = max(3, steps // 4) if method.numpy else steps
+            progress.set_postfix_str(f"{model.n_particles} particles, {method.name}")
+            med, n_proj, threads = time_solver(model, method, n_steps)
+            progress.update(1)
+            size_rows.append(dict(scene="strip", particles=model.n_particles,
+                                  constraints=model.n_edges + model.n_triangles, method=method.name,
+                                  iterations=model.params.iterations, substeps=model.params.substeps, threads=threads,
+                                  steps_timed=n_steps, ms_per_step=1e3 * med, steps_per_s=1.0 / med,
+                                  ns_per_projection=1e9 * med / n_proj, realtime_factor=DT / med))
+        base = next(r for r in size_rows if r["method"] == "numpy_jacobi")["ns_per_projection"]
+        for r in size_rows:
+            r["x_numpy"] = base / r["ns_per_projection"]
+        rows += size_rows
+
+    paper = paper_scene_rows(paper_methods + [Method("xpbd_gs_projection", "XPBD GS, projection contact",
+                                                     dict(method="xpbd", contact_model="projection"))],
+                             args.iterations, steps if not args.quick else 5, progress)
+    numpy_paper = next((r for r in paper if r["method"] == "numpy_jacobi" and "ns_per_projection" in r), None)
+    for r in paper:
+        if numpy_paper is not None and "ns_per_projection" in r:
+            r["x_numpy"] = numpy_paper["ns_per_projection"] / r["ns_per_projection"]
+    rows += paper
+    progress.close()
+
+    write_csv(out / "solver.csv", rows)
+    print_table(rows)
+    print_summary(rows)
+    plot(out / "solver.png", rows)
+    print(f"wrote {out / 'solver.csv'} and {out / 'solver.png'}")
+    return 0
+
+
+def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=COLUMNS)
+        writer.writeheader()
+        for r in rows:
+            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+
+
+def _fmt(v: Any, spec: str) -> str:
+    return format(v, spec) if isinstance(v, (int, float)) else (str(v) if v is not None else "")
+
+
+def print_table(rows: list[dict[str, Any]]) -> None:
+    header = (f"{'scene':<24} {'N':>6} {'method':<20} {'thr':>3} {'ms/step':>9} {'steps/s':>9} {'ns/proj':>8} "
+              f"{'RTF':>7} {'x NumPy':>8} {'contact ms':>10} {'share':>6}")
+    print(header)
+    print("-" * len(header))
+    for r in rows:
+        print(f"{r['scene']:<24} {r['particles']:>6} {r['method']:<20} {_fmt(r.get('threads'), '>3')} "
+              f"{_fmt(r.get('ms_per_step'), '>9.3f')} {_fmt(r.get('steps_per_s'), '>9.1f')} "
+              f"{_fmt(r.get('ns_per_projection'), '>8.2f')} {_fmt(r.get('realtime_factor'), '>7.2f')} "
+              f"{_fmt(r.get('x_numpy'), '>8.1f')} {_fmt(r.get('contact_ms'), '>10.3f')} "
+              f"{_fmt(r.get('contact_share'), '>6.1%')}")
+
+
+def print_summary(rows: list[dict[str, Any]]) -> None:
+    """The numbers the issue's targets are about, from this run."""
+    strip = [r for r in rows if r["scene"] == "strip"]
+    by = {(r["particles"], r["method"]): r for r in strip}
+    sizes = sorted({r["particles"] for r in strip})
+    print("\nsummary (medians of this run):")
+    for n in sizes:
+        serial, par = by.get((n, "xpbd_gs")), by.get((n, "xpbd_gs_parallel"))
+        stored, auto = by.get((n, "xpbd_gs_stored")), by.get((n, "xpbd_gs_auto"))
+        if serial and par and stored and auto:
+            print(f"  {n:>6} particles: XPBD GS serial {serial['ns_per_projection']:.2f} ns/projection "
+                  f"(plain mesh-order loop {stored['ns_per_projection']:.2f}), parallel x{serial['ms_per_step'] / par['ms_per_step']:.2f} "
+                  f"vs serial, default choice {auto['threads']} thread(s); serial x{serial['x_numpy']:.1f} NumPy")
+    for r in rows:
+        if r["scene"].startswith("paper") and "ms_per_step" in r:
+            print(f"  paper scene {r['method']:<20} solve {r['ms_per_step']:.3f} ms, step {r['total_ms']:.3f} ms "
+                  f"(contact {r['contact_ms']:.3f} ms = {r['contact_share']:.0%}), {r['realtime_factor']:.0f}x real time")
+
+
+def plot(path: Path, rows: list[dict[str, Any]]) -> None:
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    strip = [r for r in rows if r["scene"] == "strip"]
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(13, 5))
+    for m in METHODS:
+        rs = sorted((r for r in strip if r["method"] == m.name), key=lambda r: r["particles"])
+        if not rs:
+            continue
+        n = [r["particles"] for r in rs]
+        style = "--" if m.numpy else "-"
+        ax1.plot(n, [r["ns_per_projection"] for r in rs], style, marker="o", label=m.label)
+        ax2.plot(n, [r["ms_per_step"] for r in rs], style, marker="o", label=m.label)
+    ax2.axhline(1e3 * DT, color="k", lw=0.8, ls=":", label="real time (dt = 10 ms)")
+    for ax in (ax1, ax2):
+        ax.set_xscale("log")
+        ax.set_xlabel("particles")
+        ax.grid(True, which="both", alpha=0.3)
+    ax1.set_yscale("log")
+    ax1.set_ylabel("ns per constraint projection (median)")
+    ax2.set_yscale("log")
+    ax2.set_ylabel("ms per step (median)")
+    ax1.set_title("cost per projection")
+    ax2.set_title(f"cost per step ({numba.get_num_threads()} threads available)")
+    ax2.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
