@@ -519,7 +519,11 @@ def _yaw(q: Any) -> float | None:
     n2 = x * x + y * y + z * z + w * w
     if not math.isfinite(n2) or n2 < 1e-12:
         return None
-    return math.atan2(2.0 * (w * z + x * y), n2 - 2.0 * (y * y + z * z))
+    if abs(n2 - 1.0) > 1e-9:  # a robot's slightly denormalised quaternion
+        s = 1.0 / math.sqrt(n2)
+        x, y, z, w = x * s, y * s, z * s, w * s
+    # the node's formula, to the bit: an offline replay must equal the node in lock-step
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 # each extractor: msg -> list of (stamp_ns or 0, x, y, quaternion, frame_id, child_frame)

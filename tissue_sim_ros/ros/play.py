@@ -13,7 +13,7 @@ times; ``--rate 2`` plays twice as fast. ``--loop`` repeats. ``--clock``
 publishes ``/clock`` (rosgraph_msgs/Clock) at ``--clock-rate`` Hz with the bag
 time (continuing across loops), so nodes with ``use_sim_time:=true`` follow
 the bag. Before starting, play waits up to ``--wait`` seconds for every played
-topic to have a subscriber, so the first messages are not lost.
+topic (and ``/clock``) to have a subscriber, so the first messages are not lost.
 """
 from __future__ import annotations
 
@@ -113,12 +113,13 @@ def run(args: argparse.Namespace) -> int:
             from rosgraph_msgs.msg import Clock  # noqa: PLC0415
 
             clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10))
+        watched = dict(pubs) if clock_pub is None else {**pubs, "/clock": clock_pub}
         deadline = time.monotonic() + max(0.0, args.wait)
         while not stop.is_set() and time.monotonic() < deadline:
-            if all(p.get_subscription_count() > 0 for p in pubs.values()):
+            if all(p.get_subscription_count() > 0 for p in watched.values()):
                 break
             stop.wait(0.02)  # polling the graph; a signal ends the wait at once
-        waiting = [remaps.get(t, t) for t, p in pubs.items() if p.get_subscription_count() == 0]
+        waiting = [remaps.get(t, t) for t, p in watched.items() if p.get_subscription_count() == 0]
         if waiting and args.wait > 0:
             print(f"play: no subscriber on {', '.join(waiting)} after {args.wait} s; playing anyway", flush=True)
         print(f"playing {len(messages)} messages on {', '.join(remaps.get(t, t) for t in topics)} at {args.rate}x"

@@ -1,0 +1,170 @@
+"""tissue-sim record / play across processes, interruption of a recording, and replay = node in lock-step.
+
+Isolated graph (own ROS_DOMAIN_ID, localhost discovery) from test/ros_env.py;
+every wait has a timeout, every process is ended by the start_process fixture.
+"""
+from __future__ import annotations
+
+import signal
+import struct
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+
+from ros_env import RosClient, ros_client, ros_env, start_process  # noqa: E402, F401  (fixtures)
+
+from tissue_sim_ros.core.scene import build_simulation  # noqa: E402
+from tissue_sim_ros.ros import messages as m  # noqa: E402
+from tissue_sim_ros.ros.bags import Bag, read_tool_track, recover_mcap  # noqa: E402
+from tissue_sim_ros.ros.replay import replay  # noqa: E402
+
+from bag_fixtures import small_params, tool_bag, write_params  # noqa: E402
+
+
+def _payloads(path, topic: str) -> list[bytes]:
+    with Bag(path) as bag:
+        return [bytes(raw) for _, _, _, raw in bag.messages([topic])]
+
+
+def _text(proc) -> str:
+    """Everything a process printed (also after it ended: RosProcess.output() needs an open log)."""
+    return proc.log_path.read_text(errors="replace")
+
+
+def _recorded_messages(proc) -> int:
+    """Messages the recorder reported in its last status line (0 before the first)."""
+    counts = [int(line.split()[2]) for line in _text(proc).splitlines()
+              if line.strip().endswith("messages") and line.strip().split()[1] == "s"]
+    return counts[-1] if counts else 0
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_play_into_record_keeps_bytes_and_timing(tmp_path, storage, ros_client, start_process):
+    src, times, _ = tool_bag(tmp_path / "in", n=40, rate_hz=37.0, twist=True)
+    out = tmp_path / "rec"
+    rec = start_process(["tissue-sim", "record", "-o", str(out), "--storage", storage,
+                         "--topics", "/tool/pose", "/tool/twist", "--flush-period", "0.2"], name="record")
+    ros_client.spin_until(lambda: "recording to" in _text(rec), 30, rec, "the recorder to start")
+    play = start_process(["tissue-sim", "play", str(src), "--rate", "2", "--wait", "30"], name="play")
+    assert play.wait(timeout=60) == 0, _text(play)
+    ros_client.spin_until(lambda: _recorded_messages(rec) >= 80, 20, rec, "the recorder to get all 80 messages")
+    assert rec.stop(signal.SIGINT, timeout=20) == 0, _text(rec)
+    assert "closed" in _text(rec) and "on SIGINT" in _text(rec)
+    for topic in ("/tool/pose", "/tool/twist"):
+        assert _payloads(out, topic) == _payloads(src, topic), topic  # the bytes, unchanged
+    with Bag(out) as bag:
+        assert bag.topics == {"/tool/pose": "geometry_msgs/msg/PoseStamped",
+                              "/tool/twist": "geometry_msgs/msg/TwistStamped"}
+        recv = np.array([t for _, _, t, _ in bag.messages(["/tool/pose"])])
+    # at --rate 2, play never sends before the schedule: the receive span is at least half the bag's span
+    span = (times[-1] - times[0]) / 2
+    assert recv[-1] - recv[0] >= 0.95 * span
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_interrupted_recording_closes_the_bag(tmp_path, sig, ros_client, start_process):
+    src, _, _ = tool_bag(tmp_path / "in", n=30, rate_hz=50.0)
+    out = tmp_path / "rec"
+    rec = start_process(["tissue-sim", "record", "-o", str(out), "--topics", "/tool/pose"], name="record")
+    ros_client.spin_until(lambda: "recording to" in _text(rec), 30, rec, "the recorder to start")
+    play = start_process(["tissue-sim", "play", str(src), "--loop", "--wait", "30"], name="play")
+    ros_client.spin_until(lambda: _recorded_messages(rec) >= 20, 30, rec, "messages in the recording")
+    assert rec.stop(sig, timeout=20) == 0, _text(rec)  # while messages still flow
+    play.stop(signal.SIGINT)
+    text = _text(rec)
+    assert f"on {signal.Signals(sig).name}" in text
+    n_closed = int(text.split("closed", 1)[1].split(":", 1)[1].split()[0])
+    assert (out / "metadata.yaml").is_file()
+    with Bag(out) as bag:
+        assert bag.message_count == n_closed >= 20
+        track = read_tool_track(bag, time_source="bag")
+    assert track.n == n_closed
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_killed_recorder_loses_at_most_the_last_flush(tmp_path, storage, ros_client, start_process):
+    """SIGKILL: no close at all. sqlite3 reads as it is; MCAP is salvaged by recover_mcap."""
+    src, _, _ = tool_bag(tmp_path / "in", n=30, rate_hz=50.0)
+    out = tmp_path / "rec"
+    rec = start_process(["tissue-sim", "record", "-o", str(out), "--storage", storage, "--topics", "/tool/pose",
+                         "--flush-period", "0.1"], name="record")
+    ros_client.spin_until(lambda: "recording to" in _text(rec), 30, rec, "the recorder to start")
+    play = start_process(["tissue-sim", "play", str(src), "--loop", "--wait", "30"], name="play")
+    ros_client.spin_until(lambda: _recorded_messages(rec) >= 40, 30, rec, "messages in the recording")
+    reported = _recorded_messages(rec)
+    rec.stop(signal.SIGKILL)
+    play.stop(signal.SIGINT)
+    assert not (out / "metadata.yaml").exists()
+    if storage == "mcap":
+        recover_mcap(out, tmp_path / "salvaged.mcap")
+        target = tmp_path / "salvaged.mcap"
+    else:
+        target = out
+    with Bag(target) as bag:
+        # everything but the last flush period (0.1 s, at 50 Hz ~5 messages) before the status line
+        assert bag.message_count >= max(1, reported - 10)
+        raws = [raw for _, _, _, raw in bag.messages()]
+    assert set(raws) <= set(_payloads(src, "/tool/pose"))
+
+
+def test_play_publishes_clock(tmp_path, ros_client, start_process):
+    from rclpy.qos import QoSProfile
+    from rosgraph_msgs.msg import Clock
+
+    src, times, _ = tool_bag(tmp_path / "in", n=20, rate_hz=37.0)
+    clock = ros_client.raw_subscription(Clock, "/clock", QoSProfile(depth=1000))
+    play = start_process(["tissue-sim", "play", str(src), "--topics", "/chatter", "--clock", "--rate", "4",
+                          "--wait", "2"], name="play")  # /chatter: nobody listens, /clock is matched
+    ros_client.spin_until(lambda: play.returncode is not None and len(clock.messages) > 0, 60, None,
+                          "play to finish")
+    assert play.wait(timeout=10) == 0
+    last = times[-1] + 1000  # /chatter is stamped 1 us after each tool message in the fixture
+    ros_client.spin_until(lambda: any(_clock_ns(c) == last for c in clock.messages), 10, None,
+                          "the /clock of the last message")
+    t = np.array([_clock_ns(c) for c in clock.messages])
+    assert (np.diff(t) >= 0).all() and t.max() == last and t.min() == times[0] + 1000
+
+
+def _clock_ns(raw: bytes) -> int:
+    sec, nsec = struct.unpack_from("<iI", raw, 4)
+    return sec * 1_000_000_000 + nsec
+
+
+def test_play_and_record_bad_input(tmp_path, ros_env):
+    from tissue_sim_ros.cli import main as cli
+
+    src, _, _ = tool_bag(tmp_path / "in", n=5)
+    assert cli(["play", str(src), "--topics", "/nope"]) == 2
+    assert cli(["play", str(src), "--rate", "0"]) == 2
+    assert cli(["play", str(tmp_path / "missing")]) == 2
+    assert cli(["play", str(src), "--remap", "bad"]) == 2
+    (tmp_path / "exists").mkdir()
+    assert cli(["record", "-o", str(tmp_path / "exists")]) == 2
+    assert cli(["record", "-o", str(tmp_path / "x"), "--duration", "-1"]) == 2
+
+
+def test_offline_replay_equals_node_in_lock_step(tmp_path, ros_client, start_process):
+    """The node stepping once per played pose gives the same energy series as the offline replay, to the bit."""
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64
+
+    src, _, _ = tool_bag(tmp_path / "in", n=40, rate_hz=37.0)
+    params = write_params(tmp_path)
+    offline = replay(build_simulation(small_params(tmp_path)), read_tool_track(src), progress=False)
+    assert offline.rollout.in_contact.any()
+
+    energy = ros_client.raw_subscription(Float64, "/tissue/energy", QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+    node = start_process(["tissue_sim_node", "--ros-args", "--params-file", str(params), "-p", "lock_step:=true"],
+                         name="node")
+    ros_client.wait_for_publisher("/tissue/energy", timeout=60, process=node)
+    ros_client.spin_until(lambda: energy.sub.get_publisher_count() > 0, 30, node, "matching /tissue/energy")
+    play = start_process(["tissue-sim", "play", str(src), "--wait", "30"], name="play")
+    ros_client.spin_until(lambda: len(energy.messages) >= 40, 60, node, "40 energy messages from the node")
+    assert play.wait(timeout=30) == 0, _text(play)
+    ros_client.spin_for(0.3)  # nothing more may come: one step per pose
+    live = np.array([m.decode_float64(raw) for raw in energy.messages])
+    assert live.shape == (40,), f"{len(live)} energy messages for 40 poses"
+    np.testing.assert_array_equal(live, offline.rollout.scene_total)
