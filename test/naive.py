@@ -272,12 +272,16 @@ def rounded_box_normal_local(p, hx, hy):
 
 
 def rounded_box_sdf(points, shape):
-    """Signed distance of world points (N, 2) to the posed tool (7,), shape (N,)."""
-    loc = tool_local(points, shape)
-    return np.array([rounded_box_sdf_local(p, shape[4], shape[5], shape[6]) for p in loc])
+    """Signed distance of world points (N, 2) to the posed tool (7,), shape (N,) (vectorised form of the above)."""
+    loc = tool_local(np.asarray(points, dtype=float).reshape(-1, 2), shape)
+    core = np.array([shape[4], shape[5]])
+    q = np.abs(loc) - core
+    outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
+    inside = np.minimum(q.max(axis=1), 0.0)
+    return outside + inside - shape[6]
 
 
-def _golden_min(f, a, b, iters=200):
+def _golden_min(f, a, b, iters=100):
     """Minimiser of a convex function on [a, b] by golden-section search."""
     g = (math.sqrt(5.0) - 1.0) / 2.0
     c, d = b - g * (b - a), a + g * (b - a)
@@ -290,7 +294,7 @@ def _golden_min(f, a, b, iters=200):
     return 0.5 * (a + b)
 
 
-def _bisect_root(f, a, b, iters=200):
+def _bisect_root(f, a, b, iters=80):
     """A root of f on [a, b] with f(a) and f(b) of opposite signs (or zero)."""
     fa = f(a)
     for _ in range(iters):

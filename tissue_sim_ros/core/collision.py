@@ -1,4 +1,4 @@
-"""Tool-tissue contact: python-fcl queries, the paper's eq. (3), and projection contact.
+r"""Tool-tissue contact: python-fcl queries, the paper's eq. (3), and projection contact.
 
 Contract with the solver (``solvers.py``):
 
@@ -469,12 +469,23 @@ class ContactModel:
         rot = _yaw_matrix(pose.yaw) @ self._axis_rot
         self._tool_obj.setTransform(fcl.Transform(rot, np.array([pose.x, pose.y, 0.0])))
 
-    def body_distance(self, b: int, x: np.ndarray, sdf: np.ndarray, reach: float) -> BodyDistance:
-        """d* and q of body ``b`` (positions ``x``, per-particle signed distances ``sdf`` to the posed tool).
+    def prepare(self, x: np.ndarray, pose: ToolPose) -> None:
+        """Pose the tool and compute every particle's signed distance (and gradient) to it, for :meth:`body_distance`."""
+        points_sdf(x, tool_shape_array(self.tool, pose, 0.0), self._sdf, self._grad)
+        self._place_tool(pose)
 
-        The tool must have been placed (:meth:`_place_tool`). Bodies whose
-        nearest vertex lower bound exceeds ``reach`` are not queried (d* = inf).
+    def distances(self, x: np.ndarray, pose: ToolPose, reach: float) -> list["BodyDistance"]:
+        """d* and q of every body for positions ``x`` (N, 2) [m] and the tool at ``pose``."""
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        self.prepare(x, pose)
+        return [self.body_distance(b, x, reach) for b in range(self.model.n_bodies)]
+
+    def body_distance(self, b: int, x: np.ndarray, reach: float) -> BodyDistance:
+        """d* and q of body ``b`` at positions ``x``; :meth:`prepare` must have been called with the same ``x``.
+
+        d* is exact when <= ``reach``; farther bodies report d* = inf (not computed).
         """
+        sdf = self._sdf
         tris = self.body_tris[b]
         if tris.shape[0] == 0:
             return BodyDistance(math.inf, -1, False, 0)
@@ -519,9 +530,7 @@ class ContactModel:
         nb = model.n_bodies
         contacts = Contacts.empty(nb)
         x = np.ascontiguousarray(state.particle_q, dtype=np.float64)
-        shape1 = tool_shape_array(self.tool, pose1, 0.0)
-        points_sdf(x, shape1, self._sdf, self._grad)
-        self._place_tool(pose1)
+        self.prepare(x, pose1)
         self.last_bvh_triangles = 0
         if self.kind == "projection":
             self._detect_projection(state, pose0, pose1, dt, contacts)
@@ -531,12 +540,11 @@ class ContactModel:
         v = np.array([twist.vx, twist.vy])
         speed = float(np.hypot(v[0], v[1]))
         for b in range(nb):
-            res = self.body_distance(b, x, self._sdf, reach)
+            res = self.body_distance(b, x, reach)
             self.last_bvh_triangles += res.n_tris
             contacts.d_star[b] = res.d_star
             if self.kind == "projection":
-                # touching the inflated tool at the step start; the Simulation adds the particles the solve pushed
-                contacts.in_contact[b] = res.d_star <= p.contact_margin
+                # known only after the solve: the Simulation marks the bodies whose particles were pushed
                 continue
             if not res.d_star < p.contact_threshold:
                 continue

@@ -115,6 +115,10 @@ class Simulation:
         t_contact = time.perf_counter()
 
         info = self.solver.step(self.state, self._state_out, contacts, p.dt)
+        if contacts.candidates.size:
+            # projection contact: a body is in contact when the solve pushed one of its particles
+            contacts.in_contact[:] = False
+            contacts.in_contact[model.particle_body[contacts.touched]] = True
         t_solve = time.perf_counter()
 
         out = self._state_out
@@ -128,7 +132,7 @@ class Simulation:
             torque = 0.0
         else:
             energy = energy_terms(model, out.particle_q, info.x_pred)
-            force, torque = self._reaction(info.contact_dx, tool_pose, p.dt)
+            force, torque = self._reaction(info.contact_dx, tool_pose, p.dt, contacts, out.particle_q)
         t_energy = time.perf_counter()
 
         self.state, self._state_out = out, self.state
@@ -155,14 +159,29 @@ class Simulation:
         dyaw = math.atan2(math.sin(pose.yaw - prev.yaw), math.cos(pose.yaw - prev.yaw))
         return ToolTwist((pose.x - prev.x) / dt, (pose.y - prev.y) / dt, dyaw / dt)
 
-    def _reaction(self, contact_dx: np.ndarray | None, tool_pose: ToolPose | None, dt: float) -> tuple[np.ndarray, float]:
-        """Reaction on the tool: the tool pushed particles by dx, so they push back with -m dx / dt^2."""
-        if contact_dx is None or tool_pose is None:
+    def _reaction(self, contact_dx: np.ndarray | None, tool_pose: ToolPose | None, dt: float,
+                  contacts: Contacts | None = None, x: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+        """Reaction on the tool: the tool pushed particles by dx, so they push back with -m dx / dt^2.
+
+        ``contact_dx`` (N, 2) are the projection model's summed corrections; without
+        them the paper model's held displacements (``contacts.held_dx``) are used.
+        The torque is about the tool's centre, with the particles at ``x`` (their
+        positions after the step; default: the current state).
+        """
+        if tool_pose is None:
             return np.zeros(2), 0.0
-        m = self.model.particle_mass[:, None]
-        f_particles = -m * contact_dx / (dt * dt)
+        m = self.model.particle_mass
+        if contact_dx is not None:
+            idx = np.flatnonzero(contact_dx.any(axis=1))
+            dx = contact_dx[idx]
+        elif contacts is not None and contacts.held_idx.size:
+            idx, dx = contacts.held_idx, contacts.held_dx
+        else:
+            return np.zeros(2), 0.0
+        f_particles = -m[idx, None] * dx / (dt * dt)
         force = f_particles.sum(axis=0)
-        r = self.state.particle_q - np.array([tool_pose.x, tool_pose.y])
+        x = self.state.particle_q if x is None else x
+        r = x[idx] - np.array([tool_pose.x, tool_pose.y])
         torque = float(np.sum(r[:, 0] * f_particles[:, 1] - r[:, 1] * f_particles[:, 0]))
         return force, torque
 
