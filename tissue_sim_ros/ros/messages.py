@@ -579,8 +579,16 @@ class SceneEncoder:
         self.wire_width = wire_width
         self.wireframe = wireframe
         self.lut = strain_colormap()
+        self._lut16 = np.ascontiguousarray(self.lut).view(np.complex128).ravel()
+        # flat index arrays and preallocated buffers: np.take into them is ~3x faster than fancy indexing
+        self.tri_flat = np.ascontiguousarray(self.tri.ravel())
+        self.edge_flat = np.ascontiguousarray(self.edges.ravel())
         self.tri_points = np.zeros((3 * len(self.tri), 3), dtype="<f8")
         self.wire_points = np.zeros((2 * len(self.edges), 3), dtype="<f8")
+        self._tri_xy = np.empty((3 * len(self.tri), 2), dtype=np.float64)
+        self._wire_xy = np.empty((2 * len(self.edges), 2), dtype=np.float64)
+        # one RGBA (4 float32 = 16 bytes) viewed as one complex128, so colours gather as single elements
+        self._tri_rgba = np.empty(3 * len(self.tri), dtype=np.complex128)
         self.cloud = np.zeros(n, dtype=POINT_DTYPE)
         self.cloud["body"] = particle_body
         spacing = float(np.median(edge_rest_length)) if len(edge_rest_length) else 0.01
@@ -636,14 +644,17 @@ class SceneEncoder:
             Particles the contact model moved this step.
         """
         tri = self.tri_points
-        tri[:, :2] = q[self.tri].reshape(-1, 2)
+        np.take(q, self.tri_flat, axis=0, out=self._tri_xy)
+        tri[:, :2] = self._tri_xy
         idx = np.clip(((strain / self.strain_color_max) * 0.5 + 0.5) * (len(self.lut) - 1), 0, len(self.lut) - 1)
-        colors = self.lut[idx.astype(np.int64)[self.tri.ravel()]]
+        np.take(np.take(self._lut16, idx.astype(np.int64)), self.tri_flat, out=self._tri_rgba)
+        colors = self._tri_rgba.view(np.float32).reshape(-1, 4)
         specs = [self._tool_marker(stamp if tool_stamp is None else tool_stamp, frame_id, tool_pose),
                  MarkerSpec("tissue", 0, MARKER_TRIANGLE_LIST, stamp, frame_id, points=tri, colors=colors)]
         if self.wireframe:
             wire = self.wire_points
-            wire[:, :2] = q[self.edges].reshape(-1, 2)
+            np.take(q, self.edge_flat, axis=0, out=self._wire_xy)
+            wire[:, :2] = self._wire_xy
             specs.append(MarkerSpec("wireframe", 0, MARKER_LINE_LIST, stamp, frame_id, position=(0.0, 0.0, 0.001),
                                     scale=(self.wire_width, 0.0, 0.0), color=(0.1, 0.1, 0.1, 0.6), points=wire))
         if contact_particles is not None and len(contact_particles):

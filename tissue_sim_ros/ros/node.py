@@ -18,6 +18,7 @@ reports them on ``/diagnostics``.
 """
 from __future__ import annotations
 
+import gc
 import math
 import sys
 import time
@@ -119,7 +120,8 @@ class TissueSimNode(Node):
         self.tool = ToolInput()
         self.last_report: StepReport | None = None
         self._last_warn: dict[str, float] = {}
-        self._last_tick: Time | None = None
+        self._last_tick: int | None = None
+        """Scheduled time of the step timer's next call after the last tick [ns of the node clock]."""
         self._steps_since_points = 0
         self._steps_since_markers = 0
         self._encoder = self._make_encoder()
@@ -329,12 +331,14 @@ class TissueSimNode(Node):
 
     def _on_tick(self) -> None:
         now = self.get_clock().now()
+        # rcl keeps the timer on its schedule and, when a tick is late by more than a
+        # period, skips the ticks missed; the next scheduled call tells how many it skipped
+        next_call = now.nanoseconds + self.step_timer.time_until_next_call()
         if self._last_tick is not None:
-            gap = (now - self._last_tick).nanoseconds * 1e-9
-            missed = int(round(gap / self.sim.params.dt)) - 1
+            missed = int(round((next_call - self._last_tick) / self.step_timer.timer_period_ns)) - 1
             if missed > 0:
                 self.stats.missed_ticks += missed
-        self._last_tick = now
+        self._last_tick = next_call
         if self.paused:
             return
         self._step(_stamp_of(now), None, from_timer=True)
@@ -498,6 +502,9 @@ def main(args: list[str] | None = None) -> int:
     code = 0
     try:
         node = TissueSimNode()
+        # everything built so far lives as long as the node: keep the collector from rescanning it each step
+        gc.collect()
+        gc.freeze()
         rclpy.spin(node)
     except InputError as exc:
         print(f"tissue_sim_node: error: {exc}", file=sys.stderr)

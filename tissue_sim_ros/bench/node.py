@@ -1,0 +1,376 @@
+"""``tissue-sim bench node``: sustained rate, overruns and pose-to-mesh latency of the ROS node.
+
+For each scene (the paper's: the default image at spacing 0.05 and Table I;
+and the same image meshed to ~5,000 triangles) the benchmark starts
+``tissue_sim_node`` as a separate process on a private ROS domain (localhost
+discovery), publishes tool poses at 1/dt from this process - the paper's box
+tool in the gap between the two tissues, pushing the lower one down 4 cm and
+back every 3 s - and listens to ``tissue/markers`` and ``tissue/points`` (raw
+CDR bytes) and ``/diagnostics``. Markers and points are published at the full
+rate (every step) with the wireframe on.
+
+Measured, over ``--seconds`` after a warm-up:
+
+* sustained step rate: steps taken / wall time (the node's own counter on /diagnostics);
+* missed deadlines: steps whose work took longer than dt (``overruns``) plus
+  timer ticks skipped (``missed_ticks``), over the ticks due;
+* step time: mean and max wall time of step + encoding + publishing (node side);
+* latency pose -> mesh: each pose is stamped with its send time; the tool
+  marker in ``tissue/markers`` carries the stamp of the pose its step used, so
+  latency = arrival of the first MarkerArray (and of the PointCloud2 of the
+  same step) showing that pose - the pose's stamp. Poses overwritten before a
+  step used them are counted separately (the node uses only the newest).
+
+Targets (issue 5): 100 Hz held with markers at the full rate, < 1 % missed
+deadlines, latency < one period + 2 ms. Writes ``node.csv`` (one row per
+scene), ``node_latency_<scene>.csv`` (every pose), ``node.png`` and prints a table.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import signal
+import struct
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import InputError
+
+HELP = "sustained rate, overruns and pose-to-mesh latency of the ROS node"
+DESCRIPTION = __doc__
+
+SCENES: dict[str, dict[str, Any]] = {
+    "paper": {},
+    "5k": {"spacing": 0.0165},
+}
+
+
+@dataclass
+class SceneResult:
+    scene: str
+    particles: int = 0
+    triangles: int = 0
+    marker_bytes: int = 0
+    points_bytes: int = 0
+    seconds: float = 0.0
+    steps: int = 0
+    rate_hz: float = 0.0
+    overruns: int = 0
+    missed_ticks: int = 0
+    missed_fraction: float = 0.0
+    step_time_mean_ms: float = 0.0
+    step_time_max_ms: float = 0.0
+    poses_sent: int = 0
+    poses_shown: int = 0
+    latency_markers_ms: list[float] = field(default_factory=list)
+    latency_points_ms: list[float] = field(default_factory=list)
+    markers_received: int = 0
+    points_received: int = 0
+    divergences: int = 0
+
+    def row(self, dt: float) -> dict[str, Any]:
+        lm = np.array(self.latency_markers_ms) if self.latency_markers_ms else np.array([math.nan])
+        lp = np.array(self.latency_points_ms) if self.latency_points_ms else np.array([math.nan])
+        budget = 1e3 * dt + 2.0
+        return {
+            "scene": self.scene, "particles": self.particles, "triangles": self.triangles,
+            "marker_kB": round(self.marker_bytes / 1024, 1), "points_kB": round(self.points_bytes / 1024, 1),
+            "seconds": round(self.seconds, 2), "steps": self.steps, "rate_hz": round(self.rate_hz, 2),
+            "target_hz": round(1.0 / dt, 2), "overruns": self.overruns, "missed_ticks": self.missed_ticks,
+            "missed_pct": round(100 * self.missed_fraction, 3),
+            "step_ms_mean": round(self.step_time_mean_ms, 3), "step_ms_max": round(self.step_time_max_ms, 3),
+            "markers_hz": round(self.markers_received / max(self.seconds, 1e-9), 2),
+            "lat_markers_ms_median": round(float(np.median(lm)), 3),
+            "lat_markers_ms_p95": round(float(np.percentile(lm, 95)), 3),
+            "lat_markers_ms_max": round(float(np.max(lm)), 3),
+            "lat_points_ms_median": round(float(np.median(lp)), 3),
+            "lat_points_ms_p95": round(float(np.percentile(lp, 95)), 3),
+            "latency_budget_ms": round(budget, 3),
+            "poses_sent": self.poses_sent, "poses_shown": self.poses_shown, "divergences": self.divergences,
+            "rate_ok": self.rate_hz >= 0.99 / dt, "missed_ok": self.missed_fraction < 0.01,
+            "latency_ok": float(np.percentile(lm, 95)) < budget,
+        }
+
+
+def _write_params(path: Path, values: dict[str, Any]) -> None:
+    import yaml  # noqa: PLC0415
+
+    path.write_text(yaml.safe_dump({"/**": {"ros__parameters": values}}, sort_keys=False))
+
+
+def _isolated_env(domain_id: int) -> dict[str, str]:
+    env = os.environ.copy()
+    env.update({"ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+                "PYTHONUNBUFFERED": "1", "RCUTILS_COLORIZED_OUTPUT": "0"})
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    return env
+
+
+def _node_command() -> list[str]:
+    script = Path(sys.executable).parent / "tissue_sim_node"
+    return [str(script)] if script.exists() else [sys.executable, "-m", "tissue_sim_ros.ros.node"]
+
+
+def _tool_y(t: float) -> float:
+    """The tool centre's y [m]: from the gap (0.5) down to 0.36 (4 cm into the lower tissue) and back, 3 s period."""
+    return 0.43 + 0.07 * math.cos(2.0 * math.pi * t / 3.0)
+
+
+def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: float, out: Path,
+                domain_id: int, discovery_timeout: float = 30.0) -> SceneResult:
+    """Run one scene: node process + driving client; return the measurements."""
+    import rclpy  # noqa: PLC0415
+    from diagnostic_msgs.msg import DiagnosticArray  # noqa: PLC0415
+    from rclpy.context import Context  # noqa: PLC0415
+    from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
+    from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: PLC0415
+    from sensor_msgs.msg import PointCloud2  # noqa: PLC0415
+    from visualization_msgs.msg import MarkerArray  # noqa: PLC0415
+    from geometry_msgs.msg import PoseStamped  # noqa: PLC0415
+
+    from ..core.scene import default_params  # noqa: PLC0415
+    from ..ros import messages, qos  # noqa: PLC0415
+
+    params = {**default_params(), **overrides, "marker_rate": 1000.0, "points_rate": 1000.0,
+              "markers_wireframe": True, "diagnostics_rate": 1.0, "max_tool_jump": 1.0}
+    dt = float(params["dt"])
+    params_file = out / f"node_{name}.yaml"
+    _write_params(params_file, params)
+    log_path = out / f"node_{name}.log"
+    result = SceneResult(name)
+    env = _isolated_env(domain_id)
+    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+    with open(log_path, "wb") as log:
+        proc = subprocess.Popen(_node_command() + ["--ros-args", "--params-file", str(params_file)],
+                                env=env, stdout=log, stderr=subprocess.STDOUT)
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = rclpy.create_node("bench_node_client", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    markers: list[tuple[float, tuple[int, int], tuple[int, int], int]] = []
+    points: list[tuple[float, tuple[int, int]]] = []
+    diagnostics: list[dict[str, str]] = []
+    sent: list[tuple[int, int]] = []
+    sizes = {"markers": 0, "points": 0}
+    measuring = {"on": False}
+
+    def on_markers(data: bytes) -> None:
+        arrival = time.time()
+        sizes["markers"] = len(data)
+        if not measuring["on"]:
+            return
+        r = messages.CdrReader(data)
+        r.u32()
+        tool = messages._read_marker(r)  # the tool marker comes first; small
+        step_stamp = r.header()[0]
+        markers.append((arrival, tool.stamp, step_stamp, tool.action))
+
+    def on_points(data: bytes) -> None:
+        arrival = time.time()
+        sizes["points"] = len(data)
+        if measuring["on"]:
+            points.append((arrival, struct.unpack_from("<iI", data, 4)))
+
+    def on_diag(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.startswith("/tissue_sim_node"):
+                diagnostics.append({kv.key: kv.value for kv in status.values})
+
+    # reliable readers, like RViz's default: what a viewer actually receives
+    reader_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    node.create_subscription(MarkerArray, "tissue/markers", on_markers, reader_qos, raw=True)
+    node.create_subscription(PointCloud2, "tissue/points", on_points, reader_qos, raw=True)
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, qos.diagnostics())
+    pose_pub = node.create_publisher(PoseStamped, "tool/pose", qos.tool_output())
+    t_start = {"t": 0.0}
+
+    def publish_pose() -> None:
+        now_ns = time.time_ns()
+        stamp = (now_ns // 1_000_000_000, now_ns % 1_000_000_000)
+        y = _tool_y(time.monotonic() - t_start["t"])
+        pose_pub.publish(messages.encode_pose_stamped(stamp, params.get("frame_id", "world"), 0.5, y, 0.0))
+        if measuring["on"]:
+            sent.append(stamp)
+
+    def spin_until(predicate: Any, timeout: float, what: str) -> None:
+        end = time.monotonic() + timeout
+        while not predicate():
+            if proc.poll() is not None:
+                raise InputError(f"tissue_sim_node exited with {proc.returncode} while waiting for {what}; "
+                                 f"see {log_path}")
+            if time.monotonic() > end:
+                raise InputError(f"timed out after {timeout} s waiting for {what}; see {log_path}")
+            executor.spin_once(timeout_sec=0.05)
+
+    try:
+        spin_until(lambda: pose_pub.get_subscription_count() > 0 and sizes["markers"] > 0 and sizes["points"] > 0,
+                   discovery_timeout, "the node's topics")
+        t_start["t"] = time.monotonic()
+        node.create_timer(dt, publish_pose)  # ROS clock of this process (system time)
+        end = time.monotonic() + warmup
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.01)
+        diagnostics.clear()
+        spin_until(lambda: diagnostics, 5.0, "diagnostics")
+        d0, t0 = diagnostics[-1], time.monotonic()
+        measuring["on"] = True
+        end = t0 + seconds
+        from tqdm import tqdm  # noqa: PLC0415
+
+        with tqdm(total=int(seconds), desc=f"bench node {name}", unit="s", leave=False) as bar:
+            last = t0
+            while time.monotonic() < end:
+                executor.spin_once(timeout_sec=0.01)
+                if time.monotonic() - last >= 1.0:
+                    bar.update(1)
+                    last += 1.0
+        measuring["on"] = False
+        diagnostics.clear()
+        spin_until(lambda: diagnostics, 5.0, "diagnostics")
+        d1, t1 = diagnostics[-1], time.monotonic()
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+    # the steps between the two diagnostics readings (each covers up to its publication)
+    result.seconds = t1 - t0
+    result.steps = int(d1["steps"]) - int(d0["steps"])
+    result.rate_hz = result.steps / result.seconds
+    result.overruns = int(d1["overruns"]) - int(d0["overruns"])
+    result.missed_ticks = int(d1["missed_ticks"]) - int(d0["missed_ticks"])
+    result.missed_fraction = (result.overruns + result.missed_ticks) / max(result.steps + result.missed_ticks, 1)
+    result.divergences = int(d1["divergences"]) - int(d0["divergences"])
+    result.step_time_mean_ms = float(d1["step_time_mean_ms"])
+    result.step_time_max_ms = max(float(d["step_time_max_ms"]) for d in (d1,))
+    result.marker_bytes, result.points_bytes = sizes["markers"], sizes["points"]
+    result.markers_received, result.points_received = len(markers), len(points)
+    result.poses_sent = len(sent)
+    # pose stamp -> first arrival of markers showing it; step stamp -> pose stamp
+    first_markers: dict[tuple[int, int], float] = {}
+    step_to_pose: dict[tuple[int, int], tuple[int, int]] = {}
+    for arrival, tool_stamp, step_stamp, action in markers:
+        if action == messages.ACTION_ADD:
+            first_markers.setdefault(tool_stamp, arrival)
+            step_to_pose[step_stamp] = tool_stamp
+    first_points: dict[tuple[int, int], float] = {}
+    for arrival, step_stamp in points:
+        pose_stamp = step_to_pose.get(step_stamp)
+        if pose_stamp is not None:
+            first_points.setdefault(pose_stamp, arrival)
+    with open(out / f"node_latency_{name}.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["pose_stamp_s", "markers_latency_ms", "points_latency_ms"])
+        for stamp in sent:
+            s = messages.stamp_to_seconds(stamp)
+            lm = 1e3 * (first_markers[stamp] - s) if stamp in first_markers else math.nan
+            lp = 1e3 * (first_points[stamp] - s) if stamp in first_points else math.nan
+            writer.writerow([f"{s:.9f}", f"{lm:.3f}", f"{lp:.3f}"])
+            if stamp in first_markers:
+                result.latency_markers_ms.append(lm)
+            if stamp in first_points:
+                result.latency_points_ms.append(lp)
+    result.poses_shown = len(result.latency_markers_ms)
+    info = [line for line in log_path.read_text(errors="replace").splitlines() if "particles," in line]
+    if info:
+        words = info[0].split("]: ")[-1].split()
+        result.particles, result.triangles = int(words[0]), int(words[2])
+    return result
+
+
+def _plot(results: list[SceneResult], dt: float, path: Path) -> None:
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    ax = axes[0]
+    budget = 1e3 * dt + 2.0
+    hi = max([budget * 1.5] + [float(np.percentile(r.latency_markers_ms, 99)) for r in results if r.latency_markers_ms])
+    bins = np.linspace(0, hi, 60)
+    for r in results:
+        if r.latency_markers_ms:
+            ax.hist(np.clip(r.latency_markers_ms, 0, hi), bins=bins, alpha=0.5,
+                    label=f"{r.scene} ({r.triangles} tri): median {np.median(r.latency_markers_ms):.1f} ms")
+    ax.axvline(budget, color="k", linestyle="--", label=f"target: period + 2 ms = {budget:.0f} ms")
+    ax.set_xlabel("latency tool pose -> tissue/markers [ms]")
+    ax.set_ylabel("poses")
+    ax.legend(fontsize=8)
+    ax.set_title("pose-to-mesh latency")
+    ax = axes[1]
+    x = np.arange(len(results))
+    ax.bar(x - 0.2, [r.rate_hz for r in results], 0.4, label="sustained step rate [Hz]")
+    ax.bar(x + 0.2, [r.markers_received / max(r.seconds, 1e-9) for r in results], 0.4, label="markers received [Hz]")
+    ax.axhline(1.0 / dt, color="k", linestyle="--", label=f"target {1 / dt:.0f} Hz")
+    for i, r in enumerate(results):
+        ax.text(i, 1.0 / dt * 1.02, f"{100 * r.missed_fraction:.1f}% missed", ha="center", fontsize=8)
+    ax.set_xticks(x, [f"{r.scene}\n{r.triangles} triangles" for r in results])
+    ax.set_ylim(0, 1.2 / dt)
+    ax.legend(fontsize=8, loc="lower right")
+    ax.set_title("rate with markers + points every step")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", default="bench_out/node", help="output directory (CSV, PNG, node logs)")
+    parser.add_argument("--seconds", type=float, default=10.0, help="measured time per scene [s]")
+    parser.add_argument("--warmup", type=float, default=2.0, help="time driven before measuring [s]")
+    parser.add_argument("--scene", action="append", choices=sorted(SCENES),
+                        help="scene to run (repeatable; default all)")
+    parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID of the private graph (default 1 + pid % 100)")
+
+
+def run(args: argparse.Namespace) -> int:
+    if not (math.isfinite(args.seconds) and args.seconds >= 1):
+        raise InputError(f"--seconds={args.seconds}: expected at least 1 s")
+    if not (math.isfinite(args.warmup) and args.warmup >= 0):
+        raise InputError(f"--warmup={args.warmup}: expected a time >= 0 s")
+    domain_id = args.domain_id if args.domain_id is not None else 1 + os.getpid() % 100
+    if not 0 <= domain_id <= 101:
+        raise InputError(f"--domain-id={domain_id}: expected 0..101")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    from ..core.scene import default_params  # noqa: PLC0415
+
+    dt = float(default_params()["dt"])
+    results = []
+    for name in args.scene or list(SCENES):
+        results.append(bench_scene(name, SCENES[name], args.seconds, args.warmup, out, domain_id))
+    rows = [r.row(dt) for r in results]
+    with open(out / "node.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    _plot(results, dt, out / "node.png")
+    cols = [("scene", 6), ("particles", 9), ("triangles", 9), ("marker_kB", 9), ("rate_hz", 7), ("target_hz", 9),
+            ("missed_pct", 10), ("step_ms_mean", 12), ("step_ms_max", 11), ("markers_hz", 10),
+            ("lat_markers_ms_median", 21), ("lat_markers_ms_p95", 18), ("lat_points_ms_median", 20),
+            ("latency_budget_ms", 17)]
+    print("  ".join(f"{c:>{w}}" for c, w in cols))
+    for row in rows:
+        print("  ".join(f"{row[c]!s:>{w}}" for c, w in cols))
+    for row in rows:
+        verdict = ", ".join(f"{k[:-3]} {'met' if row[k] else 'MISSED'}" for k in ("rate_ok", "missed_ok", "latency_ok"))
+        print(f"{row['scene']}: {verdict}; {row['poses_shown']}/{row['poses_sent']} poses shown, "
+              f"{row['divergences']} divergences")
+    print(f"wrote {out / 'node.csv'}, {out / 'node.png'}, node_latency_*.csv")
+    return 0
