@@ -57,7 +57,10 @@ def test_bench_accuracy_quick(tmp_path: Path, capsys) -> None:
         rows = list(csv.DictReader(f))
     assert {r["method"] for r in rows} >= {"pbd", "pbd_jacobi", "xpbd", "xpbd_jacobi", "xpbd_substep", "newton"}
     for r in rows:
-        assert math.isfinite(float(r["ms_per_step"])) and math.isfinite(float(r["err_step_median"]))
+        assert math.isfinite(float(r["ms_per_step"])) and math.isfinite(float(r["err_accum_final"]))
+        # the per-step error is measured wherever its reference was solved (PBD on finer meshes: accumulated only)
+        assert math.isfinite(float(r["err_step_median"])) == (int(r["ref_converged"]) > 0)
+    assert all(int(r["ref_converged"]) > 0 for r in rows if float(r["particles"]) == min(float(q["particles"]) for q in rows))
     assert "Pareto front" in capsys.readouterr().out
 
 

@@ -6,7 +6,8 @@ import math
 import numpy as np
 
 from tissue_sim_ros.bench.failures import (FailureMonitor, has_nonfinite, inverted_triangles, kinetic_energy,
-                                           plausible_kinetic_energy, residual_falls, tunnelled_particles)
+                                           penetration_depth, plausible_kinetic_energy, residual_falls,
+                                           tunnelled_particles)
 from tissue_sim_ros.core.mesh import mesh_rectangle
 from tissue_sim_ros.core.model import Model, SimParams
 from tissue_sim_ros.core.tool import ToolPose, ToolShape
@@ -48,10 +49,14 @@ def test_tunnelling_box_moving_through_a_particle() -> None:
     # a particle resting on the surface (inside by less than the tolerance) does not count
     on_surface = np.array([[0.0, -0.005 + 5e-5]])
     assert tunnelled_particles(on_surface, on_surface, pose0, pose0, BOX).size == 0
-    # a particle ending deep inside the tool counts; an immovable one is not checked
-    inside = np.array([[0.0, -0.052]])  # 2 mm above the lowered centre
-    assert tunnelled_particles(inside, inside, pose0, pose1, BOX).size == 1
-    assert tunnelled_particles(inside, inside, pose0, pose1, BOX, movable=np.array([False])).size == 0
+    # a particle ending inside the tool is penetration, not tunnelling; the depth is measured
+    inside = np.array([[0.0, -0.052]])  # 2 mm above the lowered centre, 3 mm deep
+    assert tunnelled_particles(inside, inside, pose0, pose1, BOX).size == 0
+    assert math.isclose(penetration_depth(inside, pose1, BOX), 0.003, rel_tol=1e-9)
+    assert penetration_depth(inside, pose1, BOX, movable=np.array([False])) == 0.0
+    assert penetration_depth(x, pose0, BOX) == 0.0
+    # an immovable particle is not checked for tunnelling
+    assert tunnelled_particles(x, x, pose0, pose1, BOX, movable=np.array([False, True, True])).size == 0
 
 
 def test_tunnelling_rotated_tool() -> None:
@@ -92,6 +97,11 @@ def test_monitor_first_failure_of_each_kind() -> None:
     fast = np.where(model.particle_inv_mass[:, None] > 0, 50.0, 0.0) * np.ones_like(x)
     assert mon.observe(1, x, x, fast, 0.01, tool_speed=1.0).kind == "energy_growth"
     assert mon.max_kinetic_ratio > 100
+    # tissue pushed by a fast tool keeps its speed after the tool stops: not a failure
+    mon = FailureMonitor(model, BOX)
+    pushed = np.where(model.particle_inv_mass[:, None] > 0, 20.0, 0.0) * np.ones_like(x)
+    assert mon.observe(1, x, x, pushed, 0.01, tool_speed=20.0) is None
+    assert mon.observe(2, x, x, pushed, 0.02, tool_speed=0.0) is None
 
     # one triangle flipped: a failure only once it stays flipped for inverted_steps steps
     mon = FailureMonitor(model, BOX, inverted_steps=3)

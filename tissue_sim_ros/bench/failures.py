@@ -7,14 +7,17 @@ that applies them step by step and keeps the first failure of a run:
   Simulation reporting that it restored the last good state);
 * ``energy_growth``: the tissue's kinetic energy growing without bound, i.e.
   beyond ``energy_factor`` times what the scene can plausibly put in (all mass
-  moving at the tool's speed plus free fall since the start);
+  moving at the fastest tool speed so far plus free fall since the start);
 * ``inverted``: a triangle whose signed area stays <= 0 for ``inverted_steps``
   consecutive steps (a transient flip that the signed area constraint undoes
   is not a failure; the paper's |area| constraint keeps it);
-* ``tunnelling``: a movable particle whose path relative to the tool crossed
-  the tool's interior during a step (the tool passed through tissue);
+* ``tunnelling``: a movable particle whose path relative to the tool went
+  right through the tool within one step (the tool passed through tissue);
+  how deep particles sit inside the tool is recorded too, as a metric;
 * ``no_convergence``: the constraint residual not falling as the iteration
-  count grows (checked separately, on one state, by :func:`iteration_residuals`).
+  count grows (measured on one state by :func:`iteration_residuals`, judged
+  by :func:`residual_falls`; the stability bench fails a residual that rises
+  by more than 10% from 1 to 64 iterations or turns non-finite).
 """
 from __future__ import annotations
 
@@ -84,17 +87,39 @@ def _to_tool_frame(x: np.ndarray, pose: ToolPose) -> np.ndarray:
     return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)
 
 
+def _inside(p: np.ndarray, hx: float, hy: float) -> np.ndarray:
+    return (np.abs(p[:, 0]) < hx) & (np.abs(p[:, 1]) < hy)
+
+
+def penetration_depth(x: np.ndarray, pose: ToolPose, shape: ToolShape, movable: np.ndarray | None = None) -> float:
+    """Deepest a particle lies inside the tool's box [m] (0 if none is inside).
+
+    Depth = distance to the nearest face of the box (a capsule or sphere taken
+    as its bounding box with the radius added).
+    """
+    hx, hy, radius = shape.rounded_box()
+    hx, hy = hx + radius, hy + radius
+    p = _to_tool_frame(x, pose)
+    depth = np.minimum(hx - np.abs(p[:, 0]), hy - np.abs(p[:, 1]))
+    if movable is not None:
+        depth = depth[movable]
+    return float(max(0.0, depth.max())) if depth.size else 0.0
+
+
 def tunnelled_particles(x0: np.ndarray, x1: np.ndarray, pose0: ToolPose, pose1: ToolPose, shape: ToolShape,
                         movable: np.ndarray | None = None, tolerance: float = 1e-4) -> np.ndarray:
-    """Particles whose path relative to the tool crossed the tool's interior in one step.
+    """Particles the tool passed right through in one step (discrete contact missing them).
 
     Each particle's start position is taken into the tool frame at ``pose0``
     and its end position into the tool frame at ``pose1``; if the straight
     segment between them passes through the tool's box (half extents shrunk by
     ``tolerance`` so that particles resting on the surface do not count; a
-    capsule or sphere is taken as its bounding box with the radius added), the
-    tool went through the particle. Exact for a translating box; for a rotating
-    tool the segment approximates the relative path.
+    capsule or sphere is taken as its bounding box with the radius added)
+    while both ends lie outside it, the tool went through the particle within
+    the step. A particle that ends inside the tool is penetration (see
+    :func:`penetration_depth`), not tunnelling: a slow tool sinking into
+    tissue shows up there. Exact for a translating box; for a rotating tool
+    the segment approximates the relative path.
 
     Parameters
     ----------
@@ -133,7 +158,7 @@ def tunnelled_particles(x0: np.ndarray, x1: np.ndarray, pose0: ToolPose, pose1: 
         t_far = np.where(still, np.where(np.abs(pp) < h, np.inf, -np.inf), np.maximum(ta, tb))
         t_lo = np.maximum(t_lo, t_near)
         t_hi = np.minimum(t_hi, t_far)
-    hit = t_lo < t_hi
+    hit = (t_lo < t_hi) & ~_inside(p0, hx, hy) & ~_inside(p1, hx, hy)
     if movable is not None:
         hit &= movable
     return np.flatnonzero(hit)
@@ -142,7 +167,8 @@ def tunnelled_particles(x0: np.ndarray, x1: np.ndarray, pose0: ToolPose, pose1: 
 def residual_falls(residuals: Sequence[float], min_drop: float = 0.5) -> bool:
     """True if the residual at the largest iteration count is at most ``min_drop`` times the first.
 
-    ``residuals`` are measured at increasing iteration counts; NaN or a rise means it does not fall.
+    ``residuals`` are measured at increasing iteration counts; NaN never passes. ``min_drop`` > 1
+    tolerates a flat residual (constraints made infeasible by held particles) and fails only a rise.
     """
     r = np.asarray(residuals, dtype=np.float64)
     if len(r) < 2 or not np.isfinite(r).all():
@@ -153,11 +179,13 @@ def residual_falls(residuals: Sequence[float], min_drop: float = 0.5) -> bool:
 
 
 def iteration_residuals(model: "Model", state: "State", contacts: "Contacts", dt: float,
-                        counts: Sequence[int] = (1, 4, 16, 64)) -> list[float]:
+                        counts: Sequence[int] = (1, 4, 16, 64),
+                        solver_options: dict | None = None) -> list[float]:
     """The solver's residual after one step from ``state`` with each iteration count in ``counts``.
 
     Each count solves the same step from the same state with a fresh Solver
-    (``iterations`` changed, everything else as in ``model.params``).
+    (``iterations`` changed, everything else as in ``model.params``;
+    ``solver_options`` are passed to the Solver). A non-finite result counts as inf.
     """
     from ..core.solvers import Solver  # noqa: PLC0415  (the checks above need no solver)
 
@@ -166,9 +194,9 @@ def iteration_residuals(model: "Model", state: "State", contacts: "Contacts", dt
         m = model.with_params(model.params.with_(iterations=int(n)))
         state_out = m.state()
         with np.errstate(all="ignore"):
-            info = Solver(m).step(state.copy(), state_out, contacts, dt)
+            info = Solver(m, **(solver_options or {})).step(state.copy(), state_out, contacts, dt)
         r = float(info.residual)
-        if has_nonfinite(state_out.particle_q):
+        if has_nonfinite(state_out.particle_q) or not math.isfinite(r):
             r = math.inf
         out.append(r)
     return out
@@ -209,6 +237,10 @@ class FailureMonitor:
         """Particles that tunnelled, summed over steps."""
         self.max_inverted = 0
         """Largest number of inverted triangles after any step."""
+        self.max_penetration = 0.0
+        """Deepest a particle was inside the tool at the end of a step [m] (a metric, not a failure)."""
+        self.max_tool_speed = 0.0
+        """Fastest tool speed so far [m/s] (the energy bound uses it: pushed tissue keeps moving after the tool stops)."""
 
     def observe(self, step: int, x_prev: np.ndarray, x: np.ndarray, v: np.ndarray, elapsed: float,
                 diverged: bool = False, pose0: ToolPose | None = None, pose1: ToolPose | None = None,
@@ -230,14 +262,16 @@ class FailureMonitor:
         pose0, pose1 : ToolPose, optional
             Tool poses at the start and end of the step (tunnelling needs both).
         tool_speed : float
-            Tool speed this step [m/s], for the energy bound.
+            Speed at which tool or contact rule drove particles this step [m/s], for the energy bound
+            (the largest so far is used).
         """
         failure = None
         if diverged or has_nonfinite(x, v):
             failure = Failure("nonfinite", step, "NaN or inf in positions/velocities")
         else:
             ke = kinetic_energy(self.mass, v)
-            bound = plausible_kinetic_energy(self.total_mass, tool_speed, self.model.params.gravity, elapsed)
+            self.max_tool_speed = max(self.max_tool_speed, tool_speed)
+            bound = plausible_kinetic_energy(self.total_mass, self.max_tool_speed, self.model.params.gravity, elapsed)
             ratio = ke / bound
             self.max_kinetic_ratio = max(self.max_kinetic_ratio, ratio)
             inv = inverted_triangles(x, self.model.tri_indices)
@@ -250,6 +284,8 @@ class FailureMonitor:
                 tunnelled = tunnelled_particles(x_prev, x, pose0, pose1, self.tool, self.movable,
                                                 self.tunnel_tolerance)
                 self.n_tunnelled += int(tunnelled.size)
+                self.max_penetration = max(self.max_penetration,
+                                           penetration_depth(x, pose1, self.tool, self.movable))
             if ratio > self.energy_factor:
                 failure = Failure("energy_growth", step,
                                   f"kinetic energy {ke:.3g} J is {ratio:.3g}x the plausible {bound:.3g} J")

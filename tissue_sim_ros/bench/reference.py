@@ -274,10 +274,14 @@ def minimize_step(energy: ImplicitEulerEnergy, fixed: np.ndarray, x0: np.ndarray
     gnorm = float(np.linalg.norm(g))
     target = rtol * g0
     iterations = projected = 0
+    # far from the minimiser the exact Hessian's descent directions (when it is indefinite) can be poor;
+    # the projected Hessian gives robust steps there. Once full steps are taken and the gradient is small,
+    # the exact Hessian is tried first, for Newton's quadratic convergence at the end.
+    exact_first = False
     while gnorm > target and iterations < max_iterations and free_dofs.any():
         iterations += 1
         step = None
-        for project in (False, True):
+        for project in ((False, True) if exact_first else (True,)):
             h = energy.hessian(x, project=project)[free_dofs][:, free_dofs].tocsc()
             try:
                 p = spla.spsolve(h, -g)
@@ -307,10 +311,15 @@ def minimize_step(energy: ImplicitEulerEnergy, fixed: np.ndarray, x0: np.ndarray
                 break
             t *= 0.5
         if not accepted:
+            if not exact_first:
+                exact_first = True  # at round-off with the projected Hessian: let the exact one finish
+                continue
             break  # no further progress possible in float64
         x, e = x_try, e_try
         g = energy.gradient(x).ravel()[free_dofs]
         gnorm = float(np.linalg.norm(g))
+        if t == 1.0 and gnorm <= 1e-3 * max(g0, 1e-300):
+            exact_first = True
     return x, {"grad_norm": gnorm, "grad_norm0": g0, "iterations": iterations, "projected": projected,
                "converged": bool(gnorm <= target), "energy": e}
 
