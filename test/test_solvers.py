@@ -266,8 +266,8 @@ def run_until_diverged(model: Model, steps: int, **solver_kw) -> int | None:
 
 
 def test_xpbd_jacobi_stiffness_aware_relaxation_is_stable_where_uniform_omega_diverges() -> None:
-    """Default stiffness (2 k dt^2 / m = 200 for springs): uniform omega = 1 diverges, the Gershgorin omega does not."""
-    params = SimParams(method="xpbd", scheme="jacobi", relaxation=1.0)
+    """Stiff springs (k = 100 N/m: 2 k dt^2 / m = 200): uniform omega = 1 diverges, the Gershgorin omega does not."""
+    params = SimParams(method="xpbd", scheme="jacobi", relaxation=1.0, stiffness_spring=100.0, stiffness_area=1e5)
     model = strip_model(params, pin="both")
     assert run_until_diverged(model, 40, jacobi_relaxation="uniform") is not None
     for relaxation in (1.0, 0.9):
