@@ -1,0 +1,149 @@
+"""``tissue-sim tune``: the cheapest mesh spacing, method, iterations and substeps meeting an error tolerance.
+
+Model no more than the scene needs. On the scene of a parameter file (the
+shipped one by default) and experiment a's push, every candidate mesh spacing
+is solved exactly (Newton, :mod:`~tissue_sim_ros.bench.reference`) and against
+an exact run on a mesh twice as fine as the finest candidate; every method is
+run at growing iteration (substep) counts. The error of a setting is
+
+    error = accumulated error of the method against the exact run on its own mesh
+          + error of that exact run against the finest mesh's (discretisation),
+
+both relative to the tissue's displacement, at the end of the trajectory (the
+sum bounds the error against the finest exact run, up to the normalisations).
+The cheapest setting (median solve time per step) with error <= tolerance and
+time <= budget is written as a parameter file in the format of
+``config/tissue_sim.yaml``. Everything is measured in this run; nothing is
+extrapolated.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ..core.errors import InputError
+from ..core.model import SimParams
+from .accuracy import (Setting, default_scene, displacement_error, format_table, measure_setting, reference_run,
+                       write_csv)
+
+HELP = "pick the cheapest mesh spacing/method/iterations meeting an error tolerance"
+DESCRIPTION = __doc__
+
+COUNTS = (1, 2, 5, 10, 20, 50, 100, 200)
+METHODS = ("pbd", "xpbd", "xpbd_jacobi", "xpbd_substep")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--tolerance", type=float, required=True,
+                        help="largest accepted error (relative to the tissue's displacement), e.g. 0.1")
+    parser.add_argument("--budget-ms", type=float, required=True, help="largest accepted solve time per step [ms]")
+    parser.add_argument("--out", default="", help="write the chosen parameters to this YAML file")
+    parser.add_argument("--params", default="", help="scene parameter file (default: config/tissue_sim.yaml)")
+    parser.add_argument("--spacings", default="0.1,0.05,0.025",
+                        help="candidate mesh spacings [m], comma-separated (the reference is twice as fine as the finest)")
+    parser.add_argument("--steps", type=int, default=30, help="trajectory length in steps")
+    parser.add_argument("--csv", default="", help="also write every measured setting to this CSV")
+    parser.add_argument("--quick", action="store_true", help="two coarse spacings, few counts (smoke test)")
+
+
+def _parse_spacings(text: str) -> list[float]:
+    try:
+        values = sorted({float(v) for v in text.split(",") if v.strip()}, reverse=True)
+    except ValueError:
+        raise InputError(f"--spacings={text!r}: expected comma-separated numbers in metres") from None
+    if not values or any(not (math.isfinite(v) and v > 0) for v in values):
+        raise InputError(f"--spacings={text!r}: expected spacings > 0 m")
+    return values
+
+
+def tune(values: dict[str, Any], tolerance: float, budget_ms: float, spacings: list[float], n_steps: int,
+         counts: tuple[int, ...] = COUNTS, methods: tuple[str, ...] = METHODS,
+         progress: Any = None) -> tuple[dict[str, Any] | None, list[dict[str, Any]]]:
+    """Measure the candidates; return the chosen row (None if none qualifies) and every row.
+
+    Counts grow per method and spacing until the method meets the tolerance
+    (more iterations then only cost more) or its time exceeds the budget.
+    """
+    base = default_scene(spacings[0], float(values.get("dt", 0.01)), n_steps, overrides=values)
+    finest = default_scene(spacings[-1] / 2, base.params.dt, n_steps, overrides=values, like=base)
+    finest_run, _ = reference_run(finest, progress)
+    rows: list[dict[str, Any]] = []
+    for spacing in spacings:
+        scene = base if spacing == spacings[0] else default_scene(spacing, base.params.dt, n_steps,
+                                                                   overrides=values, like=base)
+        ref_run, newton_ms = reference_run(scene, progress)
+        disc = displacement_error(scene, ref_run[-1], finest, finest_run[-1])
+        for method in methods:
+            for count in counts:
+                row = measure_setting(scene, Setting(method, count), ref_run, per_step_every=0, progress=progress)
+                row["err_discretisation"] = disc
+                row["error"] = row["err_accum_final"] + disc
+                row["newton_ms"] = newton_ms
+                rows.append(row)
+                if row["ms_per_step"] > budget_ms or row["error"] <= tolerance or row["diverged"]:
+                    break
+    ok = [r for r in rows if r["error"] <= tolerance and r["ms_per_step"] <= budget_ms and not r["diverged"]]
+    return (min(ok, key=lambda r: r["ms_per_step"]) if ok else None), rows
+
+
+def params_for(values: dict[str, Any], row: dict[str, Any]) -> dict[str, Any]:
+    """The scene's flat parameters with the chosen spacing, method, scheme, iterations and substeps."""
+    out = dict(values)
+    p = Setting(row["method"], int(row["count"])).params(SimParams())
+    out.update(spacing=float(row["spacing"]), method=p.method, scheme=p.scheme, iterations=int(p.iterations),
+               substeps=int(p.substeps))
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm  # noqa: PLC0415
+
+    from ..core.scene import default_params, load_params_file  # noqa: PLC0415
+
+    if not (math.isfinite(args.tolerance) and args.tolerance > 0):
+        raise InputError(f"--tolerance={args.tolerance}: expected an error > 0")
+    if not (math.isfinite(args.budget_ms) and args.budget_ms > 0):
+        raise InputError(f"--budget-ms={args.budget_ms}: expected a time > 0 ms")
+    if args.steps < 1:
+        raise InputError(f"--steps={args.steps}: expected at least 1 step")
+    values = default_params()
+    if args.params:
+        values.update(load_params_file(args.params))
+    spacings = [0.1, 0.05] if args.quick else _parse_spacings(args.spacings)
+    counts = (1, 10) if args.quick else COUNTS
+    n_steps = min(args.steps, 4) if args.quick else args.steps
+
+    with tqdm(desc="tune", unit="step", dynamic_ncols=True) as bar:
+        best, rows = tune(values, args.tolerance, args.budget_ms, spacings, n_steps, counts, METHODS, bar.update)
+    if args.csv:
+        Path(args.csv).parent.mkdir(parents=True, exist_ok=True)
+        write_csv(Path(args.csv), rows)
+    cols = ["spacing", "particles", "method", "count", "ms_per_step", "err_accum_final", "err_discretisation", "error"]
+    print("\nmeasured settings (error = method vs exact on its mesh + exact vs the finest mesh):")
+    print(format_table(rows, cols))
+    if best is None:
+        within = [r for r in rows if r["ms_per_step"] <= args.budget_ms and math.isfinite(r["error"])]
+        hint = min(within, key=lambda r: r["error"]) if within else None
+        msg = f"\nno setting meets error <= {args.tolerance:g} within {args.budget_ms:g} ms per step"
+        if hint:
+            msg += (f"; the most accurate within budget: {hint['method']} count {hint['count']} at spacing "
+                    f"{hint['spacing']:g} (error {hint['error']:.3g}, {hint['ms_per_step']:.3g} ms)")
+        print(msg)
+        return 1
+    print(f"\nchosen: spacing {best['spacing']:g} m ({best['particles']} particles), {best['method']} count "
+          f"{best['count']}: {best['ms_per_step']:.3g} ms per step, error {best['error']:.3g} "
+          f"(method {best['err_accum_final']:.3g} + mesh {best['err_discretisation']:.3g})")
+    if args.out:
+        out = params_for(values, best)
+        doc = {"tissue_sim_node": {"ros__parameters": out}}
+        path = Path(args.out)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        header = (f"# written by tissue-sim tune --tolerance {args.tolerance:g} --budget-ms {args.budget_ms:g}\n"
+                  f"# measured: {best['ms_per_step']:.3g} ms per step, error {best['error']:.3g} on experiment a's push\n")
+        path.write_text(header + yaml.safe_dump(doc, sort_keys=False))
+        print(f"wrote {path}")
+    return 0
