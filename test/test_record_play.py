@@ -161,10 +161,32 @@ def test_offline_replay_equals_node_in_lock_step(tmp_path, ros_client, start_pro
                          name="node")
     ros_client.wait_for_publisher("/tissue/energy", timeout=60, process=node)
     ros_client.spin_until(lambda: energy.sub.get_publisher_count() > 0, 30, node, "matching /tissue/energy")
-    play = start_process(["tissue-sim", "play", str(src), "--wait", "30"], name="play")
+    # the recorder with its default topics: the node's outputs and the tool input
+    out = tmp_path / "rec"
+    rec = start_process(["tissue-sim", "record", "-o", str(out)], name="record")
+    ros_client.spin_until(lambda: "+ /tissue/energy/bodies" in _text(rec) and "+ /tissue/points" in _text(rec),
+                          30, rec, "the recorder to subscribe to the node's topics")
+    # the recorder subscribes to tool/pose once play publishes it: wait for both subscribers
+    play = start_process(["tissue-sim", "play", str(src), "--wait", "30", "--min-subscribers", "2"], name="play")
     ros_client.spin_until(lambda: len(energy.messages) >= 40, 60, node, "40 energy messages from the node")
     assert play.wait(timeout=30) == 0, _text(play)
     ros_client.spin_for(0.3)  # nothing more may come: one step per pose
     live = np.array([m.decode_float64(raw) for raw in energy.messages])
     assert live.shape == (40,), f"{len(live)} energy messages for 40 poses"
     np.testing.assert_array_equal(live, offline.rollout.scene_total)
+
+    ros_client.spin_until(lambda: _recorded_messages(rec) >= 40 * 8, 30, rec, "the recorder to catch up")
+    assert rec.stop(signal.SIGINT, timeout=20) == 0, _text(rec)
+    with Bag(out) as bag:
+        types = bag.topics
+        counts = bag.message_counts
+        recorded = [m.decode_float64(raw) for _, _, _, raw in bag.messages(["/tissue/energy"])]
+    assert types["/tissue/markers"] == "visualization_msgs/msg/MarkerArray"
+    assert types["/tissue/points"] == "sensor_msgs/msg/PointCloud2"
+    assert types["/tissue/rest_mesh"] == "visualization_msgs/msg/MarkerArray"  # latched: recorded though sent before
+    assert types["/tool/wrench"] == "geometry_msgs/msg/WrenchStamped"
+    assert types["/tool/pose"] == "geometry_msgs/msg/PoseStamped"
+    for term in ("inertial", "spring", "area", "bodies"):
+        assert counts[f"/tissue/energy/{term}"] == 40
+    assert counts["/tool/pose"] == 40 and counts["/tissue/rest_mesh"] == 1
+    np.testing.assert_array_equal(recorded, offline.rollout.scene_total)

@@ -42,6 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--clock-rate", type=float, default=100.0, help="/clock messages per second (default 100)")
     parser.add_argument("--wait", type=float, default=5.0,
                         help="seconds to wait for subscribers on the played topics before starting (default 5)")
+    parser.add_argument("--min-subscribers", type=int, default=1,
+                        help="subscribers each played topic needs before starting, e.g. 2 for the node and a "
+                             "recorder (default 1)")
 
 
 def _parse_remaps(items: list[str]) -> dict[str, str]:
@@ -79,6 +82,8 @@ def choose_topics(bag: Bag, requested: list[str] | None) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     if not args.rate > 0:
         raise InputError(f"--rate {args.rate}: expected a speed factor > 0")
+    if args.min_subscribers < 0:
+        raise InputError(f"--min-subscribers {args.min_subscribers}: expected a count >= 0")
     if not args.clock_rate > 0:
         raise InputError(f"--clock-rate {args.clock_rate}: expected > 0 Hz")
     remaps = _parse_remaps(args.remap)
@@ -91,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"bag {args.bag!r}: topics {', '.join(topics)} hold no messages")
 
     import rclpy  # noqa: PLC0415
+    from rclpy.duration import Duration  # noqa: PLC0415
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: PLC0415
     from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415
 
@@ -114,14 +120,16 @@ def run(args: argparse.Namespace) -> int:
 
             clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10))
         watched = dict(pubs) if clock_pub is None else {**pubs, "/clock": clock_pub}
+        need = args.min_subscribers
         deadline = time.monotonic() + max(0.0, args.wait)
         while not stop.is_set() and time.monotonic() < deadline:
-            if all(p.get_subscription_count() > 0 for p in watched.values()):
+            if all(p.get_subscription_count() >= need for p in watched.values()):
                 break
             stop.wait(0.02)  # polling the graph; a signal ends the wait at once
-        waiting = [remaps.get(t, t) for t, p in watched.items() if p.get_subscription_count() == 0]
+        waiting = [remaps.get(t, t) for t, p in watched.items() if p.get_subscription_count() < need]
         if waiting and args.wait > 0:
-            print(f"play: no subscriber on {', '.join(waiting)} after {args.wait} s; playing anyway", flush=True)
+            print(f"play: fewer than {need} subscribers on {', '.join(waiting)} after {args.wait} s; playing anyway",
+                  flush=True)
         print(f"playing {len(messages)} messages on {', '.join(remaps.get(t, t) for t in topics)} at {args.rate}x"
               + (" with /clock" if clock_pub else "") + (", looping" if args.loop else ""), flush=True)
 
@@ -148,12 +156,12 @@ def run(args: argparse.Namespace) -> int:
             if not args.loop:
                 break
             loop_offset += span + period_ns
-        # let the middleware hand the last reliable messages over before the node goes
-        end = time.monotonic() + 0.5
-        while time.monotonic() < end and any(p.get_subscription_count() > 0 for p in pubs.values()) \
-                and not stop.is_set():
-            if all(p.wait_for_all_acked(rclpy.duration.Duration(seconds=0.1)) for p in pubs.values()):
-                break
+        # let the middleware hand the last reliable messages (and /clock) over before the node goes
+        end = time.monotonic() + 1.0
+        for p in watched.values():
+            left = end - time.monotonic()
+            if left > 0 and p.get_subscription_count() > 0 and not stop.is_set():
+                p.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
     finally:
         if node is not None:
             node.destroy_node()
