@@ -191,6 +191,30 @@ def test_swept_candidates_match_naive_and_cover_the_sweep():
                 assert set(np.flatnonzero((d <= reach) & (inv_mass > 0))) <= set(out[:n])
 
 
+def test_paper_displacement_matches_naive():
+    rng = np.random.default_rng(13)
+    for trial in range(20):
+        n = 80
+        x = rng.uniform(0, 1, size=(n, 2))
+        inv_mass = np.where(rng.random(n) < 0.2, 0.0, 1e4)
+        parts = np.sort(rng.choice(n, size=50, replace=False)).astype(np.int32)
+        q = int(parts[trial % 50])
+        d_star = [0.0, 0.01, 0.024][trial % 3]
+        v = rng.normal(size=2)
+        u = v / np.hypot(*v)
+        r = 0.25
+        if trial == 0:
+            x[parts[1]] = x[q] + np.array([r, 0.0])  # exactly at r: displaced by zero, still in the set
+        out_idx, out_dx = np.empty(n, np.int32), np.empty((n, 2))
+        k = C.paper_displacement(x, parts, inv_mass, q, d_star, u[0], u[1], r, out_idx, out_dx)
+        free = parts[inv_mass[parts] > 0]
+        idx_ref, dx_ref = naive.paper_displacement(x, free, q, d_star, v, r)
+        np.testing.assert_array_equal(out_idx[:k], idx_ref)
+        np.testing.assert_allclose(out_dx[:k], dx_ref, atol=1e-15)
+        if trial == 0 and inv_mass[parts[1]] > 0:
+            assert parts[1] in out_idx[:k]
+
+
 # --------------------------------------------------------------------------- python-fcl queries
 
 

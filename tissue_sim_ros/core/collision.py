@@ -28,23 +28,27 @@ Semantics chosen here (the paper leaves them open):
 * **Overlap.** When the tool overlaps a body, python-fcl 0.7's mesh-shape
   distance returns -1 with no primitive id and zero nearest points (measured;
   a signed-distance request returns ~0, also without an id). We treat that as
-  d* = 0 (touching), take q = the body's particle deepest inside the tool (the
-  smallest signed distance), and apply eq. (3) with d* = 0: the paper's
-  displacement is then zero, so its particles are held in place for the step.
-  A tool that jumps into tissue thus passes through it: the paper rule's
-  documented failure for fast tools.
+  d* = 0 (touching), take q = the body's particle with the smallest signed
+  distance to the tool (the deepest inside it), and apply eq. (3) with d* = 0:
+  the paper's displacement is then zero, so its particles are held in place
+  for the step. When a particle already lies inside the tool (our signed
+  distance < 0) the overlap is certain and the fcl query is skipped; a thin
+  tool crossing triangles between their vertices is found by fcl (-1). A tool
+  that jumps into tissue thus passes through it: the paper rule's documented
+  failure for fast tools.
 * **Held particles.** Eq. (3) applies when d* < alpha and the tool's linear
   speed |v| > 0; every free (not pinned) particle i of q's body with
   |x_q - x_i| <= r is displaced by (r - |x_q - x_i|)/r d* v/|v| and held for
   the step. A tool at rest (or only rotating) displaces and holds nothing.
 * **BVH refit.** python-fcl 0.7 exposes no beginUpdateModel/updateVertex/
   endUpdateModel, so a body's BVH cannot be refitted in place: it is rebuilt
-  every step. A full rebuild costs ~1.2 us per triangle (mostly python-fcl's
-  per-vertex conversion and OBBRSS fitting), far over a step's budget, so by
-  default only the triangles that can hold the nearest point are put in the
-  step's BVH: triangles whose lower bound on the distance to the tool
-  (nearest vertex's signed distance minus the triangle's longest edge) is
-  below min(alpha, the body's nearest-vertex distance). The nearest triangle
+  every step. A full rebuild costs ~1.6-3 us per triangle (python-fcl converts
+  each vertex through a NumPy call, then fits OBBRSS volumes), several times a
+  whole step, so by default only the triangles that can hold the nearest point
+  go into the step's BVH: triangles whose lower bound on the distance to the
+  tool (tangent planes of the convex signed distance at their vertices, see
+  :func:`near_triangles`) is below min(alpha, the body's nearest-vertex
+  distance). The nearest triangle
   always passes that test, so d* and q are the full BVH's whenever d* < alpha
   (``cull=False`` rebuilds the whole body, for checks and benchmarks). Bodies
   farther than alpha get d* = inf ("not computed").
@@ -354,6 +358,31 @@ def compact_triangles(x: np.ndarray, tris: np.ndarray, sel: np.ndarray, n_sel: i
 
 
 @njit(cache=True)
+def paper_displacement(x: np.ndarray, parts: np.ndarray, inv_mass: np.ndarray, q: int, d_star: float,
+                       ux: float, uy: float, r: float, out_idx: np.ndarray, out_dx: np.ndarray) -> int:
+    """The paper's eq. (3) on one body; returns the count K of displaced particles.
+
+    Every free particle i of ``parts`` with r - |x_q - x_i| >= 0 is displaced by
+    (r - |x_q - x_i|) / r * d_star * (ux, uy), (ux, uy) the unit direction of the
+    tool's velocity. Writes out_idx[:K] (int32) and out_dx[:K] (float64, (K, 2), [m]).
+    """
+    n = 0
+    qx, qy = x[q, 0], x[q, 1]
+    for k in range(parts.shape[0]):
+        i = parts[k]
+        if inv_mass[i] == 0.0:
+            continue
+        dist = math.sqrt((x[i, 0] - qx) ** 2 + (x[i, 1] - qy) ** 2)
+        if r - dist >= 0.0:
+            f = (r - dist) / r * d_star
+            out_idx[n] = i
+            out_dx[n, 0] = f * ux
+            out_dx[n, 1] = f * uy
+            n += 1
+    return n
+
+
+@njit(cache=True)
 def swept_candidates(x: np.ndarray, inv_mass: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
                      reach: float, out: np.ndarray) -> int:
     """Free particles within ``reach`` of the tool swept from ``shape0`` to ``shape1``; returns the count.
@@ -446,7 +475,6 @@ class ContactModel:
         tris = np.ascontiguousarray(model.tri_indices, dtype=np.int32)
         self.body_particles = [np.flatnonzero(model.particle_body == b).astype(np.int32) for b in range(model.n_bodies)]
         self.body_tris = [np.ascontiguousarray(tris[model.tri_body == b]) for b in range(model.n_bodies)]
-        self.free = model.particle_inv_mass > 0.0
         n, t = model.n_particles, model.n_triangles
         # scratch for the kernels (the model is fixed, so are the sizes)
         self._sdf = np.empty(n)
@@ -457,6 +485,8 @@ class ContactModel:
         self._ids = np.empty(n, dtype=np.int32)
         self._ctris = np.empty((max(t, 1), 3), dtype=np.int32)
         self._cand = np.empty(n, dtype=np.int32)
+        self._held_idx = np.empty(n, dtype=np.int32)
+        self._held_dx = np.empty((n, 2))
         geom, self._axis_rot = _fcl_tool(tool)
         self._tool_obj = fcl.CollisionObject(geom, fcl.Transform())
         self._request = fcl.DistanceRequest(enable_nearest_points=True)
@@ -536,9 +566,8 @@ class ContactModel:
             self._detect_projection(state, pose0, pose1, dt, contacts)
         # d* is reported up to alpha for both models (beyond: inf)
         reach = max(p.contact_threshold, p.contact_margin)
-        held_idx, held_dx = [], []
-        v = np.array([twist.vx, twist.vy])
-        speed = float(np.hypot(v[0], v[1]))
+        n_held = 0
+        speed = math.hypot(twist.vx, twist.vy)
         for b in range(nb):
             res = self.body_distance(b, x, reach)
             self.last_bvh_triangles += res.n_tris
@@ -551,16 +580,12 @@ class ContactModel:
             contacts.in_contact[b] = True
             if speed == 0.0:
                 continue  # eq. (3) needs the tool's direction of motion: a tool at rest moves nothing
-            parts = self.body_particles[b]
-            parts = parts[self.free[parts]]
-            dist = np.hypot(x[parts, 0] - x[res.q, 0], x[parts, 1] - x[res.q, 1])
-            near = dist <= p.contact_radius  # eq. (3): r - |x_q - x_i| >= 0
-            falloff = (p.contact_radius - dist[near]) / p.contact_radius
-            held_idx.append(parts[near])
-            held_dx.append((falloff * res.d_star)[:, None] * (v / speed)[None, :])
-        if held_idx:
-            contacts.held_idx = np.concatenate(held_idx).astype(np.int32)
-            contacts.held_dx = np.ascontiguousarray(np.concatenate(held_dx), dtype=np.float64)
+            n_held += paper_displacement(x, self.body_particles[b], model.particle_inv_mass, res.q, res.d_star,
+                                         twist.vx / speed, twist.vy / speed, p.contact_radius,
+                                         self._held_idx[n_held:], self._held_dx[n_held:])
+        if n_held:
+            contacts.held_idx = self._held_idx[:n_held].copy()
+            contacts.held_dx = self._held_dx[:n_held].copy()
             contacts.touched = contacts.held_idx.copy()
         return contacts
 
