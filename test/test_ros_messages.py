@@ -261,3 +261,21 @@ def test_validate_checks_physics_through_simparams() -> None:
         validate({**values, "tool_shape": "scalpel"})
     with pytest.raises(InputError, match="spacing"):
         validate({**values, "spacing": -0.1})
+
+
+def test_vertex_strain_matches_a_plain_loop() -> None:
+    """Strain of a particle = mean over its edges of |x_a - x_b| / l0 - 1, on a randomly perturbed mesh."""
+    from tissue_sim_ros.core.model import Model  # noqa: PLC0415
+
+    model = Model.from_mesh(mesh_rectangle(0.3, 0.2, 0.05), SimParams())
+    enc = M.SceneEncoder(model.tri_indices, model.edge_indices, model.edge_rest_length, model.particle_body)
+    q = model.particle_q0 + np.random.default_rng(3).normal(scale=0.01, size=model.particle_q0.shape)
+    sums = np.zeros(model.n_particles)
+    counts = np.zeros(model.n_particles)
+    for (a, b), l0 in zip(model.edge_indices, model.edge_rest_length):
+        e = math.dist(q[a], q[b]) / l0 - 1.0
+        sums[a] += e
+        sums[b] += e
+        counts[a] += 1
+        counts[b] += 1
+    np.testing.assert_allclose(enc.vertex_strain(q), sums / counts, rtol=1e-12, atol=1e-15)

@@ -53,9 +53,13 @@ SCENES: dict[str, dict[str, Any]] = {
 }
 
 
+MODES = ("timer", "lock_step")
+
+
 @dataclass
 class SceneResult:
     scene: str
+    mode: str = "timer"
     particles: int = 0
     triangles: int = 0
     marker_bytes: int = 0
@@ -68,6 +72,7 @@ class SceneResult:
     missed_fraction: float = 0.0
     step_time_mean_ms: float = 0.0
     step_time_max_ms: float = 0.0
+    sim_step_ms_mean: float = 0.0
     poses_sent: int = 0
     poses_shown: int = 0
     latency_markers_ms: list[float] = field(default_factory=list)
@@ -81,12 +86,13 @@ class SceneResult:
         lp = np.array(self.latency_points_ms) if self.latency_points_ms else np.array([math.nan])
         budget = 1e3 * dt + 2.0
         return {
-            "scene": self.scene, "particles": self.particles, "triangles": self.triangles,
+            "scene": self.scene, "mode": self.mode, "particles": self.particles, "triangles": self.triangles,
             "marker_kB": round(self.marker_bytes / 1024, 1), "points_kB": round(self.points_bytes / 1024, 1),
             "seconds": round(self.seconds, 2), "steps": self.steps, "rate_hz": round(self.rate_hz, 2),
             "target_hz": round(1.0 / dt, 2), "overruns": self.overruns, "missed_ticks": self.missed_ticks,
             "missed_pct": round(100 * self.missed_fraction, 3),
             "step_ms_mean": round(self.step_time_mean_ms, 3), "step_ms_max": round(self.step_time_max_ms, 3),
+            "sim_ms_mean": round(self.sim_step_ms_mean, 3),
             "markers_hz": round(self.markers_received / max(self.seconds, 1e-9), 2),
             "lat_markers_ms_median": round(float(np.median(lm)), 3),
             "lat_markers_ms_p95": round(float(np.percentile(lm, 95)), 3),
@@ -125,7 +131,7 @@ def _tool_y(t: float) -> float:
 
 
 def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: float, out: Path,
-                domain_id: int, discovery_timeout: float = 30.0) -> SceneResult:
+                domain_id: int, mode: str = "timer", discovery_timeout: float = 30.0) -> SceneResult:
     """Run one scene: node process + driving client; return the measurements."""
     import rclpy  # noqa: PLC0415
     from diagnostic_msgs.msg import DiagnosticArray  # noqa: PLC0415
@@ -140,12 +146,14 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
     from ..ros import messages, qos  # noqa: PLC0415
 
     params = {**default_params(), **overrides, "marker_rate": 1000.0, "points_rate": 1000.0,
-              "markers_wireframe": True, "diagnostics_rate": 1.0, "max_tool_jump": 1.0}
+              "markers_wireframe": True, "diagnostics_rate": 1.0, "max_tool_jump": 1.0,
+              "lock_step": mode == "lock_step"}
     dt = float(params["dt"])
-    params_file = out / f"node_{name}.yaml"
+    tag = f"{name}_{mode}"
+    params_file = out / f"node_{tag}.yaml"
     _write_params(params_file, params)
-    log_path = out / f"node_{name}.log"
-    result = SceneResult(name)
+    log_path = out / f"node_{tag}.log"
+    result = SceneResult(name, mode)
     env = _isolated_env(domain_id)
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
     with open(log_path, "wb") as log:
@@ -212,10 +220,12 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
             executor.spin_once(timeout_sec=0.05)
 
     try:
-        spin_until(lambda: pose_pub.get_subscription_count() > 0 and sizes["markers"] > 0 and sizes["points"] > 0,
+        spin_until(lambda: pose_pub.get_subscription_count() > 0 and node.count_publishers("tissue/markers") > 0,
                    discovery_timeout, "the node's topics")
         t_start["t"] = time.monotonic()
         node.create_timer(dt, publish_pose)  # ROS clock of this process (system time)
+        # in lock-step the node publishes only once poses come
+        spin_until(lambda: sizes["markers"] > 0 and sizes["points"] > 0, discovery_timeout, "the first markers")
         end = time.monotonic() + warmup
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.01)
@@ -226,7 +236,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         end = t0 + seconds
         from tqdm import tqdm  # noqa: PLC0415
 
-        with tqdm(total=int(seconds), desc=f"bench node {name}", unit="s", leave=False) as bar:
+        with tqdm(total=int(seconds), desc=f"bench node {tag}", unit="s", leave=False) as bar:
             last = t0
             while time.monotonic() < end:
                 executor.spin_once(timeout_sec=0.01)
@@ -258,6 +268,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
     result.missed_fraction = (result.overruns + result.missed_ticks) / max(result.steps + result.missed_ticks, 1)
     result.divergences = int(d1["divergences"]) - int(d0["divergences"])
     result.step_time_mean_ms = float(d1["step_time_mean_ms"])
+    result.sim_step_ms_mean = float(d1["sim_step_ms_mean"])
     result.step_time_max_ms = max(float(d["step_time_max_ms"]) for d in (d1,))
     result.marker_bytes, result.points_bytes = sizes["markers"], sizes["points"]
     result.markers_received, result.points_received = len(markers), len(points)
@@ -274,7 +285,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         pose_stamp = step_to_pose.get(step_stamp)
         if pose_stamp is not None:
             first_points.setdefault(pose_stamp, arrival)
-    with open(out / f"node_latency_{name}.csv", "w", newline="") as f:
+    with open(out / f"node_latency_{tag}.csv", "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(["pose_stamp_s", "markers_latency_ms", "points_latency_ms"])
         for stamp in sent:
@@ -308,7 +319,7 @@ def _plot(results: list[SceneResult], dt: float, path: Path) -> None:
     for r in results:
         if r.latency_markers_ms:
             ax.hist(np.clip(r.latency_markers_ms, 0, hi), bins=bins, alpha=0.5,
-                    label=f"{r.scene} ({r.triangles} tri): median {np.median(r.latency_markers_ms):.1f} ms")
+                    label=f"{r.scene} {r.mode} ({r.triangles} tri): median {np.median(r.latency_markers_ms):.1f} ms")
     ax.axvline(budget, color="k", linestyle="--", label=f"target: period + 2 ms = {budget:.0f} ms")
     ax.set_xlabel("latency tool pose -> tissue/markers [ms]")
     ax.set_ylabel("poses")
@@ -321,7 +332,7 @@ def _plot(results: list[SceneResult], dt: float, path: Path) -> None:
     ax.axhline(1.0 / dt, color="k", linestyle="--", label=f"target {1 / dt:.0f} Hz")
     for i, r in enumerate(results):
         ax.text(i, 1.0 / dt * 1.02, f"{100 * r.missed_fraction:.1f}% missed", ha="center", fontsize=8)
-    ax.set_xticks(x, [f"{r.scene}\n{r.triangles} triangles" for r in results])
+    ax.set_xticks(x, [f"{r.scene} {r.mode}\n{r.triangles} triangles" for r in results])
     ax.set_ylim(0, 1.2 / dt)
     ax.legend(fontsize=8, loc="lower right")
     ax.set_title("rate with markers + points every step")
@@ -336,6 +347,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--warmup", type=float, default=2.0, help="time driven before measuring [s]")
     parser.add_argument("--scene", action="append", choices=sorted(SCENES),
                         help="scene to run (repeatable; default all)")
+    parser.add_argument("--mode", action="append", choices=MODES,
+                        help="timer (1/dt timer, newest pose) or lock_step (one step per pose); repeatable; default both")
     parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID of the private graph (default 1 + pid % 100)")
 
 
@@ -354,15 +367,16 @@ def run(args: argparse.Namespace) -> int:
     dt = float(default_params()["dt"])
     results = []
     for name in args.scene or list(SCENES):
-        results.append(bench_scene(name, SCENES[name], args.seconds, args.warmup, out, domain_id))
+        for mode in args.mode or list(MODES):
+            results.append(bench_scene(name, SCENES[name], args.seconds, args.warmup, out, domain_id, mode))
     rows = [r.row(dt) for r in results]
     with open(out / "node.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
     _plot(results, dt, out / "node.png")
-    cols = [("scene", 6), ("particles", 9), ("triangles", 9), ("marker_kB", 9), ("rate_hz", 7), ("target_hz", 9),
-            ("missed_pct", 10), ("step_ms_mean", 12), ("step_ms_max", 11), ("markers_hz", 10),
+    cols = [("scene", 6), ("mode", 9), ("particles", 9), ("triangles", 9), ("marker_kB", 9), ("rate_hz", 7), ("target_hz", 9),
+            ("missed_pct", 10), ("step_ms_mean", 12), ("step_ms_max", 11), ("sim_ms_mean", 11), ("markers_hz", 10),
             ("lat_markers_ms_median", 21), ("lat_markers_ms_p95", 18), ("lat_points_ms_median", 20),
             ("latency_budget_ms", 17)]
     print("  ".join(f"{c:>{w}}" for c, w in cols))
@@ -370,7 +384,7 @@ def run(args: argparse.Namespace) -> int:
         print("  ".join(f"{row[c]!s:>{w}}" for c, w in cols))
     for row in rows:
         verdict = ", ".join(f"{k[:-3]} {'met' if row[k] else 'MISSED'}" for k in ("rate_ok", "missed_ok", "latency_ok"))
-        print(f"{row['scene']}: {verdict}; {row['poses_shown']}/{row['poses_sent']} poses shown, "
+        print(f"{row['scene']} {row['mode']}: {verdict}; {row['poses_shown']}/{row['poses_sent']} poses shown, "
               f"{row['divergences']} divergences")
     print(f"wrote {out / 'node.csv'}, {out / 'node.png'}, node_latency_*.csv")
     return 0
