@@ -27,6 +27,7 @@ METHODS = {
     "xpbd_colour_order": (dict(method="xpbd"), dict(order="colour", parallel=False)),
     "xpbd_stored_order": (dict(method="xpbd"), dict(order="stored", parallel=False)),
     "xpbd_parallel": (dict(method="xpbd"), dict(parallel=True)),
+    "xpbd_parallel_colour": (dict(method="xpbd"), dict(parallel=True, parallel_mode="colour")),
     "xpbd_jacobi": (dict(method="xpbd", scheme="jacobi"), {}),
     "xpbd_substep": (dict(method="xpbd", substeps=10, iterations=1), {}),
 }
@@ -305,16 +306,36 @@ def test_parallel_colour_order_equals_serial_colour_order() -> None:
     params = SimParams(method="xpbd")
     model = strip_model(params, pin="bottom")
     outs = []
-    for parallel in (False, True):
-        solver = Solver(model, parallel=parallel, order="colour")
+    for kw in (dict(parallel=False, order="colour"), dict(parallel=True, parallel_mode="colour")):
         out = model.state()
-        solver.step(model.state(), out, Contacts.empty(1), DT)
+        Solver(model, **kw).step(model.state(), out, Contacts.empty(1), DT)
         outs.append(out.particle_q)
-    np.testing.assert_allclose(outs[0], outs[1], rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(outs[0], outs[1])
 
 
-def test_mesh_and_colour_order_reach_the_same_plateau() -> None:
-    """Both orders are Gauss-Seidel on the same equations and settle within XPBD's plateau of each other.
+def test_partitioned_parallel_result_does_not_depend_on_threads() -> None:
+    """Slabs share no particle: one thread or two, the partitioned sweep gives the same bits."""
+    import numba
+
+    model = strip_model(SimParams(method="xpbd"), pin="bottom")
+    solver = Solver(model, parallel=True)
+    assert solver.parallel_mode == "partition"
+    assert solver.edge_offsets[-1] - solver.edge_offsets[-2] < 0.2 * model.n_edges  # a thin separator
+    outs = []
+    threads = numba.get_num_threads()
+    try:
+        for n in (1, threads):
+            numba.set_num_threads(n)
+            out = model.state()
+            solver.step(model.state(), out, Contacts.empty(1), DT)
+            outs.append(out.particle_q.copy())
+    finally:
+        numba.set_num_threads(threads)
+    np.testing.assert_array_equal(outs[0], outs[1])
+
+
+def test_mesh_colour_and_partition_orders_reach_the_same_plateau() -> None:
+    """The orders are Gauss-Seidel on the same equations and settle within XPBD's plateau of each other.
 
     Not bit for bit: XPBD accumulates each correction along the gradient at the
     time of the projection, so its fixed point depends a little on the path
@@ -324,12 +345,13 @@ def test_mesh_and_colour_order_reach_the_same_plateau() -> None:
     params = SimParams(method="xpbd", iterations=300, stiffness_spring=1.0, stiffness_area=1e3)
     model = strip_model(params, pin="bottom")
     outs = []
-    for order in ("mesh", "colour"):
+    for kw in (dict(order="mesh", parallel=False), dict(order="colour", parallel=False), dict(parallel=True)):
         out = model.state()
-        Solver(model, order=order, parallel=False).step(model.state(), out, Contacts.empty(1), DT)
+        Solver(model, **kw).step(model.state(), out, Contacts.empty(1), DT)
         outs.append(out.particle_q - model.particle_q0)
     scale = np.abs(outs[0]).max()
-    assert np.abs(outs[0] - outs[1]).max() < 5e-3 * scale
+    for other in outs[1:]:
+        assert np.abs(outs[0] - other).max() < 5e-3 * scale
 
 
 def test_substeps_reach_the_converged_static_sag() -> None:
@@ -408,6 +430,8 @@ def test_step_rejects_bad_states() -> None:
         solver.step(model.state(), model.state(), Contacts.empty(1), -1.0)
     with pytest.raises(InputError, match="order"):
         Solver(model, order="random")
+    with pytest.raises(InputError, match="parallel_mode"):
+        Solver(model, parallel_mode="gpu")
 
 
 @pytest.mark.parametrize("name,value", [("dt", 0.0), ("dt", -0.01), ("iterations", 0), ("mass", -1e-4),

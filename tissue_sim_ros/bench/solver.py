@@ -69,7 +69,10 @@ METHODS = (
            dict(parallel=False, order="stored")),
     Method("xpbd_gs_colour", "XPBD Gauss-Seidel, colour order, 1 thread", dict(method="xpbd"),
            dict(parallel=False, order="colour")),
-    Method("xpbd_gs_parallel", "XPBD Gauss-Seidel, coloured, all threads", dict(method="xpbd"), dict(parallel=True)),
+    Method("xpbd_gs_parallel", "XPBD Gauss-Seidel, slab-partitioned, all threads", dict(method="xpbd"),
+           dict(parallel=True)),
+    Method("xpbd_gs_par_colour", "XPBD Gauss-Seidel, coloured, all threads", dict(method="xpbd"),
+           dict(parallel=True, parallel_mode="colour")),
     Method("xpbd_gs_auto", "XPBD Gauss-Seidel, default choice", dict(method="xpbd")),
     Method("xpbd_jacobi", "XPBD Jacobi (stiffness-aware relaxation)", dict(method="xpbd", scheme="jacobi")),
     Method("xpbd_substep", "XPBD, 30 substeps x 1 iteration", dict(method="xpbd", substeps=30, iterations=1)),
@@ -260,11 +263,13 @@ def print_summary(rows: list[dict[str, Any]]) -> None:
     print("\nsummary (medians of this run):")
     for n in sizes:
         serial, par = by.get((n, "xpbd_gs")), by.get((n, "xpbd_gs_parallel"))
+        par_c = by.get((n, "xpbd_gs_par_colour"))
         stored, auto = by.get((n, "xpbd_gs_stored")), by.get((n, "xpbd_gs_auto"))
-        if serial and par and stored and auto:
+        if serial and par and stored and auto and par_c:
             print(f"  {n:>6} particles: XPBD GS serial {serial['ns_per_projection']:.2f} ns/projection "
-                  f"(plain mesh-order loop {stored['ns_per_projection']:.2f}), parallel x{serial['ms_per_step'] / par['ms_per_step']:.2f} "
-                  f"vs serial, default choice {auto['threads']} thread(s); serial x{serial['x_numpy']:.1f} NumPy")
+                  f"(plain mesh-order loop {stored['ns_per_projection']:.2f}); all threads: slabs "
+                  f"x{serial['ms_per_step'] / par['ms_per_step']:.2f}, colours x{serial['ms_per_step'] / par_c['ms_per_step']:.2f} "
+                  f"vs serial; default uses {auto['threads']} thread(s); serial x{serial['x_numpy']:.1f} NumPy")
     for r in rows:
         if r["scene"].startswith("paper") and "ms_per_step" in r:
             print(f"  paper scene {r['method']:<20} solve {r['ms_per_step']:.3f} ms, step {r['total_ms']:.3f} ms "

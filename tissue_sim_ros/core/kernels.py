@@ -39,6 +39,11 @@ from .collision import project_tool
 if "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER == "default":
     numba.config.THREADING_LAYER = "omp"
 
+#: Gauss-Seidel execution modes of :func:`gauss_seidel_iterations`.
+GS_SERIAL = 0
+GS_COLOURED = 1
+GS_PARTITIONED = 2
+
 #: Squared length [m^2] below which an edge (or a triangle's gradient) counts as
 #: degenerate and its projection is skipped: its direction is undefined.
 EPS_LEN2 = 1e-30
@@ -117,9 +122,9 @@ def place_held(x: np.ndarray, x_step_start: np.ndarray, x_target: np.ndarray, in
 
 
 @njit(cache=True)
-def solve_edges(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
-                k: float, alpha: float, lam: np.ndarray) -> None:
-    """One Gauss-Seidel sweep over distance constraints C = |x_i - x_j| - d0, in array order.
+def solve_edges_range(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
+                      k: float, alpha: float, lam: np.ndarray, start: int, stop: int) -> None:
+    """Gauss-Seidel over distance constraints ``start:stop``, C = |x_i - x_j| - d0, in array order.
 
     Parameters
     ----------
@@ -137,8 +142,10 @@ def solve_edges(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np
         Compliance over dt_sub^2 [1/kg] (0 for PBD).
     lam : (E,) float64
         Multipliers, accumulated in place.
+    start, stop : int
+        The range of constraints to sweep.
     """
-    for e in range(edges.shape[0]):
+    for e in range(start, stop):
         i = edges[e, 0]
         j = edges[e, 1]
         wi = inv_mass[i]
@@ -162,9 +169,16 @@ def solve_edges(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np
 
 
 @njit(cache=True)
-def solve_areas(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray,
-                k: float, alpha: float, lam: np.ndarray, signed: bool) -> None:
-    """One Gauss-Seidel sweep over area constraints, in array order.
+def solve_edges(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
+                k: float, alpha: float, lam: np.ndarray) -> None:
+    """One Gauss-Seidel sweep over all distance constraints in array order (:func:`solve_edges_range`)."""
+    solve_edges_range(x, inv_mass, edges, rest, k, alpha, lam, 0, edges.shape[0])
+
+
+@njit(cache=True)
+def solve_areas_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray,
+                      k: float, alpha: float, lam: np.ndarray, signed: bool, start: int, stop: int) -> None:
+    """Gauss-Seidel over area constraints ``start:stop``, in array order.
 
     Signed: C = 1/2 (x_b - x_a) x (x_c - x_a) - A0 (an inverted triangle is
     pushed back). Abs (the paper): C = |1/2 (x_b - x_a) x (x_c - x_a)| - |A0|,
@@ -187,8 +201,10 @@ def solve_areas(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np
         Multipliers, accumulated in place.
     signed : bool
         Signed (True) or the paper's absolute (False) area.
+    start, stop : int
+        The range of constraints to sweep.
     """
-    for t in range(tris.shape[0]):
+    for t in range(start, stop):
         a = tris[t, 0]
         b = tris[t, 1]
         c = tris[t, 2]
@@ -231,6 +247,38 @@ def solve_areas(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np
         x[b, 1] += wb * s * gby
         x[c, 0] += wc * s * gcx
         x[c, 1] += wc * s * gcy
+
+
+@njit(cache=True)
+def solve_areas(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray,
+                k: float, alpha: float, lam: np.ndarray, signed: bool) -> None:
+    """One Gauss-Seidel sweep over all area constraints in array order (:func:`solve_areas_range`)."""
+    solve_areas_range(x, inv_mass, tris, area0, k, alpha, lam, signed, 0, tris.shape[0])
+
+
+@njit(cache=True, parallel=True)
+def solve_partitioned(x: np.ndarray, inv_mass: np.ndarray,
+                      edges: np.ndarray, rest: np.ndarray, k_e: float, alpha_e: float, lam_e: np.ndarray,
+                      edge_offsets: np.ndarray,
+                      tris: np.ndarray, area0: np.ndarray, k_t: float, alpha_t: float, lam_t: np.ndarray,
+                      tri_offsets: np.ndarray, signed: bool) -> None:
+    """One Gauss-Seidel sweep, domain-decomposed: each part on its own thread, then the separator.
+
+    Constraints are grouped by part (``*_offsets``, n_parts + 2 entries): the
+    constraints of part p touch only particles of part p, so parts run
+    concurrently; the last group (the separator: constraints across parts)
+    runs afterwards on one thread. The result equals a serial sweep over
+    part 0, part 1, ..., separator, whatever the threads: one fork-join per
+    sweep instead of one per colour.
+    """
+    n_parts = edge_offsets.shape[0] - 2
+    for part in prange(n_parts):
+        solve_edges_range(x, inv_mass, edges, rest, k_e, alpha_e, lam_e, edge_offsets[part], edge_offsets[part + 1])
+        solve_areas_range(x, inv_mass, tris, area0, k_t, alpha_t, lam_t, signed, tri_offsets[part],
+                          tri_offsets[part + 1])
+    solve_edges_range(x, inv_mass, edges, rest, k_e, alpha_e, lam_e, edge_offsets[n_parts], edge_offsets[n_parts + 1])
+    solve_areas_range(x, inv_mass, tris, area0, k_t, alpha_t, lam_t, signed, tri_offsets[n_parts],
+                      tri_offsets[n_parts + 1])
 
 
 @njit(cache=True, parallel=True)
@@ -324,22 +372,28 @@ def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray,
                             edge_offsets: np.ndarray,
                             tris: np.ndarray, area0: np.ndarray, k_t: float, alpha_t: float, lam_t: np.ndarray,
                             tri_offsets: np.ndarray,
-                            signed: bool, iterations: int, parallel: bool,
+                            signed: bool, iterations: int, mode: int,
                             x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
                             dx_accum: np.ndarray) -> None:
     """``iterations`` Gauss-Seidel sweeps: all edges, then all triangles, then the tool.
 
-    Pass empty ``edges``/``tris`` to switch a constraint type off. With
-    ``parallel`` the constraints must be sorted by colour (``*_offsets``);
-    serial sweeps ignore the offsets and go in array order. The projection
-    contact (:func:`~tissue_sim_ros.core.collision.project_tool`) runs after
-    the constraints of every iteration, so the last word is the tool's and no
+    Pass empty ``edges``/``tris`` to switch a constraint type off. ``mode``:
+    :data:`GS_SERIAL` sweeps in array order (offsets ignored);
+    :data:`GS_COLOURED` needs constraints sorted by colour (``*_offsets``
+    delimit colours) and runs each colour on all threads;
+    :data:`GS_PARTITIONED` needs constraints grouped by part
+    (:func:`solve_partitioned`). The projection contact
+    (:func:`~tissue_sim_ros.core.collision.project_tool`) runs after the
+    constraints of every iteration, so the last word is the tool's and no
     particle ends inside it; an empty ``candidates`` skips it.
     """
     for _ in range(iterations):
-        if parallel:
+        if mode == GS_COLOURED:
             solve_edges_coloured(x, inv_mass, edges, rest, k_e, alpha_e, lam_e, edge_offsets)
             solve_areas_coloured(x, inv_mass, tris, area0, k_t, alpha_t, lam_t, signed, tri_offsets)
+        elif mode == GS_PARTITIONED:
+            solve_partitioned(x, inv_mass, edges, rest, k_e, alpha_e, lam_e, edge_offsets,
+                              tris, area0, k_t, alpha_t, lam_t, tri_offsets, signed)
         else:
             solve_edges(x, inv_mass, edges, rest, k_e, alpha_e, lam_e)
             solve_areas(x, inv_mass, tris, area0, k_t, alpha_t, lam_t, signed)

@@ -17,14 +17,16 @@ One step (the paper's Algorithm 1, with Macklin's multipliers for XPBD)::
 
 Orders. Serial Gauss-Seidel gives the result of sweeping the constraints in
 mesh order, as the paper does (executed in a wavefront schedule that changes
-no bit of it, see :func:`wavefront_order`). The parallel path sorts
-constraints by colour (greedy: no two constraints of one colour share a
-particle) and projects each colour on all threads. That is still
-Gauss-Seidel, in another order: its result differs from the mesh-order
-sweep's by what the iterations have not converged plus XPBD's small path
-dependence (measured: 2e-3 of a step's displacement), not bit for bit.
-Serial and parallel colour order give the same result (within a colour the
-projections are independent).
+no bit of it, see :func:`wavefront_order`). The parallel path (default from
+:data:`PARALLEL_MIN_PARTICLES` particles) cuts the mesh into one slab per
+thread: each thread sweeps its slab's constraints in mesh order, then the
+constraints across slabs are swept. Optionally (``parallel_mode="colour"``)
+constraints are sorted by greedy colour (no two constraints of one colour
+share a particle) and each colour runs on all threads. Both are still
+Gauss-Seidel, in another order: a result differs from the mesh-order sweep's
+by what the iterations have not converged plus XPBD's small path dependence
+(measured: 2e-3 of a step's displacement), not bit for bit. Neither depends
+on thread timing: within a slab or a colour the projections are independent.
 """
 from __future__ import annotations
 
@@ -45,6 +47,7 @@ from .model import Model, State
 PARALLEL_MIN_PARTICLES = 4000
 
 ORDERS = ("mesh", "colour", "stored")
+PARALLEL_MODES = ("partition", "colour")
 JACOBI_RELAXATIONS = ("stiffness", "uniform")
 
 
@@ -89,6 +92,43 @@ def colour_constraints(indices: np.ndarray, n_particles: int) -> tuple[np.ndarra
     return order, offsets
 
 
+def partition_particles(q0: np.ndarray, n_parts: int) -> np.ndarray:
+    """Slabs of equal particle count across the longest side of the rest bounding box, shape (N,), int64."""
+    n = q0.shape[0]
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    axis = int(np.argmax(np.ptp(q0, axis=0)))
+    rank = np.empty(n, dtype=np.int64)
+    rank[np.argsort(q0[:, axis], kind="stable")] = np.arange(n)
+    return rank * n_parts // n
+
+
+def partition_constraints(indices: np.ndarray, particle_part: np.ndarray, n_parts: int) -> tuple[np.ndarray, np.ndarray]:
+    """Group constraints by part (all particles in one part) with a separator group last.
+
+    Within a group the constraints keep their mesh-order result and are
+    wavefront-scheduled (sorted by :func:`~tissue_sim_ros.core.kernels.wavefront_levels`).
+
+    Returns
+    -------
+    order : (M,) int64
+        Constraint indices grouped: part 0, ..., part n_parts - 1, separator.
+    offsets : (n_parts + 2,) int64
+        Group g is ``order[offsets[g]:offsets[g + 1]]``.
+    """
+    m = indices.shape[0]
+    if m == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(n_parts + 2, dtype=np.int64)
+    parts = particle_part[indices]
+    group = np.where((parts == parts[:, :1]).all(axis=1), parts[:, 0], n_parts)
+    level = np.zeros(m, dtype=np.int64)
+    kernels.wavefront_levels(np.ascontiguousarray(indices, dtype=np.int32), particle_part.shape[0], level)
+    order = np.lexsort((level, group))
+    offsets = np.zeros(n_parts + 2, dtype=np.int64)
+    offsets[1:] = np.cumsum(np.bincount(group, minlength=n_parts + 1))
+    return order, offsets
+
+
 def wavefront_order(indices: np.ndarray, n_particles: int) -> np.ndarray:
     """A permutation of the constraints that sweeps to the same result as mesh order, bit for bit.
 
@@ -111,9 +151,17 @@ class Solver:
     model : Model
         Topology and parameters (``model.params``: method, scheme, iterations, substeps, ...).
     parallel : bool, optional
-        Gauss-Seidel on all threads, constraints sorted by colour. Default: on
-        from :data:`PARALLEL_MIN_PARTICLES` particles when numba has two or
-        more threads (Jacobi is always serial).
+        Gauss-Seidel on all threads. Default: on from
+        :data:`PARALLEL_MIN_PARTICLES` particles when numba has two or more
+        threads (Jacobi is always serial).
+    parallel_mode : {"partition", "colour"}
+        How Gauss-Seidel runs in parallel. ``partition`` (default): the mesh
+        is cut into one slab per thread; each thread sweeps its slab's
+        constraints (mesh order, wavefront-scheduled), then the few
+        constraints across slabs are swept on one thread: one fork-join per
+        sweep, and the result does not depend on the thread count's timing.
+        ``colour``: constraints sorted by greedy colour, each colour on all
+        threads (one fork-join per colour, ~16 per iteration).
     order : {"mesh", "colour", "stored"}, optional
         Serial Gauss-Seidel order. ``mesh`` (default): the result of sweeping
         in mesh order, bit for bit, executed in a wavefront schedule
@@ -135,11 +183,13 @@ class Solver:
         up for stiff constraints (kept for the stability tests).
     """
 
-    def __init__(self, model: Model, *, parallel: bool | None = None, order: str | None = None,
-                 jacobi_relaxation: str = "stiffness", jacobi_average: bool = True) -> None:
+    def __init__(self, model: Model, *, parallel: bool | None = None, parallel_mode: str = "partition",
+                 order: str | None = None, jacobi_relaxation: str = "stiffness", jacobi_average: bool = True) -> None:
         p = model.params
         if order is not None and order not in ORDERS:
             raise InputError(f"solver order={order!r}: expected one of {', '.join(ORDERS)}")
+        if parallel_mode not in PARALLEL_MODES:
+            raise InputError(f"parallel_mode={parallel_mode!r}: expected one of {', '.join(PARALLEL_MODES)}")
         if jacobi_relaxation not in JACOBI_RELAXATIONS:
             raise InputError(f"jacobi_relaxation={jacobi_relaxation!r}: expected one of {', '.join(JACOBI_RELAXATIONS)}")
         self.model = model
@@ -149,7 +199,12 @@ class Solver:
         if parallel is None:
             parallel = (not self.jacobi and n >= PARALLEL_MIN_PARTICLES and numba.get_num_threads() >= 2)
         self.parallel = bool(parallel) and not self.jacobi
-        self.order = "colour" if self.parallel else (order or "mesh")
+        self.parallel_mode = parallel_mode if self.parallel else None
+        if self.parallel:
+            self.order = parallel_mode
+        else:
+            self.order = order or "mesh"
+        self.n_parts = numba.get_num_threads()
         self.jacobi_relaxation = jacobi_relaxation
         self.jacobi_average = jacobi_average
         # Stiffness-aware Jacobi: omega_c = 2 relaxation / r_c; steps below 2 / r_c converge for the
@@ -166,9 +221,16 @@ class Solver:
         self.edge_offsets = np.array([0, edges.shape[0]], dtype=np.int64)
         self.tri_offsets = np.array([0, tris.shape[0]], dtype=np.int64)
         perm_e = perm_t = None
-        if self.order == "colour":
+        self.gs_mode = kernels.GS_SERIAL
+        if self.order == "partition":
+            part = partition_particles(model.particle_q0, self.n_parts)
+            perm_e, self.edge_offsets = partition_constraints(edges, part, self.n_parts)
+            perm_t, self.tri_offsets = partition_constraints(tris, part, self.n_parts)
+            self.gs_mode = kernels.GS_PARTITIONED
+        elif self.order == "colour":
             perm_e, self.edge_offsets = colour_constraints(edges, n)
             perm_t, self.tri_offsets = colour_constraints(tris, n)
+            self.gs_mode = kernels.GS_COLOURED if self.parallel else kernels.GS_SERIAL
         elif self.order == "mesh" and not self.jacobi:
             perm_e, perm_t = wavefront_order(edges, n), wavefront_order(tris, n)
         if perm_e is not None:
@@ -309,7 +371,7 @@ class Solver:
             else:
                 kernels.gauss_seidel_iterations(x, w, edges, rest, k_e, alpha_e, self.lam_e, self.edge_offsets,
                                                 tris, area0, k_t, alpha_t, self.lam_t, self.tri_offsets,
-                                                self.signed, p.iterations, self.parallel,
+                                                self.signed, p.iterations, self.gs_mode,
                                                 self.x_start, cand, self._shape0, self._shape1, self.contact_dx)
             kernels.update_velocity(x, self.x_start, h, v)
             kernels.apply_boundary_lines(x, v, inv_mass, p.boundary_y_top, p.boundary_y_bottom)
