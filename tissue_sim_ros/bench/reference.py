@@ -274,13 +274,15 @@ def minimize_step(energy: ImplicitEulerEnergy, fixed: np.ndarray, x0: np.ndarray
     gnorm = float(np.linalg.norm(g))
     target = rtol * g0
     iterations = projected = 0
-    # far from the minimiser the exact Hessian's descent directions (when it is indefinite) can be poor;
-    # the projected Hessian gives robust steps there. Once full steps are taken and the gradient is small,
-    # the exact Hessian is tried first, for Newton's quadratic convergence at the end.
-    exact_first = False
+    # The exact Hessian is tried first (quadratic convergence; a physical step from a physical state takes
+    # 3-5 iterations). When it gives no descent direction, or its step had to be cut below 1/4 by the line
+    # search, the next iterations use the projected Hessian, which gives robust steps far from the
+    # minimiser, until a full projected step is taken with a small gradient.
+    exact_first = True
     while gnorm > target and iterations < max_iterations and free_dofs.any():
         iterations += 1
         step = None
+        used_exact = False
         for project in ((False, True) if exact_first else (True,)):
             h = energy.hessian(x, project=project)[free_dofs][:, free_dofs].tocsc()
             try:
@@ -290,6 +292,7 @@ def minimize_step(energy: ImplicitEulerEnergy, fixed: np.ndarray, x0: np.ndarray
             if np.all(np.isfinite(p)) and g @ p < -1e-14 * gnorm * np.linalg.norm(p):
                 step = p
                 projected += int(project)
+                used_exact = not project
                 break
         if step is None:  # the projected Hessian (M + PSD) is positive definite: should not happen
             step = -g / np.repeat(np.asarray(energy.mass), 2)[free_dofs]
@@ -318,7 +321,9 @@ def minimize_step(energy: ImplicitEulerEnergy, fixed: np.ndarray, x0: np.ndarray
         x, e = x_try, e_try
         g = energy.gradient(x).ravel()[free_dofs]
         gnorm = float(np.linalg.norm(g))
-        if t == 1.0 and gnorm <= 1e-3 * max(g0, 1e-300):
+        if used_exact and t < 0.25:
+            exact_first = False
+        elif not used_exact and t == 1.0 and gnorm <= 1e-3 * max(g0, 1e-300):
             exact_first = True
     return x, {"grad_norm": gnorm, "grad_norm0": g0, "iterations": iterations, "projected": projected,
                "converged": bool(gnorm <= target), "energy": e}
