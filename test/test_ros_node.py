@@ -24,6 +24,7 @@ from rcl_interfaces.msg import Parameter as ParameterMsg  # noqa: E402
 from rcl_interfaces.msg import ParameterType, ParameterValue  # noqa: E402
 from rcl_interfaces.srv import SetParameters  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from rclpy.time import Time  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
@@ -317,6 +318,24 @@ def rclpy_duration(seconds: float) -> Any:
     return Duration(seconds=seconds)
 
 
+def test_divergence_is_restored_counted_and_never_published(node: Node) -> None:
+    _start(node)
+    before = int(node.fresh_diag()["divergences"])
+    assert node.set_param("gravity", -1e300).successful  # every solve now overflows
+    node.client.spin_until(lambda: int(node.fresh_diag()["divergences"]) > before + 5, TIMEOUT, node.proc,
+                           "divergences")
+    node.client.spin_for(0.1)
+    node.energy.clear()
+    node.points.clear()
+    node.client.spin_for(0.3)
+    assert not node.energy.messages, "energy published for diverged steps"
+    assert node.points.messages and np.isfinite(node.latest_points()).all()
+    assert node.set_param("gravity", -9.8).successful
+    node.client.spin_until(lambda: len(node.energy.messages) > 5, TIMEOUT, node.proc, "steps after recovery")
+    assert np.isfinite(node.energies()).all() and node.proc.alive()
+    assert "diverged" in node.proc.output()
+
+
 def test_lock_step_node_beside_it_steps_once_per_pose_and_replays_exactly(
         ros_client: RosClient, start_process: Any, scene_files: dict[str, Any], node: Node) -> None:
     """A second node in namespace /left, lock-step: N poses -> N steps stamped like the poses; a replay is exact."""
@@ -352,7 +371,30 @@ def test_lock_step_node_beside_it_steps_once_per_pose_and_replays_exactly(
     np.testing.assert_array_equal(first, second)
     # the timer node in the root namespace kept its own state meanwhile
     assert node.proc.alive()
-    assert proc.stop(signal.SIGTERM) == 0
+    assert proc.stop(signal.SIGINT) == 0, proc.output()[-2000:]
+    assert "Traceback" not in proc.output()
+
+
+def test_use_sim_time_steps_with_the_clock(ros_client: RosClient, start_process: Any,
+                                          scene_files: dict[str, Any]) -> None:
+    """With use_sim_time the step timer follows /clock: 0.5 s of simulated clock -> about 50 steps."""
+    from rosgraph_msgs.msg import Clock  # noqa: PLC0415
+
+    proc = start_process(["tissue_sim_node", "--ros-args", "-r", "__ns:=/simtime", "-r", "/clock:=/simtime/clock",
+                          "--params-file", str(scene_files["params"]), "-p", "use_sim_time:=true"], name="simtime")
+    clock_pub = ros_client.node.create_publisher(Clock, "/simtime/clock", QoSProfile(depth=10))
+    energy = ros_client.raw_subscription(Float64, "/simtime/tissue/energy", qos.energy())
+    ros_client.wait_for_subscriber(clock_pub, TIMEOUT, proc)
+    ros_client.wait_for_publisher("/simtime/tissue/energy", TIMEOUT, proc)
+    ros_client.spin_for(0.5)
+    assert not energy.messages, "stepped without a clock"
+    t_ns = 1_000_000_000
+    for _ in range(50):
+        t_ns += 10_000_000
+        clock_pub.publish(Clock(clock=Time(seconds=0, nanoseconds=t_ns).to_msg()))
+        ros_client.spin_for(0.02)  # wall time runs at half speed: the steps follow /clock, not the wall
+    ros_client.spin_for(0.3)
+    assert 40 <= len(energy.messages) <= 51, len(energy.messages)
 
 
 def test_tool_driver_plays_a_trajectory_in_lock_step(ros_client: RosClient, start_process: Any,
