@@ -524,3 +524,16 @@ def test_reaction_torque_about_the_tool_centre(kind):
     # strip's corner slides over the tip's end face, whose push passes nearly through the centre.)
     assert len(torques) >= 10
     assert all(fy > 0.0 and t > 0.0 for fy, t in torques[-10:])
+
+
+def test_contact_bench_quick_writes_table_csv_and_chart(tmp_path, capsys):
+    """Smoke test of ``tissue-sim bench contact --quick`` (no timing is asserted)."""
+    from tissue_sim_ros.cli import main
+
+    assert main(["bench", "contact", "--quick", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "culled" in out and "full" in out
+    rows = (tmp_path / "contact.csv").read_text().splitlines()
+    assert rows[0].startswith("scene,contact_model,bvh") and len(rows) == 5
+    assert (tmp_path / "contact.png").stat().st_size > 0
+    assert main(["bench", "contact", "--steps", "0", "--out", str(tmp_path)]) == 2

@@ -18,7 +18,7 @@ report medians over the steps with the tool within alpha of the tissue (d*
 computed), and the whole ``Simulation.step`` median for scale. Writes
 ``contact.csv`` and ``contact.png``.
 
-Run: ``python -m tissue_sim_ros.bench.contact [--out DIR] [--steps N]``.
+Run: ``tissue-sim bench contact [--out DIR] [--steps N] [--quick]``.
 """
 from __future__ import annotations
 
@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from ..core.collision import ContactModel
+from ..core.errors import InputError
 from ..core.mesh import mesh_rectangle
 from ..core.model import Model, SimParams
 from ..core.simulation import Simulation
@@ -42,16 +43,19 @@ DESCRIPTION = __doc__
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="bench_out", help="directory for contact.csv and contact.png")
-    parser.add_argument("--steps", type=int, default=300, help="steps of each trajectory (default 300)")
+    parser.add_argument("--out", default="bench_out/contact", help="output directory (CSV, PNG)")
+    parser.add_argument("--steps", type=int, default=None, help="steps of each trajectory (default 300; quick 160)")
+    parser.add_argument("--quick", action="store_true", help="the paper scene only, 160 steps (smoke test)")
 
 
-def _scenes(kind: str) -> list[tuple[str, Simulation, StraightInsertion]]:
+def _scenes(kind: str, quick: bool = False) -> list[tuple[str, Simulation, StraightInsertion]]:
     from ..core.scene import build_simulation  # noqa: PLC0415
     from ..experiments.trajectories import experiment_a  # noqa: PLC0415
 
     sim = build_simulation({"contact_model": kind})
     scenes = [("paper scene", sim, experiment_a(sim.tool, sim.params.dt))]
+    if quick:
+        return scenes
     # ~5,000 triangles: 71 x 35 cells of two triangles
     strip = mesh_rectangle(1.0, 0.5, 1.0 / 71)
     params = SimParams(contact_model=kind, boundary_y_bottom=0.001)
@@ -62,10 +66,10 @@ def _scenes(kind: str) -> list[tuple[str, Simulation, StraightInsertion]]:
     return scenes
 
 
-def measure(kind: str, steps: int, progress=None) -> list[dict[str, Any]]:
+def measure(kind: str, steps: int, progress=None, quick: bool = False) -> list[dict[str, Any]]:
     """Rows (one per scene and BVH mode) for one contact model."""
     rows = []
-    for name, sim, traj in _scenes(kind):
+    for name, sim, traj in _scenes(kind, quick):
         full = ContactModel(sim.model, sim.tool, cull=False)
         culled = sim.contact
         t_full, t_cull, tris_full, tris_cull, totals, worst = [], [], [], [], [], 0.0
@@ -110,12 +114,18 @@ def measure(kind: str, steps: int, progress=None) -> list[dict[str, Any]]:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm  # noqa: PLC0415
 
+    steps = args.steps if args.steps is not None else (160 if args.quick else 300)
+    if steps < 1:
+        raise InputError(f"--steps={steps}: expected at least 1 step")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
-    with tqdm(total=4 * args.steps, desc="contact bench") as bar:
+    with tqdm(total=(2 if args.quick else 4) * steps, desc="contact bench") as bar:
         for kind in ("paper", "projection"):
-            rows += measure(kind, args.steps, bar)
+            rows += measure(kind, steps, bar, args.quick)
+    if not rows:
+        print(f"no step brought the tool within alpha of the tissue in {steps} steps: nothing to report")
+        return 1
     header = f"{'scene':<20} {'model':<10} {'bvh':<6} {'tris':>5} {'near':>5} {'bvh tris':>8} " \
              f"{'detect ms':>9} {'p90 ms':>7} {'step ms':>8} {'share':>6} {'|dd*| max':>9}"
     print(header)
