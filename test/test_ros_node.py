@@ -404,7 +404,7 @@ def test_tool_driver_plays_a_trajectory_in_lock_step(ros_client: RosClient, star
     energy = ros_client.raw_subscription(Float64, "/drv/tissue/energy", qos.energy())
     ros_client.wait_for_publisher("/drv/tissue/energy", TIMEOUT, sim)
     # 0.05 m at 0.5 m/s = 0.1 s = 10 steps, then hold 0.05 s = 5 steps
-    driver = start_process(["tool_driver", "--ros-args", "-r", "__ns:=/drv", "-p", "lock_step:=true",
+    driver = start_process(["tool_driver", "--ros-args", "-r", "__ns:=/drv", "-p", "lock_step:=true", "-p", "preset:=straight",
                             "-p", "tool_length:=0.1", "-p", "target_x:=0.2", "-p", "target_y:=0.0",
                             "-p", "angle:=90.0", "-p", "distance:=0.05", "-p", "speed:=0.5", "-p", "hold:=0.05"],
                            name="driver")
@@ -444,3 +444,10 @@ def test_sigterm_ends_the_node_cleanly(node: Node) -> None:
     code = node.proc.stop(signal.SIGTERM, timeout=10)
     assert code == 0, node.proc.output()[-2000:]
     assert "Traceback" not in node.proc.output()
+
+
+def test_tool_driver_bad_preset_exits_2(start_process: Any) -> None:
+    proc = start_process(["tool_driver", "--ros-args", "-p", "preset:=bogus"], name="bad_driver")
+    assert proc.wait(timeout=60) == 2
+    out = proc.output()
+    assert "preset" in out and "experiment_a" in out and "Traceback" not in out

@@ -3,12 +3,14 @@
 So a newcomer sees the simulation work without a robot::
 
     tissue_sim_node --ros-args --params-file config/tissue_sim.yaml &
-    tool_driver --ros-args -p angle:=30.0 -p speed:=0.1
+    tool_driver                                        # the paper's experiment a
+    tool_driver --ros-args -p preset:=straight -p angle:=-30.0 -p target_x:=0.55 -p target_y:=0.38
 
-The trajectory is a straight insertion (:class:`~tissue_sim_ros.core.tool.StraightInsertion`)
-toward ``target_x, target_y`` at ``angle`` [deg] over ``distance`` [m], or a
-named experiment preset (``preset``; resolved by
-``tissue_sim_ros.experiments.trajectories.preset``). Messages go out at 1/dt
+The trajectory is a named experiment preset (``preset``, default the paper's
+experiment a; resolved by ``tissue_sim_ros.experiments.trajectories.preset``)
+or, with ``preset:=straight``, a straight insertion
+(:class:`~tissue_sim_ros.core.tool.StraightInsertion`) toward ``target_x,
+target_y`` at ``angle`` [deg] over ``distance`` [m]. Messages go out at 1/dt
 of the node's clock, stamped with that clock; in ``lock_step`` mode the driver
 sends the next pose only once the simulation has published the energy of the
 previous step (or after ``lock_step_timeout``), stamps poses k*dt after the
@@ -31,11 +33,12 @@ from std_msgs.msg import Float64
 
 from ..core.errors import InputError
 from ..core.scene import default_params, tool_from_mapping
+from ..core.tool import StraightInsertion, Trajectory
 from . import messages, qos
 
 #: name -> (default, description); defaults of the tool and dt come from config/tissue_sim.yaml.
 DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
-    "preset": ("", "Name of an experiment trajectory (tissue_sim_ros.experiments.trajectories.preset); empty = straight insertion from the parameters below."),
+    "preset": ("experiment_a", "An experiment's trajectory (tissue_sim_ros.experiments.trajectories.PRESETS: experiment_a, experiment_b_shallow, experiment_b_steep), or 'straight' for the straight insertion the parameters below describe."),
     "target_x": (0.5, "Tip position at the end of the insertion, x [m]."),
     "target_y": (0.5, "Tip position at the end of the insertion, y [m]."),
     "angle": (0.0, "Insertion direction (the tool's yaw) [deg]; 0 = moving toward +x."),
@@ -46,6 +49,8 @@ DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
     "frame_id": ("world", "frame_id of the published messages."),
     "tool_shape": ("box", "Tool shape (the tip is length/2 ahead of the centre for box and capsule)."),
     "tool_length": (0.8, "Tool length [m]."),
+    "tool_width": (0.005, "Box tool width [m]."),
+    "tool_radius": (0.0025, "Capsule or sphere radius [m]."),
     "wait_for_subscriber": (True, "Wait until a subscriber of tool/pose matches before starting."),
     "wait_timeout": (30.0, "Give up waiting for a subscriber after this long [s]; 0 = forever."),
     "exit_when_done": (True, "Exit when the trajectory ends (else keep publishing the last pose)."),
@@ -55,22 +60,21 @@ DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
 }
 
 
-def _trajectory(values: dict[str, Any]):
-    """The trajectory the parameters describe (a preset or a straight insertion)."""
-    if values["preset"]:
+def _trajectory(values: dict[str, Any]) -> Trajectory:
+    """The trajectory the parameters describe (an experiment preset or a straight insertion)."""
+    tool = tool_from_mapping({k: values[k] for k in ("tool_shape", "tool_length", "tool_width", "tool_radius")})
+    if values["preset"] != "straight":
         try:
-            from ..experiments.trajectories import preset  # noqa: PLC0415  (written alongside; optional here)
+            from ..experiments.trajectories import preset  # noqa: PLC0415  (the experiments are optional here)
         except ImportError as exc:
-            raise InputError(f"parameter preset={values['preset']!r}: presets are not available in this build ({exc})") from None
-        return preset(values["preset"])
-    from ..core import tool as tool_module  # noqa: PLC0415
-
-    straight = getattr(tool_module, "StraightInsertion", None)
-    if straight is None:
-        raise InputError("tool_driver needs tissue_sim_ros.core.tool.StraightInsertion, which this build lacks")
-    tool = tool_from_mapping({"tool_shape": values["tool_shape"], "tool_length": values["tool_length"]})
-    return straight.from_angle(tool, (values["target_x"], values["target_y"]), math.radians(values["angle"]),
-                               values["distance"], values["speed"], hold=values["hold"])
+            raise InputError(f"parameter preset={values['preset']!r}: experiment presets are not available in this "
+                             f"build ({exc}); use preset 'straight'") from None
+        try:
+            return preset(values["preset"], tool, values["dt"])
+        except InputError as exc:
+            raise InputError(f"parameter preset: {exc}; or 'straight'") from None
+    return StraightInsertion.from_angle(tool, (values["target_x"], values["target_y"]), math.radians(values["angle"]),
+                                        values["distance"], values["speed"], hold=values["hold"])
 
 
 class ToolDriver(Node):
@@ -81,7 +85,7 @@ class ToolDriver(Node):
         shipped = default_params()
         self.values: dict[str, Any] = {}
         for name, (default, description) in DRIVER_PARAMETERS.items():
-            default = shipped.get(name, default) if name in ("dt", "tool_shape", "tool_length") else default
+            default = shipped.get(name, default) if name == "dt" or name.startswith("tool_") else default
             if isinstance(default, float):
                 default = float(default)
             value = self.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=True,
