@@ -7,8 +7,8 @@ solved ones. K is the method's own (:attr:`SimParams.k_spring_effective`):
 the paper's per-iteration coefficients for ``pbd`` (as the paper defines its
 energy; the terms are then in "coefficient" units, comparable between steps of
 one run but not a physical energy), the physical stiffness [N/m, N/m^3] for
-``xpbd`` (then E is in joules x s^2 / s^2 = J scaled as the implicit Euler
-objective). C_t uses the model's area mode. The spring term uses current edge
+``xpbd`` (then E is the implicit Euler objective XPBD minimises, in
+kg m^2 = J s^2). See docs/calibration.md. C_t uses the model's area mode. The spring term uses current edge
 lengths only, never rest edge vectors, so a rigid rotation leaves it unchanged.
 """
 from __future__ import annotations
