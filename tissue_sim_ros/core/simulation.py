@@ -31,7 +31,7 @@ class StepReport:
     time: float
     """Simulated time at the end of the step [s]."""
     energy: EnergyTerms
-    """Implicit Euler energy terms per body and in total [J, in the units of the method's K]."""
+    """Implicit Euler energy terms per body and in total [kg m^2 for xpbd; PBD-coefficient units for pbd]."""
     residual: float
     """Solver residual after the solve: RMS constraint violation (edges [m], areas [m^2] scaled by rest size)."""
     in_contact: np.ndarray
