@@ -587,8 +587,7 @@ class SceneEncoder:
         self._edge_b = np.ascontiguousarray(self.edges[:, 1])
         self.tri_points = np.zeros((3 * len(self.tri), 3), dtype="<f8")
         self.wire_points = np.zeros((2 * len(self.edges), 3), dtype="<f8")
-        self._tri_xy = np.empty((3 * len(self.tri), 2), dtype=np.float64)
-        self._wire_xy = np.empty((2 * len(self.edges), 2), dtype=np.float64)
+        self._q3 = np.zeros((n, 3), dtype="<f8")  # particle positions with z = 0, gathered straight into points
         # one RGBA (4 float32 = 16 bytes) viewed as one complex128, so colours gather as single elements
         self._tri_rgba = np.empty(3 * len(self.tri), dtype=np.complex128)
         self.cloud = np.zeros(n, dtype=POINT_DTYPE)
@@ -647,9 +646,9 @@ class SceneEncoder:
         contact_particles : ndarray of int, optional
             Particles the contact model moved this step.
         """
+        self._q3[:, :2] = q
         tri = self.tri_points
-        np.take(q, self.tri_flat, axis=0, out=self._tri_xy)
-        tri[:, :2] = self._tri_xy
+        np.take(self._q3, self.tri_flat, axis=0, out=tri)
         idx = np.clip(((strain / self.strain_color_max) * 0.5 + 0.5) * (len(self.lut) - 1), 0, len(self.lut) - 1)
         np.take(np.take(self._lut16, idx.astype(np.int64)), self.tri_flat, out=self._tri_rgba)
         colors = self._tri_rgba.view(np.float32).reshape(-1, 4)
@@ -657,8 +656,7 @@ class SceneEncoder:
                  MarkerSpec("tissue", 0, MARKER_TRIANGLE_LIST, stamp, frame_id, points=tri, colors=colors)]
         if self.wireframe:
             wire = self.wire_points
-            np.take(q, self.edge_flat, axis=0, out=self._wire_xy)
-            wire[:, :2] = self._wire_xy
+            np.take(self._q3, self.edge_flat, axis=0, out=wire)
             specs.append(MarkerSpec("wireframe", 0, MARKER_LINE_LIST, stamp, frame_id, position=(0.0, 0.0, 0.001),
                                     scale=(self.wire_width, 0.0, 0.0), color=(0.1, 0.1, 0.1, 0.6), points=wire))
         if contact_particles is not None and len(contact_particles):
