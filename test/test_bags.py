@@ -364,3 +364,21 @@ def test_corrupt_payload_is_an_input_error(tmp_path):
 def test_typestore_is_jazzy():
     assert "tf2_msgs/msg/TFMessage" in typestore().fielddefs
     assert set(POSE_MSG_TYPES) <= set(POSE_TYPES)
+
+
+def test_signals_are_held_during_a_write_and_delivered_after():
+    """A SIGINT that arrives while a record is written is raised only once the record is complete."""
+    import os
+    import signal
+
+    from tissue_sim_ros.ros.bags import _signals_held
+
+    seen = []
+    old = signal.signal(signal.SIGINT, lambda *_: seen.append("int"))
+    try:
+        with _signals_held():
+            os.kill(os.getpid(), signal.SIGINT)
+            inside = list(seen)
+        assert inside == [] and seen == ["int"]
+    finally:
+        signal.signal(signal.SIGINT, old)

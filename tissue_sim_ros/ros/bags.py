@@ -75,10 +75,10 @@ TWIST_TYPES = ("geometry_msgs/msg/TwistStamped", "geometry_msgs/msg/Twist")
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 _SIGNALS = (int(signal.SIGINT), int(signal.SIGTERM))
-try:  # the C function: signal.pthread_sigmask wraps it in enum conversions that cost ~4 us per call
-    from _signal import pthread_sigmask as _sigmask
+try:  # the C functions: the signal module wraps them in enum conversions that cost ~10 us a call
+    from _signal import getsignal as _getsignal, signal as _setsignal
 except ImportError:  # pragma: no cover
-    _sigmask = getattr(signal, "pthread_sigmask", None)
+    _getsignal, _setsignal = signal.getsignal, signal.signal
 
 
 @lru_cache(maxsize=1)
@@ -91,20 +91,35 @@ def typestore() -> "Typestore":
 
 @contextlib.contextmanager
 def _signals_held() -> Iterator[None]:
-    """Hold SIGINT/SIGTERM back for the duration (they are delivered right after).
+    """Hold SIGINT/SIGTERM back for the duration; they are raised again right after.
 
-    Python runs signal handlers between bytecodes, so a KeyboardInterrupt could
-    otherwise land in the middle of a storage record and corrupt the bag.
+    Python runs signal handlers in the main thread between bytecodes, so a
+    KeyboardInterrupt could otherwise land in the middle of a storage record
+    and corrupt the bag. Blocking the signal with pthread_sigmask is not
+    enough (another thread - an executor, tqdm's monitor - takes it and the
+    handler still runs here), so the Python handlers are swapped for one that
+    only notes the signal. In other threads nothing is needed: Python handlers
+    never run there. A handler installed from C (rclpy's) is left alone: it
+    raises nothing in Python.
     """
-    try:
-        old = _sigmask(signal.SIG_BLOCK, _SIGNALS)
-    except (AttributeError, OSError, ValueError):  # platform without pthread_sigmask
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
+    pending: list[int] = []
+    saved: dict[int, Any] = {}
+    note = lambda signum, _frame: pending.append(signum)  # noqa: E731
+    for sig in _SIGNALS:
+        handler = _getsignal(sig)
+        if handler is not None:
+            saved[sig] = handler
+            _setsignal(sig, note)
     try:
         yield
     finally:
-        _sigmask(signal.SIG_SETMASK, old)
+        for sig, handler in saved.items():
+            _setsignal(sig, handler)
+        for sig in pending:
+            signal.raise_signal(sig)
 
 
 # --------------------------------------------------------------------------- writing
@@ -468,6 +483,9 @@ class ToolTrack:
     frame_ids: tuple[str, ...] = ()
     """Parent/header frames seen on the pose samples."""
     twist_topic: str | None = None
+    twist_t_ns: np.ndarray | None = None
+    """Time of the twist each row holds [ns], shape (M,), int64, -1 where none; equal to ``t_ns`` where the
+    twist carries the pose's own stamp (the only twists the node uses in lock-step)."""
     n_messages: int = 0
     """Pose-topic messages read (kept + skipped, TF messages without the frame not counted)."""
     skipped: dict[str, int] = field(default_factory=dict)
@@ -688,8 +706,9 @@ def read_tool_track(path: str | Path | Bag, topic: str | None = None, frame: str
                              + (f" frame {child!r}" if child else "")
                              + f" gave no usable tool pose ({n_messages} samples; skipped {skipped})")
         t_arr = np.asarray(times, dtype=np.int64)
-        twist = _read_twist(bag, twist_topic, t_arr, time_source) if twist_topic else None
-        return ToolTrack(t_ns=t_arr, pose=np.asarray(poses, dtype=np.float64), twist=twist, topic=topic,
+        twist, twist_t = _read_twist(bag, twist_topic, t_arr, time_source) if twist_topic else (None, None)
+        return ToolTrack(t_ns=t_arr, pose=np.asarray(poses, dtype=np.float64), twist=twist, twist_t_ns=twist_t,
+                         topic=topic,
                          msgtype=msgtype, child_frame=child, frame_ids=tuple(sorted(frames)),
                          twist_topic=twist_topic, n_messages=n_messages, skipped=skipped, time_source=time_source)
     finally:
@@ -697,8 +716,8 @@ def read_tool_track(path: str | Path | Bag, topic: str | None = None, frame: str
             bag.close()
 
 
-def _read_twist(bag: Bag, topic: str, t_pose: np.ndarray, time_source: str) -> np.ndarray:
-    """Latest twist at or before each pose time (sample and hold); NaN rows before the first twist."""
+def _read_twist(bag: Bag, topic: str, t_pose: np.ndarray, time_source: str) -> tuple[np.ndarray, np.ndarray]:
+    """Latest twist at or before each pose time (sample and hold; NaN rows before the first twist) and its time."""
     t_tw: list[int] = []
     vals: list[tuple[float, float, float]] = []
     for _, msgtype, t_bag, raw in bag.messages([topic]):
@@ -714,11 +733,14 @@ def _read_twist(bag: Bag, topic: str, t_pose: np.ndarray, time_source: str) -> n
         t_tw.append(t)
         vals.append(v)
     out = np.full((t_pose.shape[0], 3), np.nan)
+    times = np.full(t_pose.shape[0], -1, dtype=np.int64)
     if t_tw:
-        idx = np.searchsorted(np.asarray(t_tw, dtype=np.int64), t_pose, side="right") - 1
+        t_arr = np.asarray(t_tw, dtype=np.int64)
+        idx = np.searchsorted(t_arr, t_pose, side="right") - 1
         ok = idx >= 0
         out[ok] = np.asarray(vals)[idx[ok]]
-    return out
+        times[ok] = t_arr[idx[ok]]
+    return out, times
 
 
 def pose_stamped_cdr(t_ns: int, x: float, y: float, yaw: float, frame_id: str = "world") -> bytes:
