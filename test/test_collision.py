@@ -215,6 +215,18 @@ def test_paper_displacement_matches_naive():
             assert parts[1] in out_idx[:k]
 
 
+def test_body_nearest_matches_naive():
+    rng = np.random.default_rng(17)
+    for n_bodies in (1, 3):
+        body = rng.integers(0, n_bodies, size=50).astype(np.int32)
+        sdf = rng.choice([-0.01, 0.0, 0.003, 0.5], size=50)  # ties on purpose
+        out_min, out_arg = np.empty(n_bodies + 1), np.empty(n_bodies + 1, dtype=np.int32)  # last body empty
+        C.body_nearest(sdf, body, out_min, out_arg)
+        ref_min, ref_arg = naive.body_nearest(sdf, body, n_bodies + 1)
+        np.testing.assert_array_equal(out_min, ref_min)
+        np.testing.assert_array_equal(out_arg, ref_arg)
+
+
 # --------------------------------------------------------------------------- python-fcl queries
 
 

@@ -299,6 +299,23 @@ def points_sdf(x: np.ndarray, shape: np.ndarray, out: np.ndarray, grad: np.ndarr
 
 
 @njit(cache=True)
+def body_nearest(sdf: np.ndarray, particle_body: np.ndarray, out_min: np.ndarray, out_arg: np.ndarray) -> None:
+    """Per body: the smallest signed distance of its particles and that particle (first on ties).
+
+    sdf : (N,) float64 [m]; particle_body : (N,) int32; out_min : (B,) float64 [m]
+    (inf for a body without particles); out_arg : (B,) int32 (-1 likewise).
+    """
+    for b in range(out_min.shape[0]):
+        out_min[b] = np.inf
+        out_arg[b] = -1
+    for i in range(sdf.shape[0]):
+        b = particle_body[i]
+        if sdf[i] < out_min[b]:
+            out_min[b] = sdf[i]
+            out_arg[b] = i
+
+
+@njit(cache=True)
 def near_triangles(x: np.ndarray, tris: np.ndarray, sdf: np.ndarray, grad: np.ndarray, reach: float,
                    out: np.ndarray) -> int:
     """Triangles that may come within ``reach`` of the tool; returns their count, indices in ``out[:count]``.
@@ -485,6 +502,10 @@ class ContactModel:
         self._ids = np.empty(n, dtype=np.int32)
         self._ctris = np.empty((max(t, 1), 3), dtype=np.int32)
         self._cand = np.empty(n, dtype=np.int32)
+        self._body_min = np.empty(model.n_bodies)
+        self._body_arg = np.empty(model.n_bodies, dtype=np.int32)
+        self._pose = ToolPose(0.0, 0.0, 0.0)
+        self._placed = False
         self._held_idx = np.empty(n, dtype=np.int32)
         self._held_dx = np.empty((n, 2))
         geom, self._axis_rot = _fcl_tool(tool)
@@ -500,9 +521,14 @@ class ContactModel:
         self._tool_obj.setTransform(fcl.Transform(rot, np.array([pose.x, pose.y, 0.0])))
 
     def prepare(self, x: np.ndarray, pose: ToolPose) -> None:
-        """Pose the tool and compute every particle's signed distance (and gradient) to it, for :meth:`body_distance`."""
+        """Every particle's signed distance (and gradient) to the tool at ``pose``, for :meth:`body_distance`.
+
+        The fcl tool object is posed lazily, by the first query that needs it.
+        """
         points_sdf(x, tool_shape_array(self.tool, pose, 0.0), self._sdf, self._grad)
-        self._place_tool(pose)
+        body_nearest(self._sdf, self.model.particle_body, self._body_min, self._body_arg)
+        self._pose = pose
+        self._placed = False
 
     def distances(self, x: np.ndarray, pose: ToolPose, reach: float) -> list["BodyDistance"]:
         """d* and q of every body for positions ``x`` (N, 2) [m] and the tool at ``pose``."""
@@ -519,11 +545,11 @@ class ContactModel:
         tris = self.body_tris[b]
         if tris.shape[0] == 0:
             return BodyDistance(math.inf, -1, False, 0)
-        parts = self.body_particles[b]
-        upper = float(sdf[parts].min())  # d* <= the nearest vertex's distance
+        upper = float(self._body_min[b])  # d* <= the nearest vertex's distance
+        deepest = int(self._body_arg[b])
         if upper < 0.0:
             # a particle lies inside the tool: they overlap, which is all fcl would say (distance -1)
-            return BodyDistance(0.0, int(parts[np.argmin(sdf[parts])]), True, 0)
+            return BodyDistance(0.0, deepest, True, 0)
         if self.cull:
             n_sel = near_triangles(x, tris, sdf, self._grad, min(reach, upper), self._sel)
             if n_sel == 0:
@@ -537,14 +563,16 @@ class ContactModel:
         bvh.addSubModel(self._verts[:nv], self._ctris[:n_sel])
         bvh.endModel()
         obj = fcl.CollisionObject(bvh, fcl.Transform())
+        if not self._placed:
+            self._place_tool(self._pose)
+            self._placed = True
         result = fcl.DistanceResult()
         # the body first: python-fcl then reports the triangle in b1 and its nearest point first
         dist = fcl.distance(obj, self._tool_obj, self._request, result)
         prim = result.b1 if result.b1 >= 0 else result.b2
         if dist < 0.0 or prim < 0 or prim >= n_sel:
             # overlap (python-fcl returns -1 without a primitive): q = the deepest particle
-            q = int(parts[np.argmin(sdf[parts])])
-            return BodyDistance(0.0, q, True, n_sel)
+            return BodyDistance(0.0, deepest, True, n_sel)
         verts = self._ids[self._ctris[prim]]
         q = int(verts[np.argmin(sdf[verts])])
         if dist > reach and self.cull:
