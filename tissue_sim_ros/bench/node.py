@@ -349,7 +349,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scene to run (repeatable; default all)")
     parser.add_argument("--mode", action="append", choices=MODES,
                         help="timer (1/dt timer, newest pose) or lock_step (one step per pose); repeatable; default both")
-    parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID of the private graph (default 1 + pid % 100)")
+    parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID of the private graph (default 1 + pid %% 100)")
 
 
 def run(args: argparse.Namespace) -> int:
