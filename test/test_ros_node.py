@@ -451,3 +451,24 @@ def test_tool_driver_bad_preset_exits_2(start_process: Any) -> None:
     assert proc.wait(timeout=60) == 2
     out = proc.output()
     assert "preset" in out and "experiment_a" in out and "Traceback" not in out
+
+
+def test_bench_node_command_writes_its_table(ros_env: dict[str, str], tmp_path: Path) -> None:
+    """Smoke test of `tissue-sim bench node` (one short lock-step run; no timing is asserted)."""
+    import subprocess  # noqa: PLC0415
+
+    from ros_env import console_script  # noqa: PLC0415
+
+    out = tmp_path / "bench"
+    proc = subprocess.run([console_script("tissue-sim"), "bench", "node", "--out", str(out), "--seconds", "1",
+                           "--warmup", "0", "--scene", "paper", "--mode", "lock_step",
+                           "--domain-id", ros_env["ROS_DOMAIN_ID"]],
+                          env=ros_env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "lat_markers_ms_median" in proc.stdout
+    rows = (out / "node.csv").read_text().splitlines()
+    assert len(rows) == 2 and rows[1].startswith("paper,lock_step,")
+    assert (out / "node.png").stat().st_size > 0 and (out / "node_latency_paper_lock_step.csv").exists()
+    bad = subprocess.run([console_script("tissue-sim"), "bench", "node", "--seconds", "0"], env=ros_env,
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "--seconds" in bad.stderr and "Traceback" not in bad.stderr
