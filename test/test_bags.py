@@ -136,7 +136,7 @@ def test_writer_bad_input(tmp_path):
 
 @pytest.mark.parametrize("storage", STORAGES)
 def test_flushed_data_survives_a_writer_that_never_closes(tmp_path, storage):
-    """A crash after flush(): sqlite3 reads straight from the .db3; MCAP after recover_mcap."""
+    """A crash after flush(): sqlite3 reads straight from the .db3; both recover into a closed bag."""
     path = tmp_path / "bag"
     w = BagWriter(path, storage, flush_period=3600.0)
     w.add_topic("/e", "std_msgs/msg/Float64")
@@ -149,14 +149,19 @@ def test_flushed_data_survives_a_writer_that_never_closes(tmp_path, storage):
     w.close()
     assert not (crashed / "metadata.yaml").exists()
     if storage == "mcap":
-        with pytest.raises(InputError, match="recover_mcap"):
+        with pytest.raises(InputError, match=f"tissue-sim record --recover {crashed}"):
             Bag(crashed)
-        recover_mcap(crashed, tmp_path / "fixed.mcap")
-        target = tmp_path / "fixed.mcap"
     else:
-        target = crashed
-    with Bag(target) as b:
+        with Bag(crashed) as b:  # sqlite3 reads as it is
+            assert b.message_count == 10
+    # the CLI turns it into a closed bag (metadata.yaml and all)
+    from tissue_sim_ros.cli import main as cli
+
+    assert cli(["record", "--recover", str(crashed), "-o", str(tmp_path / "fixed")]) == 0
+    assert (tmp_path / "fixed" / "metadata.yaml").is_file()
+    with Bag(tmp_path / "fixed") as b:
         vals = [(t, b.decode(raw, ty).data) for _, ty, t, raw in b.messages()]
+        assert b.topics == {"/e": "std_msgs/msg/Float64"}
     assert vals == [(100 + i, float(i)) for i in range(10)]
 
 

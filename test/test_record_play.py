@@ -17,7 +17,7 @@ from ros_env import RosClient, ros_client, ros_env, start_process  # noqa: E402,
 
 from tissue_sim_ros.core.scene import build_simulation  # noqa: E402
 from tissue_sim_ros.ros import messages as m  # noqa: E402
-from tissue_sim_ros.ros.bags import Bag, read_tool_track, recover_mcap  # noqa: E402
+from tissue_sim_ros.ros.bags import Bag, read_tool_track, recover_bag  # noqa: E402
 from tissue_sim_ros.ros.replay import replay  # noqa: E402
 
 from bag_fixtures import small_params, tool_bag, write_params  # noqa: E402
@@ -85,7 +85,7 @@ def test_interrupted_recording_closes_the_bag(tmp_path, sig, ros_client, start_p
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
 def test_killed_recorder_loses_at_most_the_last_flush(tmp_path, storage, ros_client, start_process):
-    """SIGKILL: no close at all. sqlite3 reads as it is; MCAP is salvaged by recover_mcap."""
+    """SIGKILL: no close at all; recover_bag (tissue-sim record --recover) salvages every flushed message."""
     src, _, _ = tool_bag(tmp_path / "in", n=30, rate_hz=50.0)
     out = tmp_path / "rec"
     rec = start_process(["tissue-sim", "record", "-o", str(out), "--storage", storage, "--topics", "/tool/pose",
@@ -97,12 +97,8 @@ def test_killed_recorder_loses_at_most_the_last_flush(tmp_path, storage, ros_cli
     rec.stop(signal.SIGKILL)
     play.stop(signal.SIGINT)
     assert not (out / "metadata.yaml").exists()
-    if storage == "mcap":
-        recover_mcap(out, tmp_path / "salvaged.mcap")
-        target = tmp_path / "salvaged.mcap"
-    else:
-        target = out
-    with Bag(target) as bag:
+    recover_bag(out, tmp_path / "salvaged")
+    with Bag(tmp_path / "salvaged") as bag:
         # everything but the last flush period (0.1 s, at 50 Hz ~5 messages) before the status line
         assert bag.message_count >= max(1, reported - 10)
         raws = [raw for _, _, _, raw in bag.messages()]

@@ -11,8 +11,9 @@ Writing
     subscriptions deliver and what the node's encoders produce), so large
     messages are never decoded and re-encoded. It flushes every
     ``flush_period`` seconds (MCAP: closes the pending chunk; sqlite3:
-    commits), so a crash loses at most that much, and :func:`recover_mcap`
-    salvages what an interrupted MCAP recording wrote. ``close()`` is
+    commits), so a crash loses at most that much, and :func:`recover_bag`
+    (``tissue-sim record --recover``) turns what an interrupted recording
+    wrote into a closed bag. ``close()`` is
     idempotent, serialised by a lock, and SIGINT/SIGTERM are held back while a
     record or the bag's index is being written, so an interrupt never leaves a
     half-written record.
@@ -352,6 +353,40 @@ def recover_mcap(src: str | Path, dst: str | Path) -> int:
     return end
 
 
+def recover_bag(src: str | Path, dst: str | Path, storage: str = "mcap") -> dict[str, int]:
+    """Rewrite what an interrupted recording left as a proper, closed bag at ``dst``.
+
+    ``src`` is a bag directory (or storage file) whose writer never closed: an
+    MCAP without summary/footer (its complete chunks are salvaged, see
+    :func:`recover_mcap`) or a sqlite3 file without ``metadata.yaml``. Every
+    message is copied as serialized bytes with its receive time.
+
+    Returns
+    -------
+    dict
+        Messages copied per topic.
+    """
+    import tempfile  # noqa: PLC0415
+
+    src = Path(src)
+    if not src.exists():
+        raise InputError(f"bag {str(src)!r} does not exist")
+    files = [src] if src.is_file() else sorted(src.glob("*.mcap")) + sorted(src.glob("*.db3"))
+    if len(files) != 1:
+        raise InputError(f"{str(src)!r}: expected one .mcap or .db3 file to recover, found {len(files)}")
+    with tempfile.TemporaryDirectory() as tmp:
+        target = files[0]
+        if target.suffix == ".mcap" and _looks_like_cut_mcap(target):
+            recover_mcap(target, Path(tmp) / "salvaged.mcap")
+            target = Path(tmp) / "salvaged.mcap"
+        with Bag(target) as bag, BagWriter(dst, storage) as out:
+            for conn in bag.connections:
+                out.add_topic(conn.topic, conn.msgtype)
+            for topic, _, t_ns, raw in bag.messages():
+                out.write(topic, raw, t_ns)
+            return out.counts
+
+
 # --------------------------------------------------------------------------- reading
 
 
@@ -390,8 +425,9 @@ class Bag:
         except Exception as exc:  # rosbags raises ReaderError, sqlite3, struct, zstd, YAML and OS errors
             raise InputError(f"bag {str(p)!r} cannot be read (truncated, corrupt or not a rosbag2 bag): "
                              f"{type(exc).__name__}: {exc}"
-                             + (" - an MCAP recording that was killed can be salvaged with "
-                                "tissue_sim_ros.ros.bags.recover_mcap" if _looks_like_cut_mcap(target) else "")) from None
+                             + (" - if it is a recording that was killed, salvage its complete chunks with "
+                                f"`tissue-sim record --recover {str(p)} -o NEW_BAG` (bags.recover_bag)"
+                                if _looks_like_cut_mcap(target) else "")) from None
         self.connections = list(self._reader.connections)
 
     @property
@@ -793,4 +829,4 @@ def write_tool_bag(path: str | Path, t_ns: np.ndarray, poses: np.ndarray, twists
 
 
 __all__ = ["STORAGES", "POSE_TYPES", "TWIST_TYPES", "BagWriter", "Bag", "ToolTrack", "read_tool_track",
-           "tool_candidates", "recover_mcap", "typestore", "pose_stamped_cdr", "write_tool_bag"]
+           "tool_candidates", "recover_mcap", "recover_bag", "typestore", "pose_stamped_cdr", "write_tool_bag"]

@@ -11,8 +11,8 @@ recorder) are picked up as they show up.
 
 SIGINT (Ctrl-C) and SIGTERM end the recording and close the bag properly;
 ``--duration`` stops after that many seconds. The bag is flushed to disk every
-second, so even a killed recorder leaves what it wrote (sqlite3: readable as
-it is; MCAP: :func:`~tissue_sim_ros.ros.bags.recover_mcap`).
+second, so even a killed recorder leaves what it wrote; ``--recover BROKEN -o NEW``
+turns that into a closed bag (sqlite3 also reads as it is).
 
 Each subscription's QoS follows its publishers (as ``ros2 bag record`` does):
 reliable when every publisher is reliable, else best effort; transient local
@@ -146,12 +146,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--all", action="store_true", help="record every topic in the graph")
     parser.add_argument("--flush-period", type=float, default=1.0, help="seconds between flushes to disk")
     parser.add_argument("--quiet", action="store_true", help="no per-second status line")
+    parser.add_argument("--use-sim-time", action="store_true",
+                        help="stamp messages with /clock time (as nodes with use_sim_time) instead of wall time")
+    parser.add_argument("--recover", metavar="BROKEN_BAG", default=None,
+                        help="instead of recording: rewrite what a killed recording left (MCAP without footer, "
+                             "sqlite3 without metadata.yaml) as a closed bag at --output")
 
 
 def run(args: argparse.Namespace) -> int:
     if args.duration is not None and not args.duration > 0:
         raise InputError(f"--duration {args.duration}: expected seconds > 0")
     output = Path(args.output or time.strftime("tissue_sim_%Y%m%d_%H%M%S"))
+    if args.recover:
+        from .bags import recover_bag  # noqa: PLC0415
+
+        counts = recover_bag(args.recover, output, args.storage)
+        print(f"recovered {sum(counts.values())} messages from {args.recover} into {output}: "
+              + (", ".join(f"{t} {n}" for t, n in sorted(counts.items())) or "no topics"))
+        return 0
     writer = BagWriter(output, args.storage, flush_period=args.flush_period)
 
     import rclpy  # noqa: PLC0415
@@ -170,7 +182,10 @@ def run(args: argparse.Namespace) -> int:
     rclpy.init(args=None, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
-        node = rclpy.create_node("tissue_sim_recorder", namespace="/")
+        from rclpy.parameter import Parameter  # noqa: PLC0415
+
+        node = rclpy.create_node("tissue_sim_recorder", namespace="/", parameter_overrides=[
+            Parameter("use_sim_time", Parameter.Type.BOOL, bool(args.use_sim_time))])
         if args.all:
             wanted, prefixes = None, ()
         elif args.topics:
