@@ -186,3 +186,16 @@ def test_offline_replay_equals_node_in_lock_step(tmp_path, ros_client, start_pro
         assert counts[f"/tissue/energy/{term}"] == 40
     assert counts["/tool/pose"] == 40 and counts["/tissue/rest_mesh"] == 1
     np.testing.assert_array_equal(recorded, offline.rollout.scene_total)
+
+
+def test_play_remaps_a_robot_topic_onto_the_tool_topic(tmp_path, ros_client, start_process):
+    src, _, _ = tool_bag(tmp_path / "in", n=20, rate_hz=60.0, topic="/robot/ee_pose")
+    out = tmp_path / "rec"
+    rec = start_process(["tissue-sim", "record", "-o", str(out), "--topics", "tool/pose"], name="record")
+    ros_client.spin_until(lambda: "recording to" in _text(rec), 30, rec, "the recorder to start")
+    play = start_process(["tissue-sim", "play", str(src), "--remap", "/robot/ee_pose:=/tool/pose", "--wait", "30"],
+                         name="play")
+    assert play.wait(timeout=60) == 0, _text(play)
+    ros_client.spin_until(lambda: _recorded_messages(rec) >= 20, 20, rec, "20 remapped messages")
+    assert rec.stop(signal.SIGTERM, timeout=20) == 0, _text(rec)
+    assert _payloads(out, "/tool/pose") == _payloads(src, "/robot/ee_pose")

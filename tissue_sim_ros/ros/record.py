@@ -138,7 +138,8 @@ class Recorder:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--output", "-o", default=None,
                         help="bag directory to create (default: tissue_sim_YYYYmmdd_HHMMSS)")
-    parser.add_argument("--storage", choices=STORAGES, default="mcap", help="storage plugin (default mcap)")
+    parser.add_argument("--storage", choices=STORAGES, default="mcap",
+                        help="storage plugin (default mcap, as ros2 bag in Jazzy)")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     parser.add_argument("--namespace", default="", help="namespace of the node whose topics to record")
     parser.add_argument("--topics", nargs="+", default=None,
