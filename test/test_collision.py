@@ -277,7 +277,7 @@ def test_overlap_is_contact_at_distance_zero_with_the_deepest_particle_as_q():
     pose = ToolPose(0.5, 0.299, 0.0)  # the box's lower face 1.5 mm inside the strip's top row
     c = cm.detect(state, pose, pose, ToolTwist(0.0, -0.1), 0.01)
     assert c.in_contact[0] and c.d_star[0] == 0.0
-    assert len(c.held_idx) > 0 and not c.held_dx.any()  # eq. (3) with d* = 0: held in place, not moved
+    assert len(c.held_idx) == 0  # eq. (3) with d* = 0 displaces nothing, so nothing is held
     res = cm.distances(state.particle_q, pose, 0.025)[0]
     assert res.overlap
     # a thin tool between vertices (no vertex inside): python-fcl reports -1, handled the same way
@@ -488,6 +488,7 @@ def test_reaction_force_paper():
     seen = False
     for k in range(1, 41):
         rep = sim.step(ToolPose(0.5, 0.35 - 0.001 * k, 0.0))
+        assert rep.in_contact[0] == (rep.d_star[0] < p.contact_threshold)  # contact starts when d* < alpha
         if rep.n_contact_particles == 0:
             np.testing.assert_array_equal(rep.reaction_force, 0.0)
         elif rep.d_star[0] > 0.0:

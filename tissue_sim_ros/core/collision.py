@@ -30,16 +30,17 @@ Semantics chosen here (the paper leaves them open):
   a signed-distance request returns ~0, also without an id). We treat that as
   d* = 0 (touching), take q = the body's particle with the smallest signed
   distance to the tool (the deepest inside it), and apply eq. (3) with d* = 0:
-  the paper's displacement is then zero, so its particles are held in place
-  for the step. When a particle already lies inside the tool (our signed
+  the paper's displacement is then zero, so nothing is displaced or held (the
+  body is in contact, and the solve moves it freely). When a particle already lies inside the tool (our signed
   distance < 0) the overlap is certain and the fcl query is skipped; a thin
   tool crossing triangles between their vertices is found by fcl (-1). A tool
   that jumps into tissue thus passes through it: the paper rule's documented
   failure for fast tools.
-* **Held particles.** Eq. (3) applies when d* < alpha and the tool's linear
-  speed |v| > 0; every free (not pinned) particle i of q's body with
+* **Held particles.** Eq. (3) applies when 0 < d* < alpha and the tool's
+  linear speed |v| > 0; every free (not pinned) particle i of q's body with
   |x_q - x_i| <= r is displaced by (r - |x_q - x_i|)/r d* v/|v| and held for
-  the step. A tool at rest (or only rotating) displaces and holds nothing.
+  the step (the paper's "invisible force": the solve does not undo it). A tool
+  at rest (or only rotating) displaces and holds nothing, and so does d* = 0.
 * **BVH refit.** python-fcl 0.7 exposes no beginUpdateModel/updateVertex/
   endUpdateModel, so a body's BVH cannot be refitted in place: it is rebuilt
   every step. A full rebuild costs ~1.6-3 us per triangle (python-fcl converts
@@ -606,8 +607,11 @@ class ContactModel:
             if not res.d_star < p.contact_threshold:
                 continue
             contacts.in_contact[b] = True
-            if speed == 0.0:
-                continue  # eq. (3) needs the tool's direction of motion: a tool at rest moves nothing
+            if speed == 0.0 or res.d_star <= 0.0:
+                # eq. (3) needs the tool's direction of motion (a tool at rest moves nothing), and with
+                # d* = 0 it displaces nothing: nothing is held then either (freezing a disc of radius r
+                # in place while the tool passes through inverted up to 125 triangles in experiment a)
+                continue
             n_held += paper_displacement(x, self.body_particles[b], model.particle_inv_mass, res.q, res.d_star,
                                          twist.vx / speed, twist.vy / speed, p.contact_radius,
                                          self._held_idx[n_held:], self._held_dx[n_held:])
