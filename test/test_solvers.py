@@ -432,6 +432,14 @@ def test_step_rejects_bad_states() -> None:
         Solver(model, order="random")
     with pytest.raises(InputError, match="parallel_mode"):
         Solver(model, parallel_mode="gpu")
+    contacts = Contacts.empty(1)
+    contacts.held_idx, contacts.held_dx = np.array([model.n_particles], np.int32), np.zeros((1, 2))
+    with pytest.raises(InputError, match="held_idx"):
+        solver.step(model.state(), model.state(), contacts, DT)
+    contacts = Contacts.empty(1)
+    contacts.candidates = np.array([-1], np.int32)
+    with pytest.raises(InputError, match="candidates"):
+        solver.step(model.state(), model.state(), contacts, DT)
 
 
 @pytest.mark.parametrize("name,value", [("dt", 0.0), ("dt", -0.01), ("iterations", 0), ("mass", -1e-4),

@@ -170,7 +170,7 @@ class Solver:
         stores (~1.5-2x faster on one core). ``colour``: sorted by colour (the
         parallel path's order, on one thread). ``stored``: literally the array
         order (same result as ``mesh``, slower; kept for the benchmark). The
-        parallel path always uses colour order.
+        parallel path uses the order of its ``parallel_mode``.
     jacobi_relaxation : {"stiffness", "uniform"}
         XPBD Jacobi relaxation: per-constraint omega_c = 2 relaxation / r_c from
         a Gershgorin bound r_c (default; stable at any stiffness, see
@@ -328,6 +328,12 @@ class Solver:
         held_dx = np.ascontiguousarray(contacts.held_dx, dtype=np.float64).reshape(-1, 2)
         candidates = np.ascontiguousarray(contacts.candidates, dtype=np.int32)
         projection = candidates.shape[0] > 0
+        # the kernels index without bounds checks: refuse indices outside the model here
+        for name, idx in (("contacts.held_idx", held_idx), ("contacts.candidates", candidates)):
+            if idx.shape[0] and (idx.min() < 0 or idx.max() >= n):
+                raise InputError(f"{name} must lie in [0, {n}); got [{idx.min()}, {idx.max()}]")
+        if held_dx.shape[0] != held_idx.shape[0]:
+            raise InputError(f"contacts.held_dx has {held_dx.shape[0]} rows for {held_idx.shape[0]} held particles")
         if projection:
             self.contact_dx.fill(0.0)
             s0 = np.ascontiguousarray(contacts.tool_shape0, dtype=np.float64)
