@@ -472,3 +472,30 @@ def test_bench_node_command_writes_its_table(ros_env: dict[str, str], tmp_path: 
     bad = subprocess.run([console_script("tissue-sim"), "bench", "node", "--seconds", "0"], env=ros_env,
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "--seconds" in bad.stderr and "Traceback" not in bad.stderr
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["-p", "method:=xpbd_jacobi"], ("xpbd", "jacobi", 1, 30)),
+    (["-p", "method:=xpbd_substep"], ("xpbd", "gauss_seidel", 30, 1)),
+    (["-p", "method:=xpbd_substep", "-p", "substeps:=10"], ("xpbd", "gauss_seidel", 10, 1)),
+    (["-p", "method:=xpbd", "-p", "scheme:=jacobi"], ("xpbd", "jacobi", 1, 30)),
+    (["-p", "iterations:=5"], ("pbd", "gauss_seidel", 1, 5)),
+])
+def test_method_alias_decides_unless_set(ros_env: dict[str, str], scene_files: dict[str, Any],
+                                         args: list[str], expected: tuple) -> None:
+    """In-process node (no graph needed): a method alias sets scheme/substeps/iterations a user left alone."""
+    import rclpy  # noqa: PLC0415
+    from rclpy.context import Context  # noqa: PLC0415
+
+    from tissue_sim_ros.ros.node import TissueSimNode  # noqa: PLC0415
+
+    context = Context()
+    rclpy.init(context=context, domain_id=int(ros_env["ROS_DOMAIN_ID"]),
+               args=["--ros-args", "-p", f"mesh_file:={scene_files['root'] / 'strip.npz'}", *args])
+    try:
+        node = TissueSimNode(context=context)
+        p = node.sim.params
+        assert (p.method, p.scheme, p.substeps, p.iterations) == expected
+        node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)

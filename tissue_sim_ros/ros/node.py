@@ -41,8 +41,8 @@ from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
 from ..core.errors import InputError
-from ..core.model import SimParams
-from ..core.scene import build_simulation, default_params
+from ..core.model import METHOD_ALIASES, Model, SimParams
+from ..core.scene import SceneConfig, default_params, tool_from_mapping
 from ..core.simulation import Simulation, StepReport
 from ..core.tool import ToolPose, ToolTwist
 from . import messages, qos
@@ -116,7 +116,13 @@ class TissueSimNode(Node):
     def __init__(self, node_name: str = "tissue_sim_node", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self._values = self._declare_parameters()
-        self.sim: Simulation = build_simulation({k: self._values[k] for k in SIM_NAMES})
+        self._shipped = default_params()
+        mapping = self._sim_mapping(self._values)
+        # built here rather than by scene.build_simulation, which would merge the YAML's
+        # scheme/iterations back over a method alias's own
+        self.sim: Simulation = Simulation(
+            Model.from_mesh(SceneConfig.from_mapping(mapping).build_mesh(), SimParams.from_mapping(mapping)),
+            tool=tool_from_mapping(mapping))
         self._warm_up()
         self.stats = NodeStats()
         self.tool = ToolInput()
@@ -223,11 +229,25 @@ class TissueSimNode(Node):
 
     def _rebuilt_simulation(self, values: dict[str, Any]) -> Simulation:
         """A Simulation with the new tunable values on the same mesh, continuing from the current state."""
-        params = SimParams.from_mapping({k: values[k] for k in SIM_NAMES})
+        params = SimParams.from_mapping(self._sim_mapping(values))
         sim = Simulation(self.sim.model.with_params(params), tool=self.sim.tool)
         sim.set_state(self.sim.state)
         sim.step_count, sim.time, sim.tool_pose = self.sim.step_count, self.sim.time, self.sim.tool_pose
         return sim
+
+    def _sim_mapping(self, values: dict[str, Any]) -> dict[str, Any]:
+        """The flat values the core reads.
+
+        The node always holds scheme, substeps and iterations, which would
+        override a method alias's own (``xpbd_jacobi`` -> Jacobi): where they
+        still have their shipped defaults, the alias decides.
+        """
+        out = {k: values[k] for k in SIM_NAMES}
+        if out["method"] in METHOD_ALIASES:
+            for k in ("scheme", "substeps", "iterations"):
+                if k in METHOD_ALIASES[out["method"]] and out[k] == self._shipped.get(k, BY_NAME[k].default):
+                    del out[k]
+        return out
 
     def _make_encoder(self) -> messages.SceneEncoder:
         m = self.sim.model
