@@ -436,3 +436,7 @@ def body_nearest(sdf, particle_body, n_bodies):
             out_arg[b] = idx[np.argmin(sdf[idx])]
             out_min[b] = sdf[out_arg[b]]
     return out_min, out_arg
+
+
+def count_inverted(x, tris):
+    return int(np.count_nonzero(signed_areas(x, tris) <= 0)) if len(tris) else 0

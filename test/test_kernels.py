@@ -247,6 +247,14 @@ def test_energy_and_residual(scene, signed: bool) -> None:
                                 rel=RTOL)
 
 
+@pytest.mark.parametrize("scene", SCENES)
+def test_count_inverted(scene) -> None:
+    s = scene()
+    assert kernels.count_inverted(s["x"], s["tris"]) == naive.count_inverted(s["x"], s["tris"])
+    flipped = s["tris"][:, [0, 2, 1]].copy()
+    assert kernels.count_inverted(s["x"], flipped) == naive.count_inverted(s["x"], flipped)
+
+
 def test_residual_without_constraints_is_zero() -> None:
     x = np.zeros((3, 2))
     assert kernels.constraint_residual(x, np.zeros((0, 2), np.int32), np.zeros(0), np.zeros((0, 3), np.int32),

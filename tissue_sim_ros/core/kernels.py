@@ -734,6 +734,19 @@ def constraint_residual(x: np.ndarray, edges: np.ndarray, rest: np.ndarray, tris
     return math.sqrt(total / n)
 
 
+@njit(cache=True)
+def count_inverted(x: np.ndarray, tris: np.ndarray) -> int:
+    """Triangles whose signed area (x_b - x_a) x (x_c - x_a) / 2 is <= 0."""
+    n = 0
+    for t in range(tris.shape[0]):
+        a = tris[t, 0]
+        b = tris[t, 1]
+        c = tris[t, 2]
+        if (x[b, 0] - x[a, 0]) * (x[c, 1] - x[a, 1]) - (x[b, 1] - x[a, 1]) * (x[c, 0] - x[a, 0]) <= 0.0:
+            n += 1
+    return n
+
+
 # ----------------------------------------------------------------------------- colouring
 
 

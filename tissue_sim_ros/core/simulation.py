@@ -17,6 +17,7 @@ import numpy as np
 
 from .collision import ContactModel, Contacts
 from .energy import EnergyTerms, energy_terms
+from .kernels import count_inverted
 from .model import Model, State
 from .solvers import Solver
 from .tool import ToolPose, ToolShape, ToolTwist
@@ -187,8 +188,4 @@ class Simulation:
 
     def count_inverted(self) -> int:
         """Triangles with signed area <= 0 in the current state."""
-        x = self.state.particle_q
-        t = self.model.tri_indices
-        a, b, c = x[t[:, 0]], x[t[:, 1]], x[t[:, 2]]
-        area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-        return int(np.count_nonzero(area2 <= 0))
+        return int(count_inverted(self.state.particle_q, self.model.tri_indices))
