@@ -73,6 +73,10 @@ def test_cli_outputs(tmp_path, capsys):
     assert cli(["replay", str(path), "--params", str(write_params(tmp_path)), "--out", str(out), "--no-progress",
                 "--frame-every", "10"]) == 0
     assert (out / "energy.png").stat().st_size > 1000
+    import json
+
+    summary = json.loads((out / "replay.json").read_text())
+    assert summary["steps"] == 25 and summary["tool_topic"] == "/tool/pose" and summary["real_time_factor"] > 0
     assert sorted(p.name for p in (out / "frames").glob("*.png")) == [
         "frame_00000.png", "frame_00010.png", "frame_00020.png", "frame_00025.png"]
     table = np.genfromtxt(out / "energy.csv", delimiter=",", names=True)

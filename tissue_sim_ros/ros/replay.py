@@ -334,9 +334,33 @@ def run(args: argparse.Namespace) -> int:
         writer.close()
     print(result.speed_line())
     write_outputs(out, sim, result, video=args.video, title=f"replay of {Path(args.bag).name} ({args.mode})")
-    print(f"wrote {out}/energy.csv, energy.png, frames/ ({len(result.rollout.snapshots)} PNG)"
+    _write_summary(out / "replay.json", args, track, sim, result)
+    print(f"wrote {out}/energy.csv, energy.png, replay.json, frames/ ({len(result.rollout.snapshots)} PNG)"
           + (", replay_bag/" if writer is not None else "") + (", replay.mp4" if args.video else ""))
     return 0
+
+
+def _write_summary(path: Path, args: argparse.Namespace, track: ToolTrack, sim: Simulation,
+                   result: ReplayResult) -> None:
+    """What was replayed, how, and how fast, as JSON (for scripts and reports)."""
+    import json  # noqa: PLC0415
+
+    ro = result.rollout
+    summary = {
+        "bag": str(args.bag), "mode": args.mode, "params": args.params,
+        "tool_topic": track.topic, "tool_type": track.msgtype, "child_frame": track.child_frame,
+        "twist_topic": track.twist_topic, "time_source": track.time_source,
+        "samples": track.n, "samples_read": track.n_messages, "skipped": track.skipped,
+        "track_duration_s": track.duration,
+        "particles": sim.model.n_particles, "triangles": sim.model.n_triangles, "dt": sim.params.dt,
+        "steps": result.n_steps, "simulated_s": result.sim_time, "wall_s": result.wall_time,
+        "steps_per_s": result.steps_per_second, "real_time_factor": result.real_time_factor,
+        "real_time_factor_median_step": result.median_real_time_factor,
+        "median_step_ms": 1e3 * float(np.median(result.loop_times)) if result.loop_times.size else None,
+        "energy_final": float(ro.scene_total[-1]) if ro.steps.size else None,
+        "steps_in_contact": int(ro.in_contact.any(axis=1).sum()), "diverged_steps": int(ro.diverged.sum()),
+    }
+    path.write_text(json.dumps(summary, indent=2) + "\n")
 
 
 def write_outputs(out: Path, sim: Simulation, result: ReplayResult, *, video: bool = False, title: str = "") -> None:
