@@ -199,3 +199,19 @@ def test_play_remaps_a_robot_topic_onto_the_tool_topic(tmp_path, ros_client, sta
     ros_client.spin_until(lambda: _recorded_messages(rec) >= 20, 20, rec, "20 remapped messages")
     assert rec.stop(signal.SIGTERM, timeout=20) == 0, _text(rec)
     assert _payloads(out, "/tool/pose") == _payloads(src, "/robot/ee_pose")
+
+
+def test_play_skips_tool_topics_whose_package_is_missing(tmp_path, capsys, ros_env):
+    """tf2_msgs has no PyPI wheel: a default play skips /tf with a note; asking for it is an error."""
+    import importlib.util
+
+    from tissue_sim_ros.cli import main as cli
+
+    if importlib.util.find_spec("tf2_msgs") is not None:
+        pytest.skip("tf2_msgs is installed here")
+    src, _, _ = tool_bag(tmp_path / "in", "tf2_msgs/msg/TFMessage", topic="/tf", n=5)
+    assert cli(["play", str(src), "--topics", "/tf"]) == 2
+    assert "'tf2_msgs' is not installed" in capsys.readouterr().err
+    assert cli(["play", str(src), "--wait", "0"]) == 2
+    captured = capsys.readouterr()
+    assert "skipping /tf" in captured.out and "none of its tool topics" in captured.err

@@ -90,7 +90,18 @@ def run(args: argparse.Namespace) -> int:
     with Bag(args.bag) as bag:
         topics = choose_topics(bag, args.topics)
         types = {t: bag.topics[t] for t in topics}
-        classes = {t: message_class(types[t]) for t in topics}
+        classes = {}
+        for t in topics:
+            try:
+                classes[t] = message_class(types[t])
+            except InputError as exc:
+                if args.topics:  # asked for by name: an error
+                    raise
+                print(f"play: skipping {t}: {exc}", flush=True)
+        topics = [t for t in topics if t in classes]
+        if not topics:
+            raise InputError(f"bag {args.bag!r}: none of its tool topics can be published here "
+                             "(their message packages are missing; see above)")
         messages = load_messages(bag, topics)
     if not messages:
         raise InputError(f"bag {args.bag!r}: topics {', '.join(topics)} hold no messages")

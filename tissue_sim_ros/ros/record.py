@@ -61,8 +61,9 @@ def message_class(msgtype: str) -> Any:
         pkg, kind, name = msgtype.split("/")
         return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
     except (ValueError, ImportError, AttributeError):
-        raise InputError(f"message type {msgtype!r}: its Python package is not installed "
-                         f"(e.g. pip install ros-jazzy-{msgtype.split('/')[0].replace('_', '-')})") from None
+        pkg = msgtype.split("/")[0]
+        raise InputError(f"message type {msgtype!r}: its Python package {pkg!r} is not installed (source a ROS 2 "
+                         f"Jazzy install, or pip install ros-jazzy-{pkg.replace('_', '-')} where PyPI has it)") from None
 
 
 class Recorder:
