@@ -645,6 +645,8 @@ def _choose(bag: Bag, topic: str | None, frame: str | None) -> tuple[str, str, s
                              f"supported: {', '.join(POSE_TYPES)}")
         if msgtype != TF_TYPE:
             return topic, msgtype, None
+        if frame is not None:
+            return topic, msgtype, frame  # checked while reading (a scan of a large /tf only if it is absent)
         cands = [c for c in tool_candidates(bag) if c[0] == topic]
     else:
         cands = tool_candidates(bag)
@@ -737,6 +739,10 @@ def read_tool_track(path: str | Path | Bag, topic: str | None = None, frame: str
                 times.append(t)
                 poses.append((float(x), float(y), yaw))
                 frames.add(frame_id)
+        if not times and msgtype == TF_TYPE and n_messages == 0:
+            frames_there = sorted({c[2] for c in tool_candidates(bag) if c[0] == topic and c[2]})
+            raise InputError(f"bag {str(bag.path)!r}: no TF child frame {child!r} on {topic}; TF child frames "
+                             f"there: {', '.join(frames_there) or 'none'}")
         if not times:
             raise InputError(f"bag {str(bag.path)!r}: topic {topic}"
                              + (f" frame {child!r}" if child else "")
