@@ -18,14 +18,19 @@ trajectory and, over the steps with the tool in contact, reports the contact
 model's cost (``timings['contact']``) against the whole ``Simulation.step``.
 
 Timings are medians over ``--steps`` steps after two warm-up steps (the first
-call compiles or loads the numba cache). The machine's other load shows up as
-spread, not in the median. Writes ``solver.csv`` and ``solver.png``.
+call compiles or loads the numba cache). Other processes on the machine slow
+every method down, the multi-threaded ones most (a thread waiting at a
+barrier for a descheduled partner): the 1-minute load average when each row
+was measured is written to the CSV (``load_1min``) and the range is printed,
+so numbers from a busy machine can be recognised. Writes ``solver.csv`` and
+``solver.png``.
 """
 from __future__ import annotations
 
 import argparse
 import csv
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -81,7 +86,7 @@ METHODS = (
 
 COLUMNS = ("scene", "particles", "constraints", "method", "iterations", "substeps", "threads", "steps_timed",
            "ms_per_step", "steps_per_s", "ns_per_projection", "realtime_factor", "x_numpy",
-           "contact_ms", "total_ms", "contact_share")
+           "contact_ms", "total_ms", "contact_share", "load_1min")
 
 
 def strip_for(n_target: int) -> TissueMesh:
@@ -154,6 +159,7 @@ def paper_scene_rows(methods: list[Method], iterations: int, steps: int, progres
         med = float(np.median(solve))
         rows.append(dict(
             scene=f"paper ({sim.params.contact_model} contact)", particles=sim.model.n_particles,
+            load_1min=os.getloadavg()[0],
             constraints=sim.model.n_edges + sim.model.n_triangles, method=method.name,
             iterations=sim.params.iterations, substeps=sim.params.substeps, threads=_threads(sim.solver),
             steps_timed=len(solve), ms_per_step=1e3 * med, steps_per_s=1.0 / med, ns_per_projection=1e9 * med / n_proj,
@@ -202,7 +208,7 @@ def run(args: argparse.Namespace) -> int:
             progress.set_postfix_str(f"{model.n_particles} particles, {method.name}")
             med, n_proj, threads = time_solver(model, method, n_steps)
             progress.update(1)
-            size_rows.append(dict(scene="strip", particles=model.n_particles,
+            size_rows.append(dict(scene="strip", particles=model.n_particles, load_1min=os.getloadavg()[0],
                                   constraints=model.n_edges + model.n_triangles, method=method.name,
                                   iterations=model.params.iterations, substeps=model.params.substeps, threads=threads,
                                   steps_timed=n_steps, ms_per_step=1e3 * med, steps_per_s=1.0 / med,
@@ -260,7 +266,13 @@ def print_summary(rows: list[dict[str, Any]]) -> None:
     strip = [r for r in rows if r["scene"] == "strip"]
     by = {(r["particles"], r["method"]): r for r in strip}
     sizes = sorted({r["particles"] for r in strip})
-    print("\nsummary (medians of this run):")
+    loads = [r["load_1min"] for r in rows if isinstance(r.get("load_1min"), float)] or [math.nan]
+    try:
+        layer = numba.threading_layer()
+    except ValueError:  # no parallel region has run
+        layer = "unused"
+    print(f"\nsummary (medians of this run; 1-min load average {min(loads):.1f}-{max(loads):.1f} "
+          f"on {os.cpu_count()} CPUs, {numba.get_num_threads()} numba threads, layer {layer}):")
     for n in sizes:
         serial, par = by.get((n, "xpbd_gs")), by.get((n, "xpbd_gs_parallel"))
         par_c = by.get((n, "xpbd_gs_par_colour"))
