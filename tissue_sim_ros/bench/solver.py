@@ -296,14 +296,17 @@ def plot(path: Path, rows: list[dict[str, Any]]) -> None:
 
     strip = [r for r in rows if r["scene"] == "strip"]
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(13, 5))
-    for m in METHODS:
+    colours = plt.get_cmap("tab20").colors
+    markers = "osD^v<>ph*X"
+    for k, m in enumerate(METHODS):
         rs = sorted((r for r in strip if r["method"] == m.name), key=lambda r: r["particles"])
         if not rs:
             continue
         n = [r["particles"] for r in rs]
-        style = "--" if m.numpy else "-"
-        ax1.plot(n, [r["ns_per_projection"] for r in rs], style, marker="o", label=m.label)
-        ax2.plot(n, [r["ms_per_step"] for r in rs], style, marker="o", label=m.label)
+        style = dict(ls="--" if m.numpy else "-", marker=markers[k % len(markers)], color=colours[(2 * k) % 20 + (2 * k) // 20],
+                     label=m.label)
+        ax1.plot(n, [r["ns_per_projection"] for r in rs], **style)
+        ax2.plot(n, [r["ms_per_step"] for r in rs], **style)
     ax2.axhline(1e3 * DT, color="k", lw=0.8, ls=":", label="real time (dt = 10 ms)")
     for ax in (ax1, ax2):
         ax.set_xscale("log")
@@ -314,7 +317,8 @@ def plot(path: Path, rows: list[dict[str, Any]]) -> None:
     ax2.set_yscale("log")
     ax2.set_ylabel("ms per step (median)")
     ax1.set_title("cost per projection")
-    ax2.set_title(f"cost per step ({numba.get_num_threads()} threads available)")
+    loads = [r["load_1min"] for r in strip if isinstance(r.get("load_1min"), float)] or [math.nan]
+    ax2.set_title(f"cost per step ({numba.get_num_threads()} threads; load average {min(loads):.1f}-{max(loads):.1f})")
     ax2.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
