@@ -204,3 +204,15 @@ def test_twist_with_another_stamp_is_not_used_per_message(tmp_path):
     assert (track.twist[:, 0] == 5.0).all()  # held for fixed-rate use
     result = replay(build_simulation(params), track, progress=False)
     np.testing.assert_array_equal(result.rollout.scene_total, _direct_energy(params, np.array(poses)))
+
+
+def test_vertex_strain_operator_equals_the_core_function(tmp_path):
+    from tissue_sim_ros.core.strain import vertex_strain
+    from tissue_sim_ros.ros.replay import VertexStrain
+
+    sim = build_simulation(small_params(tmp_path))
+    rng = np.random.default_rng(5)
+    op = VertexStrain(sim.model)
+    for scale in (0.0, 1e-3, 2e-2):
+        x = sim.model.particle_q0 + scale * rng.normal(size=sim.model.particle_q0.shape)
+        np.testing.assert_allclose(op(x), vertex_strain(sim.model, x), rtol=1e-12, atol=1e-15)
