@@ -155,7 +155,7 @@ def test_offline_replay_equals_node_in_lock_step(tmp_path, ros_client, start_pro
         history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE))
     node = start_process(["tissue_sim_node", "--ros-args", "--params-file", str(params), "-p", "lock_step:=true"],
                          name="node")
-    ros_client.wait_for_publisher("/tissue/energy", timeout=60, process=node)
+    ros_client.wait_for_publisher("/tissue/energy", timeout=120, process=node)
     ros_client.spin_until(lambda: energy.sub.get_publisher_count() > 0, 30, node, "matching /tissue/energy")
     # the recorder with its default topics: the node's outputs and the tool input
     out = tmp_path / "rec"
@@ -164,7 +164,7 @@ def test_offline_replay_equals_node_in_lock_step(tmp_path, ros_client, start_pro
                           30, rec, "the recorder to subscribe to the node's topics")
     # the recorder subscribes to tool/pose once play publishes it: wait for both subscribers
     play = start_process(["tissue-sim", "play", str(src), "--wait", "30", "--min-subscribers", "2"], name="play")
-    ros_client.spin_until(lambda: len(energy.messages) >= 40, 60, node, "40 energy messages from the node")
+    ros_client.spin_until(lambda: len(energy.messages) >= 40, 180, node, "40 energy messages from the node")
     assert play.wait(timeout=30) == 0, _text(play)
     ros_client.spin_for(0.3)  # nothing more may come: one step per pose
     live = np.array([m.decode_float64(raw) for raw in energy.messages])
