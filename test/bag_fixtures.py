@@ -47,6 +47,16 @@ def tool_msg(msgtype: str, t_ns: int, x: float, y: float, yaw: float, child: str
         return pose(x, y, yaw)
     if msgtype == "geometry_msgs/msg/TransformStamped":
         return transform_stamped(t_ns, "world", child, x, y, yaw)
+    if msgtype == "geometry_msgs/msg/PoseWithCovarianceStamped":
+        pwc = T["geometry_msgs/msg/PoseWithCovariance"](pose=pose(x, y, yaw), covariance=np.zeros(36))
+        return T[msgtype](header=header(t_ns), pose=pwc)
+    if msgtype == "nav_msgs/msg/Odometry":
+        v3 = T["geometry_msgs/msg/Vector3"]
+        twc = T["geometry_msgs/msg/TwistWithCovariance"](
+            twist=T["geometry_msgs/msg/Twist"](linear=v3(x=0.0, y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=0.0)),
+            covariance=np.zeros(36))
+        pwc = T["geometry_msgs/msg/PoseWithCovariance"](pose=pose(x, y, yaw), covariance=np.zeros(36))
+        return T[msgtype](header=header(t_ns, "odom"), child_frame_id=child, pose=pwc, twist=twc)
     if msgtype == "tf2_msgs/msg/TFMessage":
         # a real robot's /tf: other links in the same message, the tool among them
         return T[msgtype](transforms=[transform_stamped(t_ns, "world", "base_link", 0.1, 0.2, 0.3),

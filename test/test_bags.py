@@ -21,7 +21,8 @@ from tissue_sim_ros.ros.bags import (POSE_TYPES, STORAGES, Bag, BagWriter, read_
 from bag_fixtures import T, TS, tool_bag, tool_msg, twist_msg, write_bag
 
 POSE_MSG_TYPES = ["geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/Pose",
-                  "geometry_msgs/msg/TransformStamped", "tf2_msgs/msg/TFMessage"]
+                  "geometry_msgs/msg/TransformStamped", "tf2_msgs/msg/TFMessage",
+                  "geometry_msgs/msg/PoseWithCovarianceStamped", "nav_msgs/msg/Odometry"]
 
 
 def _payloads(n: int = 25) -> list[tuple[str, str, int, bytes]]:
@@ -368,7 +369,7 @@ def test_corrupt_payload_is_an_input_error(tmp_path):
 
 def test_typestore_is_jazzy():
     assert "tf2_msgs/msg/TFMessage" in typestore().fielddefs
-    assert set(POSE_MSG_TYPES) <= set(POSE_TYPES)
+    assert set(POSE_MSG_TYPES) == set(POSE_TYPES)
 
 
 def test_signals_are_held_during_a_write_and_delivered_after():

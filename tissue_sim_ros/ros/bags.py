@@ -1,7 +1,8 @@
 """rosbag2 bags with the ``rosbags`` library: write, read, and tool trajectories from bags.
 
-No rclpy here: ``tissue-sim replay`` uses this module offline, and the ROS node
-uses :class:`BagWriter` for its ``record_path`` parameter. Bags are ordinary
+No rclpy here: ``tissue-sim replay`` uses this module offline, ``tissue-sim
+record`` and the ROS node write with :class:`BagWriter` (thread-safe, so an
+executor's callbacks can call it). Bags are ordinary
 rosbag2 bags (a directory with ``metadata.yaml`` and one ``.mcap`` or ``.db3``
 file) with the Jazzy type names, message definitions and type hashes, so they
 open in ``ros2 bag``, Foxglove and PlotJuggler.
@@ -13,10 +14,9 @@ Writing
     ``flush_period`` seconds (MCAP: closes the pending chunk; sqlite3:
     commits), so a crash loses at most that much, and :func:`recover_bag`
     (``tissue-sim record --recover``) turns what an interrupted recording
-    wrote into a closed bag. ``close()`` is
-    idempotent, serialised by a lock, and SIGINT/SIGTERM are held back while a
-    record or the bag's index is being written, so an interrupt never leaves a
-    half-written record.
+    wrote into a closed bag. ``close()`` is idempotent, serialised by a lock,
+    and SIGINT/SIGTERM are held back while a record or the bag's index is
+    being written, so an interrupt never leaves a half-written record.
 
 Reading
     :class:`Bag` opens a bag (directory, ``.mcap`` or ``.db3``) and turns every
