@@ -1,17 +1,17 @@
 """Tool trajectories of the paper's experiments on the default scene (config/tissue.png).
 
-The default scene is 1 m x 1 m: an upper tissue hanging from y = 0.98 m with
-its wavy lower edge near y = 0.62-0.66 m, a lower tissue resting on y = 0.02 m
-with its wavy upper edge near y = 0.36-0.40 m, and a gap between them where
-the tool enters from the left.
+The default scene is 1 m x 1 m: an upper tissue hanging from y = 0.984 m with
+its wavy lower edge at y = 0.620-0.674 m, a lower tissue resting on y = 0.014 m
+with its wavy upper edge at y = 0.344-0.398 m (0.396 m at x = 0.5-0.6), and a
+clear channel y = 0.398-0.620 m between them where the tool enters from the left.
 
 * ``experiment_a``: the authors' 0.8 m x 5 mm box, tip first, moves down and to
   the right at 30 degrees below horizontal at 0.001 m per step (the authors'
-  speed) from the gap toward the lower tissue; contact begins near step 130,
-  and it pushes the tissue for the rest of the 300 steps (the paper's snapshots
-  are at steps 150, 220, 270).
-* ``experiment_b_*``: insertions from two angles toward one target point just
-  inside the lower tissue's surface; the tool is a 0.3 m box so that the
+  speed) from the gap toward the lower tissue; it comes within alpha = 0.025 m
+  of the surface near step 145-150 and reaches it near step 190, then pushes it
+  for the rest of the 300 steps (the paper's snapshots are at steps 150, 220, 270).
+* ``experiment_b_*``: insertions from two angles toward one target point 16 mm
+  inside the lower tissue's surface (0.396 m at x = 0.55); the tool is a 0.3 m box so that the
   steeper insertion fits in the gap without touching the upper tissue.
 """
 from __future__ import annotations
@@ -30,7 +30,7 @@ A_STEPS = 300
 A_SNAPSHOTS = (0, 150, 220, 270)
 
 #: Experiment b: the common target of the tool tip [m], insertion distance [m], speed [m/step], angles [deg].
-B_TARGET = (0.55, 0.345)
+B_TARGET = (0.55, 0.38)
 B_DISTANCE = 0.22
 B_SPEED = 0.001
 B_ANGLES_DEG = (-10.0, -30.0)
