@@ -246,7 +246,7 @@ def reference_run(scene: Scene, progress: Callable[[], None] | None = None) -> t
 
 def measure_setting(scene: Scene, setting: Setting, ref_positions: Sequence[np.ndarray] | None,
                     per_step_every: int = 1, progress: Callable[[], None] | None = None,
-                    max_newton: int = 60) -> dict[str, Any]:
+                    max_newton: int = 60, solver_options: dict[str, Any] | None = None) -> dict[str, Any]:
     """Run one setting along the scene's trajectory and measure its time and errors.
 
     Parameters
@@ -257,6 +257,8 @@ def measure_setting(scene: Scene, setting: Setting, ref_positions: Sequence[np.n
         The reference's own run (:func:`reference_run`) for the accumulated error.
     per_step_every : int
         Measure the per-step error at every this many steps (each costs a Newton solve); 0: never.
+    solver_options : dict, optional
+        Passed to the Solver (e.g. ``{"parallel": False}``).
     max_newton : int
         Newton iterations allowed per per-step reference; a step whose reference has not converged
         (relative gradient > 1e-6: far-off states of the paper's PBD on fine meshes) is left out.
@@ -266,7 +268,7 @@ def measure_setting(scene: Scene, setting: Setting, ref_positions: Sequence[np.n
     dict: one CSV row (scene, spacing, particles, dt, method, count, ms_per_step, err_step_median,
     err_step_max, err_accum_final, err_accum_max, diverged).
     """
-    stepper = Stepper(scene, setting)
+    stepper = Stepper(scene, setting, solver_options)
     model = stepper.model
     dt = model.params.dt
     state = model.state()
@@ -490,6 +492,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tolerance", type=float, action="append",
                         help="error tolerance to pick the cheapest setting for (repeatable; default 0.3, 0.1, 0.01, 1e-3)")
     parser.add_argument("--steps", type=int, default=None, help="trajectory length in steps (default 30; quick 4)")
+    parser.add_argument("--parallel", action="store_true",
+                        help="let the solver use its default threading (coloured Gauss-Seidel on all threads from "
+                             "4000 particles); default: one thread, so times compare across methods and do not "
+                             "collapse when other work shares the cores")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -556,7 +562,8 @@ def run(args: argparse.Namespace) -> int:
                 # the paper's PBD drifts far from the physical state on fine meshes, where one exact
                 # step from its state takes Newton minutes: there only its accumulated error is measured
                 skip = fine_scene.get(id(scene), True) and setting.method.startswith("pbd")
-                row = measure_setting(scene, setting, ref_runs[id(scene)], 0 if skip else every, bar.update)
+                row = measure_setting(scene, setting, ref_runs[id(scene)], 0 if skip else every, bar.update,
+                                      solver_options=None if args.parallel else {"parallel": False})
                 # the exact solve's time on the same scene: the accuracy end of the front
                 row["newton_ms"] = newton_ms[id(scene)]
                 rows.append(row)
