@@ -6,8 +6,9 @@ and the Jazzy message definitions, so the bag opens in ``ros2 bag``, Foxglove
 and PlotJuggler. Topics: the node's tool input and outputs (:data:`DEFAULT_TOPICS`,
 resolved in ``--namespace``) plus anything else under ``tissue/`` and
 ``tool/`` there; ``--topics`` names them explicitly, ``--all`` takes every
-topic in the graph. Topics that appear later (a node started after the
-recorder) are picked up as they show up.
+topic in the graph. The tool inputs are subscribed at once (their types are
+known), the rest as their publishers show up (a node started after the
+recorder is picked up then).
 
 SIGINT (Ctrl-C) and SIGTERM end the recording and close the bag properly;
 ``--duration`` stops after that many seconds. The bag is flushed to disk every
@@ -42,6 +43,9 @@ DEFAULT_TOPICS = (
     "tool/wrench",
 )
 _PREFIXES = ("tissue/", "tool/")
+#: The node's inputs, whose types are known before any publisher shows up: subscribed at once (reliable, which
+#: a reliable driver matches at discovery), so the first poses of a driver that starts right away are recorded.
+KNOWN_INPUTS = {"tool/pose": "geometry_msgs/msg/PoseStamped", "tool/twist": "geometry_msgs/msg/TwistStamped"}
 _IGNORED = ("/rosout", "/parameter_events")
 
 
@@ -88,7 +92,8 @@ class Recorder:
         self.prefixes = prefixes
         self.subscriptions: dict[str, Any] = {}
         self.skipped_types: dict[str, str] = {}
-        self._lock = threading.Lock()
+        self._provisional: dict[str, str] = {}
+        """Topics subscribed before any publisher was seen, with the type assumed."""
 
     def _want(self, topic: str) -> bool:
         if self.wanted is None:
@@ -105,10 +110,42 @@ class Recorder:
                           reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
                           durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
 
+    def presubscribe(self, topic: str, msgtype: str) -> None:
+        """Subscribe to ``topic`` as ``msgtype`` now (reliable); :meth:`discover` adapts it to its publishers."""
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: PLC0415
+
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+        self.writer.add_topic(topic, msgtype)
+        self.subscriptions[topic] = self.node.create_subscription(
+            message_class(msgtype), topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True)
+        self._provisional[topic] = msgtype
+
+    def _settle(self, topic: str, types: list[str]) -> None:
+        """A provisional subscription's publishers appeared: keep it, or re-subscribe best effort / warn on type."""
+        from rclpy.qos import ReliabilityPolicy  # noqa: PLC0415
+
+        infos = self.node.get_publishers_info_by_topic(topic)
+        if not infos:
+            return
+        msgtype = self._provisional.pop(topic)
+        if msgtype not in types:
+            self.node.get_logger().warning(f"{topic} is published as {', '.join(types)}, not {msgtype}: not recorded")
+            return
+        if any(i.qos_profile.reliability != ReliabilityPolicy.RELIABLE for i in infos):
+            # a best-effort publisher does not match a reliable subscription: follow it
+            self.node.destroy_subscription(self.subscriptions[topic])
+            self.subscriptions[topic] = self.node.create_subscription(
+                message_class(msgtype), topic, lambda data, t=topic: self._on_message(t, data), self._qos(topic),
+                raw=True)
+
     def discover(self) -> list[str]:
         """Subscribe to wanted topics that appeared in the graph since the last call; returns the new ones."""
         new = []
         for topic, types in self.node.get_topic_names_and_types():
+            if topic in self._provisional:
+                self._settle(topic, types)
+                continue
             if topic in self.subscriptions or topic in self.skipped_types or not self._want(topic):
                 continue
             if not self.node.get_publishers_info_by_topic(topic):
@@ -196,6 +233,11 @@ def run(args: argparse.Namespace) -> int:
             wanted = {resolve(t, args.namespace) for t in DEFAULT_TOPICS}
             prefixes = tuple(resolve(p, args.namespace) for p in _PREFIXES)
         recorder = Recorder(node, writer, wanted, prefixes)
+        for name, msgtype in KNOWN_INPUTS.items():
+            topic = resolve(name, args.namespace)
+            if wanted is not None and topic in wanted:
+                recorder.presubscribe(topic, msgtype)
+                print(f"  + {topic} ({msgtype})", flush=True)
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         print(f"recording to {output} ({args.storage}); Ctrl-C to stop", flush=True)
