@@ -215,3 +215,25 @@ def test_play_skips_tool_topics_whose_package_is_missing(tmp_path, capsys, ros_e
     assert cli(["play", str(src), "--wait", "0"]) == 2
     captured = capsys.readouterr()
     assert "skipping /tf" in captured.out and "none of its tool topics" in captured.err
+
+
+def test_recorder_follows_a_best_effort_tool_publisher(tmp_path, ros_client, start_process):
+    """The recorder subscribes to tool/pose at once (reliable); a best-effort publisher makes it re-subscribe."""
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    out = tmp_path / "rec"
+    rec = start_process(["tissue-sim", "record", "-o", str(out)], name="record")
+    ros_client.spin_until(lambda: "+ /tool/pose" in _text(rec), 30, rec, "the recorder to subscribe to /tool/pose")
+    pub = ros_client.node.create_publisher(PoseStamped, "/tool/pose", QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=50, reliability=ReliabilityPolicy.BEST_EFFORT))
+    try:
+        ros_client.wait_for_subscriber(pub, timeout=30, process=rec)  # matches only once it went best effort
+        sent = [m.encode_pose_stamped((1, i), "world", 0.01 * i, 0.0, 0.0) for i in range(20)]
+        for raw in sent:
+            pub.publish(raw)
+        ros_client.spin_until(lambda: _recorded_messages(rec) >= 20, 20, rec, "20 best-effort poses recorded")
+    finally:
+        ros_client.node.destroy_publisher(pub)
+    assert rec.stop(signal.SIGINT, timeout=20) == 0, _text(rec)
+    assert _payloads(out, "/tool/pose") == sent
