@@ -83,6 +83,9 @@ def test_cli_outputs(tmp_path, capsys):
     assert table.shape == (25,)
     with Bag(out / "replay_bag") as bag:
         assert bag.topics == OUTPUT_TOPICS
+        meta = bag.custom_data
+        assert meta["tissue_sim.mode"] == "per-message" and meta["tissue_sim.tool_topic"] == "/tool/pose"
+        assert json.loads(meta["tissue_sim.params"])["mesh_file"] == small_params(tmp_path)["mesh_file"]
         assert all(n == 25 for n in bag.message_counts.values())
         got = list(bag.messages(["/tool/pose", "/tissue/energy", "/tissue/points"]))
     # stamped with the input's times, the pose the step used, the energy of the CSV

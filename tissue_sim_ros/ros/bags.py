@@ -210,6 +210,14 @@ class BagWriter:
     def closed(self) -> bool:
         return self._closed
 
+    def set_custom_data(self, key: str, value: str) -> None:
+        """A string in the bag's ``metadata.yaml`` ``custom_data`` (rosbag2's own field; written at close)."""
+        if not isinstance(value, str):
+            raise InputError(f"custom_data {key!r}: expected a string value, got {type(value).__name__}")
+        with self._lock:
+            self._check_open()
+            self._writer.set_custom_data(key, value)
+
     # -- messages
     def write(self, name: str, data: bytes | bytearray | memoryview | np.ndarray, t_ns: int) -> None:
         """Write one serialized (CDR, with encapsulation header) message at receive time ``t_ns`` [ns].
@@ -445,6 +453,12 @@ class Bag:
     @property
     def message_count(self) -> int:
         return int(self._reader.message_count)
+
+    @property
+    def custom_data(self) -> dict[str, str]:
+        """The ``custom_data`` of ``metadata.yaml`` (empty for a bare storage file)."""
+        meta = getattr(self._reader.storage, "metadata", None)
+        return dict(getattr(meta, "custom", None) or {})
 
     def describe_topics(self) -> str:
         """The bag's topics with types and counts, for error messages."""

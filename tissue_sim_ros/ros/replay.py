@@ -361,6 +361,17 @@ def run(args: argparse.Namespace) -> int:
 
     out.mkdir(parents=True, exist_ok=True)
     writer = None if args.no_bag else BagWriter(bag_out, args.storage)
+    if writer is not None:
+        import json  # noqa: PLC0415
+
+        from ..core.scene import default_params  # noqa: PLC0415
+
+        # what made this bag, so it can be reproduced from the bag alone
+        writer.set_custom_data("tissue_sim.source_bag", str(args.bag))
+        writer.set_custom_data("tissue_sim.mode", args.mode)
+        writer.set_custom_data("tissue_sim.tool_topic", track.topic + (f" frame {track.child_frame}"
+                                                                        if track.child_frame else ""))
+        writer.set_custom_data("tissue_sim.params", json.dumps({**default_params(), **params}, default=str))
     try:
         sink = ReplayBagSink(writer, sim, points_every=args.points_every) if writer is not None else None
         result = replay(sim, track, args.mode, sink=sink, snapshot_every=frame_every, progress=not args.no_progress)
