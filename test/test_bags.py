@@ -88,6 +88,24 @@ def test_mcap_opens_in_the_reference_mcap_reader(tmp_path):
     assert sorted(got) == sorted((tp, t, d) for tp, _, t, d in msgs)
 
 
+@pytest.mark.parametrize("storage", STORAGES)
+def test_offered_qos_is_stored(tmp_path, storage):
+    from rosbags.interfaces import QosDurability, QosReliability
+
+    with BagWriter(tmp_path / "bag", storage) as w:
+        w.add_topic("/tissue/rest_mesh", "visualization_msgs/msg/MarkerArray", reliable=True, transient_local=True,
+                    depth=1)
+        w.add_topic("/tool/pose", "geometry_msgs/msg/PoseStamped", reliable=False)
+        w.add_topic("/e", "std_msgs/msg/Float64")
+        w.write("/e", m.encode_float64(1.0), 1)
+    with Bag(tmp_path / "bag") as b:
+        qos = {c.topic: c.ext.offered_qos_profiles for c in b.connections}
+    assert qos["/tissue/rest_mesh"][0].durability == QosDurability.TRANSIENT_LOCAL
+    assert qos["/tissue/rest_mesh"][0].reliability == QosReliability.RELIABLE and qos["/tissue/rest_mesh"][0].depth == 1
+    assert qos["/tool/pose"][0].reliability == QosReliability.BEST_EFFORT
+    assert qos["/e"] == []
+
+
 def test_sqlite3_bag_has_rosbag2_schema(tmp_path):
     with BagWriter(tmp_path / "bag", "sqlite3") as w:
         w.add_topic("/tissue/energy", "std_msgs/msg/Float64")

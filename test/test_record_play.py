@@ -177,6 +177,10 @@ def test_offline_replay_equals_node_in_lock_step(tmp_path, ros_client, start_pro
         types = bag.topics
         counts = bag.message_counts
         recorded = [m.decode_float64(raw) for _, _, _, raw in bag.messages(["/tissue/energy"])]
+        offered = {c.topic: c.ext.offered_qos_profiles for c in bag.connections}
+    # the publishers' QoS is kept for ros2 bag play: the rest mesh stays latched
+    assert offered["/tissue/rest_mesh"][0].durability.name == "TRANSIENT_LOCAL"
+    assert offered["/tissue/energy"][0].reliability.name == "RELIABLE"
     assert types["/tissue/markers"] == "visualization_msgs/msg/MarkerArray"
     assert types["/tissue/points"] == "sensor_msgs/msg/PointCloud2"
     assert types["/tissue/rest_mesh"] == "visualization_msgs/msg/MarkerArray"  # latched: recorded though sent before

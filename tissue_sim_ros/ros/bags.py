@@ -175,11 +175,16 @@ class BagWriter:
         self._closed = False
 
     # -- topics
-    def add_topic(self, name: str, msgtype: str) -> None:
+    def add_topic(self, name: str, msgtype: str, *, reliable: bool | None = None, transient_local: bool = False,
+                  depth: int = 10) -> None:
         """Declare a topic with its ROS 2 type (``pkg/msg/Type``), definition and hash from the Jazzy typestore.
 
         Declaring the same topic again with the same type is a no-op; with
         another type it is an InputError (one type per topic, as in rosbag2).
+
+        ``reliable`` (None: not recorded), ``transient_local`` and ``depth``
+        are stored as the topic's offered QoS, which ``ros2 bag play`` uses to
+        publish it again (a latched topic stays latched).
         """
         store = typestore()
         if msgtype not in store.fielddefs:
@@ -192,8 +197,10 @@ class BagWriter:
                 if existing.msgtype != msgtype:
                     raise InputError(f"topic {name!r} was added as {existing.msgtype}, not {msgtype}")
                 return
+            qos = () if reliable is None else (_qos_profile(reliable, transient_local, depth),)
             with _signals_held():
-                self._connections[name] = self._writer.add_connection(name, msgtype, typestore=store)
+                self._connections[name] = self._writer.add_connection(name, msgtype, typestore=store,
+                                                                      offered_qos_profiles=qos)
             self._counts[name] = 0
 
     @property
@@ -314,6 +321,19 @@ class BagWriter:
         with contextlib.suppress(Exception):
             if not self._closed:
                 self.close()
+
+
+def _qos_profile(reliable: bool, transient_local: bool, depth: int) -> Any:
+    """A rosbags Qos record (durations 0 = unspecified, i.e. the RMW default: infinite)."""
+    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,  # noqa: PLC0415
+                                    QosReliability, QosTime)
+
+    zero = QosTime(0, 0)
+    return Qos(history=QosHistory.KEEP_LAST, depth=int(depth),
+               reliability=QosReliability.RELIABLE if reliable else QosReliability.BEST_EFFORT,
+               durability=QosDurability.TRANSIENT_LOCAL if transient_local else QosDurability.VOLATILE,
+               deadline=zero, lifespan=zero, liveliness=QosLiveliness.AUTOMATIC, liveliness_lease_duration=zero,
+               avoid_ros_namespace_conventions=False)
 
 
 def recover_mcap(src: str | Path, dst: str | Path) -> int:

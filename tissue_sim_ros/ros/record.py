@@ -141,6 +141,8 @@ class Recorder:
 
     def discover(self) -> list[str]:
         """Subscribe to wanted topics that appeared in the graph since the last call; returns the new ones."""
+        from rclpy.qos import DurabilityPolicy, ReliabilityPolicy  # noqa: PLC0415
+
         new = []
         for topic, types in self.node.get_topic_names_and_types():
             if topic in self._provisional:
@@ -161,9 +163,11 @@ class Recorder:
                 self.skipped_types[topic] = msgtype
                 self.node.get_logger().warning(f"not recording {topic}: {exc}")
                 continue
-            self.writer.add_topic(topic, msgtype)
+            qos = self._qos(topic)
+            self.writer.add_topic(topic, msgtype, reliable=qos.reliability == ReliabilityPolicy.RELIABLE,
+                                  transient_local=qos.durability == DurabilityPolicy.TRANSIENT_LOCAL)
             self.subscriptions[topic] = self.node.create_subscription(
-                cls, topic, lambda data, t=topic: self._on_message(t, data), self._qos(topic), raw=True)
+                cls, topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True)
             new.append(topic)
         return new
 
