@@ -417,25 +417,14 @@ def paper_displacement(x, body_particles, q, d_star, v, r):
     return np.array(idx, dtype=np.int64), np.array(dx).reshape(-1, 2)
 
 
-def wavefront_levels(indices, n_particles):
-    """level(c) = 1 + max(level(d) for earlier d sharing a particle with c), 0 if none."""
+def wavefront_levels(indices, n_particles, block):
+    """Per block of constraints: level(c) = 1 + max(level(d) for earlier d of the block sharing a particle), else 0."""
     level = np.zeros(len(indices), dtype=np.int64)
     for m, ps in enumerate(indices):
-        earlier = [level[d] for d in range(m) if set(indices[d]) & set(ps)]
+        first = (m // block) * block
+        earlier = [level[d] for d in range(first, m) if set(indices[d]) & set(ps)]
         level[m] = max(earlier) + 1 if earlier else 0
     return level, int(level.max()) + 1 if len(indices) else 0
-
-
-def body_nearest(sdf, particle_body, n_bodies):
-    """Per body: (smallest signed distance, its particle, first on ties); (inf, -1) for an empty body."""
-    out_min = np.full(n_bodies, np.inf)
-    out_arg = np.full(n_bodies, -1)
-    for b in range(n_bodies):
-        idx = np.flatnonzero(particle_body == b)
-        if idx.size:
-            out_arg[b] = idx[np.argmin(sdf[idx])]
-            out_min[b] = sdf[out_arg[b]]
-    return out_min, out_arg
 
 
 def count_inverted(x, tris):

@@ -281,13 +281,15 @@ def test_wavefront_levels_and_schedule_reproduce_mesh_order_exactly(seed: int) -
 
     s = random_scene(seed, n=40, n_edges=120, n_tris=50)
     for idx in (s["edges"], s["tris"]):
-        level = np.zeros(len(idx), np.int64)
-        n_lv = kernels.wavefront_levels(idx, len(s["x"]), level)
-        ref, ref_n = naive.wavefront_levels(idx, len(s["x"]))
-        np.testing.assert_array_equal(level, ref)
-        assert n_lv == ref_n
+        for block in (1, 16, 1000):
+            level = np.zeros(len(idx), np.int64)
+            n_lv = kernels.wavefront_levels(idx, len(s["x"]), block, level)
+            ref, ref_n = naive.wavefront_levels(idx, len(s["x"]), block)
+            np.testing.assert_array_equal(level, ref)
+            assert n_lv == ref_n
     # a sweep in the wavefront schedule equals the mesh-order sweep bit for bit
-    pe, pt = wavefront_order(s["edges"], len(s["x"])), wavefront_order(s["tris"], len(s["x"]))
+    block = 32 if seed else 10_000
+    pe, pt = wavefront_order(s["edges"], len(s["x"]), block), wavefront_order(s["tris"], len(s["x"]), block)
     assert not (pe == np.arange(len(pe))).all()
     x_mesh, x_wave = s["x"].copy(), s["x"].copy()
     lam_mesh, lam_wave = np.zeros(len(pe)), np.zeros(len(pe))

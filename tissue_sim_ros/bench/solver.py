@@ -303,8 +303,8 @@ def plot(path: Path, rows: list[dict[str, Any]]) -> None:
         if not rs:
             continue
         n = [r["particles"] for r in rs]
-        style = dict(ls="--" if m.numpy else "-", marker=markers[k % len(markers)], color=colours[(2 * k) % 20 + (2 * k) // 20],
-                     label=m.label)
+        colour = colours[(2 * k) % 20 + (2 * k) // 20]  # dark shades first, then light ones
+        style = dict(ls="--" if m.numpy else "-", marker=markers[k % len(markers)], color=colour, label=m.label)
         ax1.plot(n, [r["ns_per_projection"] for r in rs], **style)
         ax2.plot(n, [r["ms_per_step"] for r in rs], **style)
     ax2.axhline(1e3 * DT, color="k", lw=0.8, ls=":", label="real time (dt = 10 ms)")

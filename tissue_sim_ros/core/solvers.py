@@ -47,6 +47,9 @@ from .model import Model, State
 PARALLEL_MIN_PARTICLES = 4000
 
 ORDERS = ("mesh", "colour", "stored")
+#: Constraints per wavefront block: a block's particles stay in the L1 cache
+#: (see kernels.wavefront_levels; chosen with ``tissue-sim bench solver``).
+WAVEFRONT_BLOCK = 4096
 PARALLEL_MODES = ("partition", "colour")
 JACOBI_RELAXATIONS = ("stiffness", "uniform")
 
@@ -121,26 +124,31 @@ def partition_constraints(indices: np.ndarray, particle_part: np.ndarray, n_part
         return np.zeros(0, dtype=np.int64), np.zeros(n_parts + 2, dtype=np.int64)
     parts = particle_part[indices]
     group = np.where((parts == parts[:, :1]).all(axis=1), parts[:, 0], n_parts)
-    level = np.zeros(m, dtype=np.int64)
-    kernels.wavefront_levels(np.ascontiguousarray(indices, dtype=np.int32), particle_part.shape[0], level)
-    order = np.lexsort((level, group))
+    order = np.empty(m, dtype=np.int64)
+    start = 0
+    for g in range(n_parts + 1):  # mesh order within each group, then its wavefront schedule
+        members = np.flatnonzero(group == g)
+        order[start:start + members.size] = members[wavefront_order(indices[members], particle_part.shape[0])]
+        start += members.size
     offsets = np.zeros(n_parts + 2, dtype=np.int64)
     offsets[1:] = np.cumsum(np.bincount(group, minlength=n_parts + 1))
     return order, offsets
 
 
-def wavefront_order(indices: np.ndarray, n_particles: int) -> np.ndarray:
+def wavefront_order(indices: np.ndarray, n_particles: int, block: int | None = None) -> np.ndarray:
     """A permutation of the constraints that sweeps to the same result as mesh order, bit for bit.
 
-    Stable sort by :func:`~tissue_sim_ros.core.kernels.wavefront_levels`: the
-    constraints at each particle keep their mesh order, while neighbours in the
-    new order share no particle and overlap in the CPU's pipeline.
+    Stable sort by block, then by :func:`~tissue_sim_ros.core.kernels.wavefront_levels`
+    within the block: the constraints at each particle keep their mesh order,
+    while neighbours in the new order share no particle and overlap in the
+    CPU's pipeline. ``block`` defaults to :data:`WAVEFRONT_BLOCK`.
     """
     m = indices.shape[0]
+    block = WAVEFRONT_BLOCK if block is None else block
     level = np.zeros(m, dtype=np.int64)
     if m:
-        kernels.wavefront_levels(np.ascontiguousarray(indices, dtype=np.int32), n_particles, level)
-    return np.argsort(level, kind="stable")
+        kernels.wavefront_levels(np.ascontiguousarray(indices, dtype=np.int32), n_particles, block, level)
+    return np.lexsort((level, np.arange(m) // block))
 
 
 class Solver:
