@@ -219,3 +219,16 @@ def test_vertex_strain_operator_equals_the_core_function(tmp_path):
     for scale in (0.0, 1e-3, 2e-2):
         x = sim.model.particle_q0 + scale * rng.normal(size=sim.model.particle_q0.shape)
         np.testing.assert_allclose(op(x), vertex_strain(sim.model, x), rtol=1e-12, atol=1e-15)
+
+
+def test_sqlite3_output_and_points_every(tmp_path, capsys):
+    path, _, _ = tool_bag(tmp_path / "in", n=12)
+    params = str(write_params(tmp_path))
+    assert cli(["replay", str(path), "--params", params, "--out", str(tmp_path / "o"), "--no-progress",
+                "--frame-every", "-1", "--storage", "sqlite3", "--points-every", "5"]) == 0
+    assert next((tmp_path / "o" / "replay_bag").glob("*.db3")).is_file()
+    with Bag(tmp_path / "o" / "replay_bag") as bag:
+        counts = bag.message_counts
+    assert counts["/tissue/energy"] == 12 and counts["/tissue/points"] == 2
+    assert cli(["replay", str(path), "--params", params, "--out", str(tmp_path / "o2"), "--points-every", "0"]) == 2
+    assert "--points-every 0" in capsys.readouterr().err and not (tmp_path / "o2").exists()

@@ -285,8 +285,8 @@ def replay(sim: Simulation, track: ToolTrack, mode: str = "per-message", *, sink
         bar.close()
     wall = time.perf_counter() - start
     cpu = time.process_time() - cpu_start
-    return ReplayResult(rollout=result, t_ns=t_ns, wall_time=wall, step_time=step_time, loop_times=loop_times, cpu_time=cpu,
-                        sim_time=n * sim.params.dt, track_duration=track.duration)
+    return ReplayResult(rollout=result, t_ns=t_ns, wall_time=wall, step_time=step_time, loop_times=loop_times,
+                        cpu_time=cpu, sim_time=n * sim.params.dt, track_duration=track.duration)
 
 
 # --------------------------------------------------------------------------- CLI
@@ -332,6 +332,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.video:
         _check_video_support()
+    if args.points_every < 1:
+        raise InputError(f"--points-every {args.points_every}: expected K >= 1")
     if args.frame_every < -1:
         raise InputError(f"--frame-every {args.frame_every}: expected K >= 1, 0 (automatic) or -1 (none)")
     out = Path(args.out)
@@ -357,7 +359,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"warm-up (kernel load) {time.perf_counter() - t_warm:.2f} s, not counted in the replay speed")
     n_steps = track.n if args.mode == "per-message" else int(
         (track.t_ns[-1] - track.t_ns[0]) // int(round(sim.params.dt * 1e9)))
-    frame_every = args.frame_every if args.frame_every > 0 else (0 if args.frame_every < 0 else max(1, -(-n_steps // 40)))
+    if args.frame_every > 0:
+        frame_every = args.frame_every
+    else:  # -1: none; 0: about 40 frames
+        frame_every = 0 if args.frame_every < 0 else max(1, -(-n_steps // 40))
 
     out.mkdir(parents=True, exist_ok=True)
     writer = None if args.no_bag else BagWriter(bag_out, args.storage)
