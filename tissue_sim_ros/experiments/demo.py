@@ -1,0 +1,323 @@
+"""``tissue-sim demo``: the main job, end to end through the real ROS graph.
+
+Starts, on a private ROS domain with localhost-only discovery, three separate
+processes: the simulator node (``tissue_sim_node``, lock-step so every tool
+pose is one step), the recorder (``tissue-sim record``, rosbag2 MCAP) and the
+tool driver (``tool_driver`` playing experiment a). When the driver is done
+and the recorder has everything, both are stopped with SIGINT, and the
+figures of experiment a (like the paper's Fig. 2) are drawn from the bag alone:
+snapshots from ``tissue/points``, energy and its terms per tissue from
+``tissue/energy/bodies``, contact from ``tissue/markers``.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from tqdm import tqdm
+
+from ..core.errors import InputError
+from . import trajectories as tr
+
+HELP = "the main job: node + tool driver on a private ROS domain, experiment a, recorded to a bag"
+DESCRIPTION = __doc__
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", default="out", help="output directory for the bag, figures and logs (default: out)")
+    parser.add_argument("--params", help="parameter YAML for the node (default: the shipped config/tissue_sim.yaml)")
+    parser.add_argument("--domain-id", type=int, default=None,
+                        help="ROS_DOMAIN_ID to use (default: a free-looking one derived from the process id)")
+    parser.add_argument("--timeout", type=float, default=120.0, help="give up after this many seconds (default 120)")
+
+
+class _Process:
+    """A child process whose stdout lines are collected by a thread (so its pipe never fills)."""
+
+    def __init__(self, name: str, cmd: list[str], env: dict[str, str], log: Path) -> None:
+        self.name = name
+        self.lines: "queue.Queue[str]" = queue.Queue()
+        self._log: IO[str] = open(log, "w")
+        self.proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                     bufsize=1, start_new_session=True)
+        self._thread = threading.Thread(target=self._pump, daemon=True)
+        self._thread.start()
+
+    def _pump(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self._log.write(line)
+            self._log.flush()
+            self.lines.put(line.rstrip("\n"))
+
+    def wait_for_line(self, predicate, timeout: float) -> str:
+        """Wait for an output line matching ``predicate``; InputError with the log's tail if it never comes."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                line = self.lines.get(timeout=0.1)
+            except queue.Empty:
+                if self.proc.poll() is not None:
+                    raise InputError(f"{self.name} exited with code {self.proc.returncode} before it was ready "
+                                     f"(see {self._log.name})") from None
+                continue
+            if predicate(line):
+                return line
+        raise InputError(f"{self.name} was not ready after {timeout:.0f} s (see {self._log.name})")
+
+    def drain(self) -> None:
+        """Forget the lines printed so far."""
+        while True:
+            try:
+                self.lines.get_nowait()
+            except queue.Empty:
+                return
+
+    def stop(self, timeout: float = 10.0) -> int:
+        """SIGINT, then SIGKILL if it does not end in ``timeout`` seconds; returns the exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self._thread.join(timeout=2.0)
+        self._log.close()
+        return self.proc.returncode
+
+
+def _script(name: str) -> str:
+    """A console script of this install (beside the running interpreter, so the same venv is used)."""
+    path = Path(sys.executable).parent / name
+    if not path.exists():
+        raise InputError(f"console script {name!r} not found beside {sys.executable}: install the package (make demo)")
+    return str(path)
+
+
+class _Monitor:
+    """Counts tissue/energy messages (raw) in this process: the demo's progress bar and its end of run."""
+
+    def __init__(self, domain: int) -> None:
+        import rclpy  # noqa: PLC0415
+        from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
+        from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: PLC0415
+        from std_msgs.msg import Float64  # noqa: PLC0415
+
+        self._rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(args=None, context=self.context, domain_id=domain)
+        self.node = rclpy.create_node("tissue_sim_demo_monitor", context=self.context)
+        self.count = 0
+        self.last_time = time.monotonic()
+        self.node.create_subscription(Float64, "tissue/energy", self._on_energy,
+                                      QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE), raw=True)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def _on_energy(self, _raw: bytes) -> None:
+        self.count += 1
+        self.last_time = time.monotonic()
+
+    def wait_for_subscribers(self, topics: dict[str, int], timeout: float) -> None:
+        """Wait until each topic has at least the given number of subscribers in the graph."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if all(self.node.count_subscribers(t) >= n for t, n in topics.items()):
+                return
+            self.executor.spin_once(timeout_sec=0.05)
+        have = {t: self.node.count_subscribers(t) for t in topics}
+        raise InputError(f"subscribers did not appear in {timeout:.0f} s: {have} (wanted {topics})")
+
+    def spin(self, expected: int, done, quiet_after: float, timeout: float, bar: tqdm) -> int:
+        """Spin until ``expected`` messages, or ``done()`` and nothing new for ``quiet_after`` s, or timeout."""
+        deadline = time.monotonic() + timeout
+        shown = 0
+        while self.count < expected and time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.05)
+            bar.update(self.count - shown)
+            shown = self.count
+            if done() and time.monotonic() - self.last_time > quiet_after:
+                break
+        return self.count
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self._rclpy.try_shutdown(context=self.context)
+
+
+def _ns(stamp: tuple[int, int]) -> int:
+    sec, nanosec = stamp
+    return int(sec) * 10**9 + int(nanosec)
+
+
+def read_demo_bag(path: Path) -> dict[str, Any]:
+    """Series of a recorded run from the bag alone: energy terms, snapshots by step, contact, stamps."""
+    from ..ros.bags import Bag  # noqa: PLC0415
+    from ..ros.messages import decode_float64_multiarray, decode_marker_array, decode_point_cloud, decode_pose_stamped  # noqa: PLC0415
+
+    poses: dict[int, np.ndarray] = {}
+    energy: list[np.ndarray] = []
+    points: list[tuple[int, np.ndarray]] = []
+    contact: dict[int, bool] = {}
+    with Bag(path) as bag:
+        for topic, _msgtype, _t_ns, raw in bag.messages():
+            if topic == "/tool/pose":
+                stamp, _frame, pos, q = decode_pose_stamped(raw)
+                yaw = 2.0 * math.atan2(q[2], q[3])  # planar pose: a rotation about +z
+                poses[_ns(stamp)] = np.array([pos[0], pos[1], yaw])
+            elif topic == "/tissue/energy/bodies":
+                data, _labels = decode_float64_multiarray(raw)
+                energy.append(np.asarray(data, dtype=np.float64))
+            elif topic == "/tissue/points":
+                stamp, _frame, pts = decode_point_cloud(raw)
+                points.append((_ns(stamp), np.stack([pts["x"], pts["y"]], axis=1).astype(np.float64)))
+            elif topic == "/tissue/markers":
+                markers = decode_marker_array(raw)
+                tool = next((m for m in markers if m.ns == "tool"), None)
+                hit = next((m for m in markers if m.ns == "contact"), None)
+                if tool is not None:
+                    contact[_ns(tool.stamp)] = hit is not None and hit.action == 0 and len(hit.points) > 0
+    # lock-step with points and markers at every step: the k-th points message is step k, stamped with the
+    # stamp of the tool pose that step used (energy messages carry no stamp: the k-th is step k as well)
+    step_stamp = {k + 1: t for k, (t, _x) in enumerate(points)}
+    terms = np.array(energy).reshape(len(energy), -1, 4) if energy else np.zeros((0, 0, 4))
+    return {
+        "steps": np.arange(1, len(energy) + 1),
+        "inertial": terms[:, :, 0], "spring": terms[:, :, 1], "area": terms[:, :, 2],
+        "points": {k: x for k, (_t, x) in enumerate(points, start=1)},
+        "contact": np.array([contact.get(step_stamp.get(k, -1), False) for k in range(1, len(energy) + 1)], dtype=bool),
+        "tool": {k: poses[t] for k, t in step_stamp.items() if t in poses},
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..core.model import Model, SimParams  # noqa: PLC0415
+    from ..core.scene import SceneConfig, load_params_file, tool_from_mapping  # noqa: PLC0415
+    from ..core.tool import ToolPose  # noqa: PLC0415
+    from ..render import plot_energy, save_snapshots  # noqa: PLC0415
+    from ..resources import DEFAULT_PARAMS_FILE, config_path  # noqa: PLC0415
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    params_file = Path(args.params) if args.params else config_path(DEFAULT_PARAMS_FILE)
+    values = load_params_file(params_file)
+    params = SimParams.from_mapping(values)
+    tool = tool_from_mapping(values)
+    n_steps = tr.experiment_a(tool, params.dt).n_steps(params.dt)
+    domain = args.domain_id if args.domain_id is not None else 120 + os.getpid() % 100
+    if not 0 <= domain <= 232:
+        raise InputError(f"--domain-id {domain}: expected 0..232")
+    env = os.environ.copy()
+    env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
+    bag_path = out / "demo_bag"
+    if bag_path.exists():
+        import shutil  # noqa: PLC0415
+
+        shutil.rmtree(bag_path)
+    print(f"demo: ROS domain {domain} (localhost only); writing to {out}/", flush=True)
+
+    procs: list[_Process] = []
+    t_start = time.monotonic()
+    try:
+        node = _Process("tissue_sim_node", [_script("tissue_sim_node"), "--ros-args", "--params-file", str(params_file),
+                                            "-p", "lock_step:=true", "-p", "points_rate:=1000.0",
+                                            "-p", "marker_rate:=1000.0"], env, out / "node.log")
+        procs.append(node)
+        recorder = _Process("recorder", [_script("tissue-sim"), "record", "--output", str(bag_path)], env,
+                            out / "record.log")
+        procs.append(recorder)
+        # the driver starts only when the recorder subscribes to the node's outputs, so no step is missed
+        wanted = {"/tissue/energy/bodies", "/tissue/points", "/tissue/markers", "/tissue/energy"}
+        seen: set[str] = set()
+
+        def ready(line: str) -> bool:
+            parts = line.split()
+            if len(parts) >= 2 and parts[0] == "+":
+                seen.add(parts[1])
+            return wanted <= seen
+
+        recorder.wait_for_line(ready, timeout=args.timeout)
+        monitor = _Monitor(domain)
+        # the recorder's and this monitor's subscriptions are matched before the first pose is sent
+        monitor.wait_for_subscribers({"/tissue/energy": 2, "/tissue/energy/bodies": 1, "/tissue/points": 1,
+                                      "/tissue/markers": 1}, timeout=args.timeout)
+        driver = _Process("tool_driver", [_script("tool_driver"), "--ros-args", "-p", "preset:=experiment_a",
+                                          "-p", "lock_step:=true", "-p", "exit_when_done:=true"], env,
+                          out / "driver.log")
+        procs.append(driver)
+        t_drive = time.monotonic()
+        try:
+            with tqdm(total=n_steps, desc="experiment a through ROS", unit="step") as bar:
+                got = monitor.spin(n_steps, lambda: driver.proc.poll() is not None, 3.0, args.timeout, bar)
+        finally:
+            monitor.close()
+        t_done = time.monotonic()
+        driver.proc.wait(timeout=args.timeout)
+        # the recorder prints its message count every second: stop it once two fresh counts agree
+        recorder.drain()
+        last = None
+        deadline = time.monotonic() + args.timeout
+        while time.monotonic() < deadline:
+            line = recorder.wait_for_line(lambda s: s.strip().endswith("messages"), timeout=5.0)
+            count = int(line.split()[-2])
+            if count == last:
+                break
+            last = count
+    finally:
+        codes = {p.name: p.stop() for p in reversed(procs)}
+    if got < n_steps:
+        raise InputError(f"the node published {got} of {n_steps} steps (logs in {out}/)")
+
+    run_ = read_demo_bag(bag_path)
+    model = Model.from_mesh(SceneConfig.from_mapping(values).build_mesh(), params)
+    snaps = []
+    for s in tr.A_SNAPSHOTS:
+        x = model.particle_q0 if s == 0 else run_["points"].get(s)
+        if x is None:
+            continue
+        p = run_["tool"].get(s)
+        snaps.append((s, x, None if p is None else ToolPose(*map(float, p))))
+    files = [
+        save_snapshots(out / "demo_snapshots.png", model, snaps, tool=tool,
+                       title="Demo (through ROS): experiment a, the tool approaches the bottom tissue"),
+        plot_energy(out / "demo_energy.png", run_["steps"],
+                    {"inertial": run_["inertial"], "spring": run_["spring"], "area": run_["area"]},
+                    body_names=("upper tissue", "lower tissue")[: run_["inertial"].shape[1]],
+                    markers=[s for s in tr.A_SNAPSHOTS if s > 0],
+                    contact=np.repeat(run_["contact"][:, None], run_["inertial"].shape[1], axis=1),
+                    title="Demo: implicit Euler energy per tissue, recorded through ROS"),
+    ]
+    total = run_["inertial"] + run_["spring"] + run_["area"]
+    sim_time = len(run_["steps"]) * params.dt
+    wall = t_done - t_drive
+    peak_b = total.max(axis=0)
+    print()
+    print(f"Ran experiment a through ROS: {len(run_['steps'])} steps ({sim_time:.2f} s simulated) in {wall:.2f} s "
+          f"wall, a real-time factor of {sim_time / wall:.1f} with the node in lock-step (driver, node and recorder "
+          f"as separate processes on domain {domain}); peak implicit Euler energy "
+          + ", ".join(f"{n} {v:.3g}" for n, v in zip(("upper", "lower"), peak_b))
+          + f" at steps {', '.join(str(int(run_['steps'][i])) for i in total.argmax(axis=0))}; the tool touched "
+          f"the tissue in {int(run_['contact'].sum())} steps (first at step "
+          f"{int(np.argmax(run_['contact'])) + 1 if run_['contact'].any() else '-'}). "
+          f"Setup and shutdown took {time.monotonic() - t_start - wall:.1f} s.")
+    print()
+    print("wrote:")
+    for f in [bag_path, *files, out / "node.log", out / "record.log", out / "driver.log"]:
+        print(f"  {f}")
+    bad = {k: v for k, v in codes.items() if v not in (0, -2, 130)}
+    if bad:
+        print(f"warning: processes exited with {bad}", file=sys.stderr)
+    return 0
+
