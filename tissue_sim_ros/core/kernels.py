@@ -30,7 +30,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from .collision import project_tool
+from .collision import project_edges, project_tool
 
 # OpenMP's thread pool hands work to a thread in ~1.5 us; numba's default
 # (tbb/workqueue) layer took ~200 us per prange on the 2-core VM. The layer
@@ -38,6 +38,14 @@ from .collision import project_tool
 # did (NUMBA_THREADING_LAYER).
 if "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER == "default":
     numba.config.THREADING_LAYER = "omp"
+
+#: Fast-math flags of the distance-projection kernels: only fused multiply-add
+#: contraction (6% fewer cycles per projection at 8k particles). No flag that
+#: assumes finite values: the NaN guards must keep working. The area kernels
+#: go without: contracting the cross product makes an exactly collinear
+#: triangle's area a round-off-signed nonzero, which the |area| form turns
+#: into a projection in an arbitrary direction (13% faster, not worth that).
+FMA = {"contract"}
 
 #: Gauss-Seidel execution modes of :func:`gauss_seidel_iterations`.
 GS_SERIAL = 0
@@ -121,7 +129,7 @@ def place_held(x: np.ndarray, x_step_start: np.ndarray, x_target: np.ndarray, in
 # ----------------------------------------------------------------------------- Gauss-Seidel projections
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FMA)
 def solve_edges_range(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
                       k: float, alpha: float, lam: np.ndarray, start: int, stop: int) -> None:
     """Gauss-Seidel over distance constraints ``start:stop``, C = |x_i - x_j| - d0, in array order.
@@ -281,7 +289,7 @@ def solve_partitioned(x: np.ndarray, inv_mass: np.ndarray,
                       tri_offsets[n_parts + 1])
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=True, fastmath=FMA)
 def solve_edges_coloured(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
                          k: float, alpha: float, lam: np.ndarray, offsets: np.ndarray) -> None:
     """:func:`solve_edges` on edges sorted by colour, each colour's edges in parallel.
@@ -374,7 +382,7 @@ def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray,
                             tri_offsets: np.ndarray,
                             signed: bool, iterations: int, mode: int,
                             x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
-                            dx_accum: np.ndarray) -> None:
+                            dx_accum: np.ndarray, surface_edges: np.ndarray, edge_side_tol: float) -> None:
     """``iterations`` Gauss-Seidel sweeps: all edges, then all triangles, then the tool.
 
     Pass empty ``edges``/``tris`` to switch a constraint type off. ``mode``:
@@ -385,7 +393,9 @@ def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray,
     (:func:`solve_partitioned`). The projection contact
     (:func:`~tissue_sim_ros.core.collision.project_tool`) runs after the
     constraints of every iteration, so the last word is the tool's and no
-    particle ends inside it; an empty ``candidates`` skips it.
+    particle ends inside it; an empty ``candidates`` skips it. Then the
+    boundary edges ``surface_edges`` (K, 2) int32 (body on the left; empty:
+    none) are kept out of it (:func:`~tissue_sim_ros.core.collision.project_edges`).
     """
     for _ in range(iterations):
         if mode == GS_COLOURED:
@@ -399,12 +409,14 @@ def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray,
             solve_areas(x, inv_mass, tris, area0, k_t, alpha_t, lam_t, signed)
         if candidates.shape[0] > 0:
             project_tool(x, x_start, inv_mass, candidates, shape0, shape1, dx_accum)
+        if surface_edges.shape[0] > 0:
+            project_edges(x, x_start, inv_mass, surface_edges, shape0, shape1, edge_side_tol, dx_accum)
 
 
 # ----------------------------------------------------------------------------- Jacobi
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=FMA)
 def jacobi_edges(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
                  k: float, alpha: float, lam: np.ndarray, omega: np.ndarray, dx_acc: np.ndarray) -> None:
     """Jacobi pass over distance constraints: corrections from the same ``x`` summed into ``dx_acc``.
@@ -605,7 +617,7 @@ def jacobi_iterations(x: np.ndarray, inv_mass: np.ndarray,
                       omega_t: np.ndarray,
                       signed: bool, iterations: int, particle_scale: np.ndarray, dx_acc: np.ndarray,
                       x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
-                      dx_accum: np.ndarray) -> None:
+                      dx_accum: np.ndarray, surface_edges: np.ndarray, edge_side_tol: float) -> None:
     """``iterations`` Jacobi sweeps: every constraint sees the positions of the sweep's start.
 
     Corrections are summed per particle and applied as
@@ -620,6 +632,8 @@ def jacobi_iterations(x: np.ndarray, inv_mass: np.ndarray,
         jacobi_apply(x, dx_acc, particle_scale)
         if candidates.shape[0] > 0:
             project_tool(x, x_start, inv_mass, candidates, shape0, shape1, dx_accum)
+        if surface_edges.shape[0] > 0:
+            project_edges(x, x_start, inv_mass, surface_edges, shape0, shape1, edge_side_tol, dx_accum)
 
 
 # ----------------------------------------------------------------------------- velocity and boundary
