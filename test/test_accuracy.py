@@ -51,7 +51,8 @@ def test_displacement_error_of_a_nested_mesh_is_zero_for_a_linear_field() -> Non
 
 def test_bench_accuracy_quick(tmp_path: Path, capsys) -> None:
     assert main(["bench", "accuracy", "--quick", "--out", str(tmp_path)]) == 0
-    for name in ("accuracy.csv", "accuracy_refinement.csv", "accuracy.png", "accuracy_accumulated.png"):
+    for name in ("accuracy.csv", "accuracy_refinement.csv", "accuracy_sleeping.csv", "accuracy.png",
+                 "accuracy_accumulated.png"):
         assert (tmp_path / name).stat().st_size > 0
     with open(tmp_path / "accuracy.csv") as f:
         rows = list(csv.DictReader(f))
@@ -61,6 +62,10 @@ def test_bench_accuracy_quick(tmp_path: Path, capsys) -> None:
         # the per-step error is measured wherever its reference was solved (PBD on finer meshes: accumulated only)
         assert math.isfinite(float(r["err_step_median"])) == (int(r["ref_converged"]) > 0)
     assert all(int(r["ref_converged"]) > 0 for r in rows if float(r["particles"]) == min(float(q["particles"]) for q in rows))
+    with open(tmp_path / "accuracy_sleeping.csv") as f:
+        sleep_rows = list(csv.DictReader(f))
+    assert len(sleep_rows) == 3 and float(sleep_rows[0]["err_vs_awake"]) == 0.0
+    assert all(math.isfinite(float(r["err_vs_awake"])) and float(r["ms_per_step"]) > 0 for r in sleep_rows)
     assert "Pareto front" in capsys.readouterr().out
 
 

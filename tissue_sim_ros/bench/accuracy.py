@@ -315,6 +315,55 @@ def measure_setting(scene: Scene, setting: Setting, ref_positions: Sequence[np.n
     }
 
 
+# ----------------------------------------------------------------------------- sleeping
+
+
+SLEEP_SETTINGS = ({"wake_radius": 0.15, "sleep_speed": 1e-3, "quiet_steps": 10},
+                  {"wake_radius": 0.15, "sleep_speed": 1e-2, "quiet_steps": 5})
+
+
+def measure_sleeping(scene: Scene, setting: Setting, sleep_settings: Sequence[dict[str, Any]] = SLEEP_SETTINGS,
+                     progress: Callable[[], None] | None = None) -> list[dict[str, Any]]:
+    """The cost of sleeping far, quiet particles: time saved and error against the same method awake.
+
+    Runs ``setting`` on the scene awake and with each sleeping setting
+    (:class:`~tissue_sim_ros.core.sleeping.SleepingSolver`), one solver thread.
+    Error = ||x_sleeping - x_awake|| / ||x_awake - x(0)|| at the end of the run;
+    times are medians over the whole run and over its second half (once regions have gone to sleep).
+    """
+    from ..core.sleeping import SleepingSolver  # noqa: PLC0415
+
+    runs = []
+    for cfg in (None, *sleep_settings):
+        stepper = Stepper(scene, setting, {"parallel": False})
+        if cfg is not None:
+            stepper.solver = SleepingSolver(stepper.model, **cfg)
+        state = stepper.model.state()
+        times, awake = [], []
+        for k in range(1, len(scene.poses)):
+            contacts = stepper.detect(state, scene.poses[k - 1], scene.poses[k])
+            state, elapsed = stepper.step(state, contacts)
+            times.append(elapsed)
+            awake.append(stepper.solver.awake_constraint_fraction if cfg is not None else 1.0)
+            if progress:
+                progress()
+        runs.append((cfg, state.particle_q.copy(), times, awake))
+    x0 = np.asarray(scene.mesh.vertices)
+    x_awake = runs[0][1]
+    rows = []
+    for cfg, x, times, awake in runs:
+        half = len(times) // 2
+        rows.append({
+            "particles": scene.n_particles, "method": setting.method, "count": setting.count,
+            "sleep_speed": cfg["sleep_speed"] if cfg else 0.0, "quiet_steps": cfg["quiet_steps"] if cfg else 0,
+            "wake_radius": cfg["wake_radius"] if cfg else 0.0, "steps": len(times),
+            "ms_per_step": 1e3 * float(np.median(times)), "ms_per_step_2nd_half": 1e3 * float(np.median(times[half:])),
+            "awake_constraints_mean": float(np.mean(awake)), "awake_constraints_end": float(awake[-1]),
+            "err_vs_awake": relative_error(x, x_awake, x0),
+        })
+    return rows
+
+
 # ----------------------------------------------------------------------------- physical accuracy
 
 
@@ -471,6 +520,8 @@ class Plan:
     a finer mesh a softer material; on the 4x mesh the exact run folds (inverted triangles) after ~8 steps,
     where each exact step takes Newton minutes."""
     graded: bool
+    sleep_spacing: float = 0.025
+    sleep_steps: int = 80
     methods: list[str] = field(default_factory=lambda: list(METHOD_NAMES))
     methods_fine: list[str] = field(default_factory=lambda: ["pbd", "xpbd", "xpbd_jacobi", "xpbd_substep"])
     """Methods run at the finer resolutions (fewer, to keep the run to minutes)."""
@@ -479,7 +530,8 @@ class Plan:
 def make_plan(quick: bool) -> Plan:
     if quick:
         return Plan(counts=[1, 10], counts_fine=[10], newton_counts=[1], spacings=[0.1, 0.05], dts=[0.01],
-                    n_steps=4, per_step_every=2, per_step_every_fine=2, n_steps_fine=2, graded=False)
+                    n_steps=4, per_step_every=2, per_step_every_fine=2, n_steps_fine=2, graded=False,
+                    sleep_spacing=0.05, sleep_steps=8)
     return Plan(counts=[1, 2, 5, 10, 20, 50, 100, 200], counts_fine=[5, 20, 50, 200], newton_counts=[1, 2, 3, 5],
                 spacings=[0.05, 0.025, 0.0125], dts=[0.01, 0.005], n_steps=30, per_step_every=3,
                 per_step_every_fine=3, n_steps_fine=7, graded=True)
@@ -584,7 +636,14 @@ def run(args: argparse.Namespace) -> int:
                                                           near_radius=0.15) if scene is not finest else 0.0,
         })
 
+    # sleeping: a slow push on the 2x mesh, long enough for far regions to settle
+    sleep_scene = default_scene(plan.sleep_spacing, plan.dts[0], plan.sleep_steps, 0.001)
+    with tqdm(total=(len(sleep_scene.poses) - 1) * (1 + len(SLEEP_SETTINGS)), desc="sleeping", unit="step",
+              dynamic_ncols=True) as bar:
+        sleep_rows = measure_sleeping(sleep_scene, Setting("xpbd", 50), progress=bar.update)
+
     write_csv(out / "accuracy.csv", rows)
+    write_csv(out / "accuracy_sleeping.csv", sleep_rows)
     write_csv(out / "accuracy_refinement.csv", ref_rows)
     base_rows = [r for r in rows if r["particles"] == refinement[0].n_particles and r["dt"] == plan.dts[0]
                  and "graded" not in r["scene"]]
@@ -612,6 +671,10 @@ def run(args: argparse.Namespace) -> int:
     print("\nphysical accuracy: exact run at each resolution against the finest (final displacement):")
     print(format_table(ref_rows, ["scene", "spacing", "particles", "step", "newton_ms", "err_vs_finest_all",
                                   "err_vs_finest_near_tool"]))
-    print(f"\nwrote {out / 'accuracy.csv'}, {out / 'accuracy_refinement.csv'}, {out / 'accuracy.png'}, "
-          f"{out / 'accuracy_accumulated.png'}")
+    print(f"\nsleeping far, quiet particles (XPBD 50 iterations, {sleep_scene.n_particles} particles, "
+          f"{len(sleep_scene.poses) - 1} steps of a 1 mm/step push; error against the same run awake):")
+    print(format_table(sleep_rows, ["sleep_speed", "quiet_steps", "ms_per_step", "ms_per_step_2nd_half",
+                                    "awake_constraints_mean", "awake_constraints_end", "err_vs_awake"]))
+    print(f"\nwrote {out / 'accuracy.csv'}, {out / 'accuracy_refinement.csv'}, {out / 'accuracy_sleeping.csv'}, "
+          f"{out / 'accuracy.png'}, {out / 'accuracy_accumulated.png'}")
     return 0
