@@ -1,0 +1,142 @@
+"""The paper's experiments, headless and shortened, and the demo end to end through ROS.
+
+Experiment a at reduced length (220 of 300 steps, snapshots 0/150/220) and
+experiment b on a shorter insertion; the demo runs the real node, recorder and
+tool driver as processes, and its bag is read back with the independent
+`mcap` reader.
+"""
+from __future__ import annotations
+
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tissue_sim_ros.experiments import paper
+from tissue_sim_ros.experiments import trajectories as tr
+
+sys.path.insert(0, str(Path(__file__).parent))
+from ros_env import isolated_env, pick_domain_id  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def exp_a(tmp_path_factory):
+    out = tmp_path_factory.mktemp("exp_a")
+    return out, paper.experiment_a(out, steps=220, snapshot_steps=(0, 150, 220), progress=False)
+
+
+def test_experiment_a_writes_figures_and_finite_energy(exp_a):
+    out, res = exp_a
+    for name in ("experiment_a_snapshots.png", "experiment_a_energy.png", "experiment_a_energy.csv"):
+        assert (out / name).is_file() and (out / name).stat().st_size > 1000
+    run = res.rollouts["a"]
+    assert len(run.steps) == 220
+    assert np.isfinite(run.total).all() and res.summary["energy finite"]
+    assert res.summary["diverged steps"] == 0
+    table = np.loadtxt(out / "experiment_a_energy.csv", delimiter=",", skiprows=1)
+    assert table.shape[0] == 220
+    np.testing.assert_array_equal(table[:, 2], run.scene_total)  # the CSV is the run, to full precision
+
+
+def test_experiment_a_contact_steps_cost_more_energy_than_free_steps(exp_a):
+    _, res = exp_a
+    run = res.rollouts["a"]
+    lower = run.total[:, 1]
+    contact = run.in_contact[:, 1]
+    assert contact.any() and (~contact).any()
+    first = int(np.argmax(contact))
+    # the tissue has settled under gravity before the tool comes near (steps 100 .. first contact)
+    free = lower[100:first]
+    assert free.size > 10
+    assert lower[contact].mean() > 10 * free.mean()
+    assert lower[contact].max() > 100 * np.median(free)
+
+
+def test_experiment_a_deforms_near_the_tool_and_not_far_from_it(exp_a):
+    _, res = exp_a
+    run = res.rollouts["a"]
+    x0, x150, x220 = run.snapshots[0], run.snapshots[150], run.snapshots[220]
+    assert set(run.snapshots) == {0, 150, 220}
+    model_body = _model_bodies()
+    tip = np.array(tr.A_START) + tr.A_SPEED * 220 * np.array([np.cos(np.radians(tr.A_ANGLE_DEG)),
+                                                               np.sin(np.radians(tr.A_ANGLE_DEG))])
+    disp = np.linalg.norm(x220 - x150, axis=1)  # what the tool did between the snapshots (gravity has settled)
+    dist = np.linalg.norm(x0 - tip, axis=1)
+    near = (dist < 0.15) & (model_body == 1)
+    far = dist > 0.6  # the far ends of both tissues: beyond the paper's r = 0.25 with room to spare
+    assert near.sum() > 5 and far.sum() > 30
+    assert disp[near].max() > 0.01  # the tissue under the tool moved by more than a centimetre
+    assert np.median(disp[far]) < 1e-3  # the far tissue did not (sub-millimetre)
+    assert disp[near].mean() > 20 * disp[far].mean()
+
+
+def _model_bodies() -> np.ndarray:
+    from tissue_sim_ros.core.scene import build_simulation
+
+    return build_simulation().model.particle_body
+
+
+def test_experiment_b_ranks_the_two_angles(tmp_path):
+    res = paper.experiment_b(tmp_path, angles_deg=(-10.0, -30.0), distance=0.12, progress=False)
+    assert (tmp_path / "experiment_b.png").is_file()
+    costs = res.summary["cost (energy summed over steps)"]
+    assert set(costs) == {"-10 deg", "-30 deg"}
+    assert all(np.isfinite(v) and v > 0 for v in costs.values())
+    cheaper = res.summary["cheaper angle [deg]"]
+    assert costs[f"{cheaper:+.0f} deg"] == min(costs.values())
+    for run in res.rollouts.values():
+        assert np.isfinite(run.total).all()
+        # the tip ends at the common target
+        assert len(run.steps) == int(np.ceil(0.12 / tr.B_SPEED - 1e-9))
+
+
+def test_experiment_cli_bad_input_exits_2(tmp_path, capsys):
+    from tissue_sim_ros.cli import main
+
+    assert main(["experiment", "a", "--out", str(tmp_path), "--steps", "0", "--no-progress"]) == 2
+    assert "--steps 0" in capsys.readouterr().err
+    assert main(["experiment", "a", "--out", str(tmp_path), "--set", "dt=-1", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "dt=-1" in err and "Traceback" not in err
+
+
+def _mcap_messages(bag_dir: Path) -> dict[str, list[bytes]]:
+    """Every message of the bag's MCAP file(s) by topic, read with the independent `mcap` library."""
+    from mcap.reader import make_reader
+
+    out: dict[str, list[bytes]] = {}
+    files = sorted(bag_dir.glob("*.mcap"))
+    assert files, f"no .mcap file in {bag_dir}"
+    for f in files:
+        with open(f, "rb") as fh:
+            for _schema, channel, message in make_reader(fh).iter_messages():
+                out.setdefault(channel.topic, []).append(message.data)
+    return out
+
+
+def _cdr_float64(data: bytes) -> float:
+    # CDR: 4-byte encapsulation header (little endian = 0x0001), then the double aligned to 8 from the payload start
+    assert data[:2] == b"\x00\x01"
+    return struct.unpack_from("<d", data, 4)[0]
+
+
+def test_demo_runs_through_ros_and_its_bag_decodes_with_mcap(tmp_path):
+    out = tmp_path / "out"
+    env = isolated_env(pick_domain_id())
+    proc = subprocess.run([str(Path(sys.executable).parent / "tissue-sim"), "demo", "--out", str(out),
+                           "--domain-id", env["ROS_DOMAIN_ID"], "--timeout", "120"],
+                          env=env, capture_output=True, text=True, timeout=400)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "real-time factor" in proc.stdout
+    for name in ("demo_snapshots.png", "demo_energy.png"):
+        assert (out / name).stat().st_size > 1000
+    msgs = _mcap_messages(out / "demo_bag")
+    steps = tr.experiment_a(paper.build_simulation().tool, 0.01).n_steps(0.01)
+    assert len(msgs["/tissue/energy"]) == steps
+    energy = np.array([_cdr_float64(m) for m in msgs["/tissue/energy"]])
+    assert np.isfinite(energy).all() and (energy >= 0).all()
+    assert len(msgs["/tissue/points"]) == steps and len(msgs["/tool/wrench"]) == steps
+    assert len(msgs["/tool/pose"]) >= steps
