@@ -15,7 +15,7 @@ import yaml
 
 from .errors import InputError
 from .mesh import TissueMesh, load_mesh
-from .model import Model, SimParams
+from .model import METHOD_ALIASES, Model, SimParams
 from .simulation import Simulation
 from .tool import ToolShape
 
@@ -114,8 +114,15 @@ def default_params() -> dict[str, Any]:
 
 def build_simulation(values: Mapping[str, Any] | None = None, mesh: TissueMesh | None = None) -> Simulation:
     """A Simulation from flat parameters (defaults: the shipped YAML), optionally on a given mesh."""
+    values = dict(values or {})
     merged = default_params()
-    merged.update(values or {})
+    alias = METHOD_ALIASES.get(values.get("method")) if isinstance(values.get("method"), str) else None
+    if alias:
+        # a method alias (xpbd_jacobi, xpbd_substep) sets its own scheme/iterations/substeps: the shipped
+        # file's values must not override them, only values the caller gave explicitly
+        for key in alias:
+            merged.pop(key, None)
+    merged.update(values)
     params = SimParams.from_mapping(merged)
     mesh = mesh if mesh is not None else SceneConfig.from_mapping(merged).build_mesh()
     return Simulation(Model.from_mesh(mesh, params), tool=tool_from_mapping(merged))
