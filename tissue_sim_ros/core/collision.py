@@ -75,7 +75,7 @@ Semantics chosen here (the paper leaves them open):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import fcl
 import numpy as np
@@ -90,6 +90,14 @@ from .tool import ToolPose, ToolShape, ToolTwist, tool_shape_array
 INSIDE_TOL = 1e-9
 #: Round-off allowance of :func:`near_triangles`' lower bound [m].
 NEAR_TOL = 1e-9
+#: Squared length [m^2] below which a boundary edge has no direction (skipped by the edge contact).
+EDGE_EPS2 = 1e-24
+#: A tool-frame direction component this small counts as zero: the tool's face is parallel to the edge.
+PARALLEL_TOL = 1e-12
+#: An edge whose direction turned by more than acos of this within a substep is left to the particles.
+EDGE_TURN_COS = 0.7071
+#: Smallest start-of-substep depth [m] the edge contact accepts as a solver residual (``contact_margin`` if larger).
+EDGE_SIDE_TOL_MIN = 1e-4
 
 
 @dataclass
@@ -112,6 +120,13 @@ class Contacts:
     """Per body: distance tool-tissue d* [m], shape (B,), float64 (inf if not computed)."""
     touched: np.ndarray
     """Particles the contact model moved (held or projected) this step, int32; filled by the solver for projection."""
+    surface_edges: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int32))
+    """Projection model, ``contact_surface="edges"``: boundary edges that may touch the swept tool, shape (K, 2),
+    int32, each ordered so that its body lies on the left (the CCW order of the triangle owning it); the
+    free particles of these edges are also in ``candidates``. Empty: particles only."""
+    edge_side_tol: float = 0.0
+    """Projection model: how far [m] the tool may be past a boundary edge at the start of a (sub)step and
+    still be pushed back out by it (:func:`project_edges`); deeper, the tool is taken to be through the edge."""
 
     @classmethod
     def empty(cls, n_bodies: int) -> "Contacts":
@@ -293,6 +308,203 @@ def project_tool(x: np.ndarray, x_start: np.ndarray, inv_mass: np.ndarray, candi
 
 
 @njit(cache=True)
+def _to_local(px: float, py: float, shape: np.ndarray) -> tuple[float, float]:
+    """A world point in the frame of the posed tool."""
+    c, s = shape[2], shape[3]
+    dx, dy = px - shape[0], py - shape[1]
+    return c * dx + s * dy, -s * dx + c * dy
+
+
+@njit(cache=True)
+def edge_depth(ax: float, ay: float, bx: float, by: float, shape: np.ndarray) -> tuple[float, float, float]:
+    """How far the posed tool reaches past the edge a -> b into the body on its left, within the edge's span.
+
+    The edge's strip is the set of points whose projection on the edge line
+    falls between a and b; the result is the largest distance past the line,
+    along the inward normal n = (-(by - ay), bx - ax) / |b - a|, of a tool point
+    in that strip, and where along the edge (t in [0, 1]) that point projects.
+    The tool being convex, its depth profile over the edge's axis is concave,
+    so the deepest point in the strip is the tool's support point in direction
+    n when it projects inside the span, and otherwise the deepest tool point
+    on the normal line through the span's nearer end (t = 0 or 1). A face
+    parallel to the edge (support set a segment) is taken at the middle of its
+    overlap with the span.
+
+    Returns (depth, t, line_depth): depth [m] > 0 when the tool is past the
+    edge line (<= 0: the tool's part in the strip lies outside the body), -inf
+    when no tool point lies in the strip or the edge has zero length;
+    line_depth [m] how far the tool's support point is past the whole line,
+    wherever it projects (-inf for a zero-length edge).
+    """
+    ex, ey = bx - ax, by - ay
+    length2 = ex * ex + ey * ey
+    if length2 <= EDGE_EPS2:
+        return -np.inf, 0.0, -np.inf
+    length = math.sqrt(length2)
+    ux, uy = ex / length, ey / length
+    nx, ny = -uy, ux
+    c, s = shape[2], shape[3]
+    hx, hy, rr = shape[4], shape[5], shape[6]
+    dlx, dly = c * nx + s * ny, -s * nx + c * ny  # n in the tool frame
+    sx = 1.0 if dlx > 0.0 else -1.0
+    sy = 1.0 if dly > 0.0 else -1.0
+    # support point (tool frame) and, for a face parallel to the edge, the face's other end
+    p1x, p1y = sx * hx + rr * dlx, sy * hy + rr * dly
+    p2x, p2y = p1x, p1y
+    if abs(dlx) <= PARALLEL_TOL:
+        p1x, p2x = -hx, hx
+        p1y = p2y = sy * (hy + rr)
+    elif abs(dly) <= PARALLEL_TOL:
+        p1y, p2y = -hy, hy
+        p1x = p2x = sx * (hx + rr)
+    w1x, w1y = shape[0] + c * p1x - s * p1y, shape[1] + s * p1x + c * p1y
+    w2x, w2y = shape[0] + c * p2x - s * p2y, shape[1] + s * p2x + c * p2y
+    u1 = (w1x - ax) * ux + (w1y - ay) * uy
+    u2 = (w2x - ax) * ux + (w2y - ay) * uy
+    lo, hi = min(u1, u2), max(u1, u2)
+    lo_c, hi_c = max(lo, 0.0), min(hi, length)
+    line_depth = max((w1x - ax) * nx + (w1y - ay) * ny, (w2x - ax) * nx + (w2y - ay) * ny)
+    if lo_c <= hi_c:
+        # the support set meets the span: its depth, at the middle of the overlap
+        return line_depth, 0.5 * (lo_c + hi_c) / length, line_depth
+    # beyond the span: the deepest point is on the normal line through the nearer end
+    u = 0.0 if hi < 0.0 else length
+    qlx, qly = _to_local(ax + u * ux, ay + u * uy, shape)
+    hit, s_in, s_out = _line_interval(qlx, qly, dlx, dly, hx, hy, rr)
+    if not hit or s_in > s_out:
+        return -np.inf, 0.0, line_depth
+    return s_out, u / length, line_depth
+
+
+@njit(cache=True)
+def _sweep_bound(shape0: np.ndarray, shape1: np.ndarray) -> float:
+    """Upper bound [m] on how far any point of the tool moves from ``shape0`` to ``shape1``."""
+    ddx, ddy = shape1[0] - shape0[0], shape1[1] - shape0[1]
+    dang = abs(math.atan2(shape0[2] * shape1[3] - shape0[3] * shape1[2], shape0[2] * shape1[2] + shape0[3] * shape1[3]))
+    radius = math.sqrt(shape1[4] ** 2 + shape1[5] ** 2) + shape1[6]
+    return math.sqrt(ddx * ddx + ddy * ddy) + dang * radius
+
+
+@njit(cache=True)
+def project_edges(x: np.ndarray, x_start: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray,
+                  shape0: np.ndarray, shape1: np.ndarray, side_tol: float, dx_accum: np.ndarray) -> int:
+    """Keep boundary edges out of the swept tool (point-edge PBD); returns how many edges moved.
+
+    For each edge a -> b (its body on the left), :func:`edge_depth` gives how
+    far the tool (``shape1``) reaches past the edge at ``x`` and where (t).
+    When that depth is > 0 the edge is pushed into its body along the inward
+    normal n until the tool's deepest point lies on it, with barycentric
+    weights: s = depth / ((1 - t)^2 w_a + t^2 w_b), dx_a = (1 - t) w_a s n,
+    dx_b = t w_b s n (w = ``inv_mass``; an edge that cannot move there is skipped).
+
+    Which side the tool came from is decided at the start of the (sub)step
+    (edge at ``x_start``, tool at ``shape0``): the edge acts only if the tool
+    was then past it by at most ``side_tol`` (outside it, touching it, or in it
+    by a solver residual), measured in the edge's strip when the tool was in
+    the strip, and otherwise past the edge's whole line (the tool beside the
+    strip must have been on the edge's outer side, not beside it inside the
+    body). So a tool that crossed the edge within the substep (any speed) is
+    still pushed back to the outside: a swept test. A tool already through
+    the edge at the start (a run with the paper model, a pose jump, a switch
+    of the contact surface; or an edge turned over inside a crushed body) is
+    left alone rather than snapping the tissue over it, and so is a tool that
+    ends deeper than it can have come through the edge in the substep (start
+    depth + the tool's sweep + the edge's own motion + ``side_tol``): a tool
+    inside the tissue moving sideways into the next edge's span. An edge that
+    turned by more than acos(:data:`EDGE_TURN_COS`) within the substep (a
+    crushed body) is skipped too: measured along its new normal, the tool's
+    far end would count as depth and throw the edge across the tool.
+
+    Parameters
+    ----------
+    x : ndarray, shape (N, 2), float64
+        Current positions [m], updated in place.
+    x_start : ndarray, shape (N, 2), float64
+        Positions at the start of the (sub)step [m].
+    inv_mass : ndarray, shape (N,), float64
+        Effective inverse masses [1/kg]; 0 = not moved.
+    edges : ndarray, shape (K, 2), int32
+        Boundary edges, each ordered with its body on the left.
+    shape0, shape1 : ndarray, shape (7,), float64
+        Tool at the start and the end of the (sub)step (:func:`tool_shape_array`).
+    side_tol : float
+        Start-of-substep depth [m] up to which the tool still counts as outside.
+    dx_accum : ndarray, shape (N, 2), float64
+        Accumulates each correction [m] (for the reaction force).
+    """
+    sweep = _sweep_bound(shape0, shape1)
+    moved = 0
+    for k in range(edges.shape[0]):
+        a, b = edges[k, 0], edges[k, 1]
+        wa, wb = inv_mass[a], inv_mass[b]
+        if wa == 0.0 and wb == 0.0:
+            continue
+        depth, t, _ = edge_depth(x[a, 0], x[a, 1], x[b, 0], x[b, 1], shape1)
+        if not depth > 0.0:
+            continue
+        depth0, _, line0 = edge_depth(x_start[a, 0], x_start[a, 1], x_start[b, 0], x_start[b, 1], shape0)
+        if depth0 > side_tol or (depth0 == -np.inf and line0 > side_tol):
+            continue  # the tool was through this edge (or beside it, inside the body) at the start
+        ex, ey = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1]
+        e0x, e0y = x_start[b, 0] - x_start[a, 0], x_start[b, 1] - x_start[a, 1]
+        if ex * e0x + ey * e0y <= EDGE_TURN_COS * math.sqrt((ex * ex + ey * ey) * (e0x * e0x + e0y * e0y)):
+            continue  # the edge turned too far in this substep (a crushed body): its inside is not where it was
+        da = math.sqrt((x[a, 0] - x_start[a, 0]) ** 2 + (x[a, 1] - x_start[a, 1]) ** 2)
+        db = math.sqrt((x[b, 0] - x_start[b, 0]) ** 2 + (x[b, 1] - x_start[b, 1]) ** 2)
+        if depth > max(depth0, 0.0) + sweep + max(da, db) + side_tol:
+            continue  # deeper than the tool can have come through this edge: it came from inside the tissue
+        denom = (1.0 - t) * (1.0 - t) * wa + t * t * wb
+        if denom <= 0.0:
+            continue
+        length = math.sqrt(ex * ex + ey * ey)
+        nx, ny = -ey / length, ex / length
+        sc = depth / denom
+        fa, fb = (1.0 - t) * wa * sc, t * wb * sc
+        x[a, 0] += fa * nx
+        x[a, 1] += fa * ny
+        x[b, 0] += fb * nx
+        x[b, 1] += fb * ny
+        dx_accum[a, 0] += fa * nx
+        dx_accum[a, 1] += fa * ny
+        dx_accum[b, 0] += fb * nx
+        dx_accum[b, 1] += fb * ny
+        moved += 1
+    return moved
+
+
+@njit(cache=True)
+def swept_edge_candidates(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, shape0: np.ndarray,
+                          shape1: np.ndarray, reach: float, out: np.ndarray) -> int:
+    """Edges with a free particle that come within ``reach`` of the tool swept from ``shape0`` to ``shape1``.
+
+    The signed distance is 1-Lipschitz, so every point of an edge of length L
+    is at least max(f(a) - L, f(b) - L, f(mid) - L / 2) from the tool; an edge
+    is kept when that bound, at either end pose, is <= reach + sweep / 2 (as
+    :func:`swept_candidates`). Returns the count; out[:count] (int32) are row
+    indices into ``edges`` (K, 2) int32; x (N, 2) float64 [m].
+    """
+    limit = reach + 0.5 * _sweep_bound(shape0, shape1)
+    n = 0
+    for k in range(edges.shape[0]):
+        a, b = edges[k, 0], edges[k, 1]
+        if inv_mass[a] == 0.0 and inv_mass[b] == 0.0:
+            continue
+        ex, ey = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1]
+        length = math.sqrt(ex * ex + ey * ey)
+        mx, my = x[a, 0] + 0.5 * ex, x[a, 1] + 0.5 * ey
+        lower = np.inf
+        for shape in (shape0, shape1):
+            fa, _, _ = _rounded_box_sdf(x[a, 0], x[a, 1], shape)
+            fb, _, _ = _rounded_box_sdf(x[b, 0], x[b, 1], shape)
+            fm, _, _ = _rounded_box_sdf(mx, my, shape)
+            lower = min(lower, max(fa - length, fb - length, fm - 0.5 * length))
+        if lower <= limit:
+            out[n] = k
+            n += 1
+    return n
+
+
+@njit(cache=True)
 def points_sdf(x: np.ndarray, shape: np.ndarray, out: np.ndarray, grad: np.ndarray) -> None:
     """Signed distance of every point to the posed tool shape, and its outward unit gradient.
 
@@ -439,6 +651,23 @@ def swept_candidates(x: np.ndarray, inv_mass: np.ndarray, shape0: np.ndarray, sh
     return n
 
 
+def boundary_edges_ccw(tri_indices: np.ndarray) -> np.ndarray:
+    """Boundary edges (used by exactly one triangle), each ordered as in its CCW triangle: body on the left.
+
+    tri_indices : (T, 3) int, counter-clockwise. Returns (K, 2) int32, sorted by
+    (first, second) particle. The inward normal of a -> b is (-(y_b - y_a), x_b - x_a) / |b - a|.
+    """
+    tris = np.asarray(tri_indices, dtype=np.int64).reshape(-1, 3)
+    directed = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+    if directed.shape[0] == 0:
+        return np.zeros((0, 2), dtype=np.int32)
+    key = np.sort(directed, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    once = directed[counts[inverse.ravel()] == 1]
+    once = once[np.lexsort((once[:, 1], once[:, 0]))]
+    return np.ascontiguousarray(once, dtype=np.int32)
+
+
 # --------------------------------------------------------------------------- python-fcl
 
 
@@ -510,6 +739,11 @@ class ContactModel:
         self._ids = np.empty(n, dtype=np.int32)
         self._ctris = np.empty((max(t, 1), 3), dtype=np.int32)
         self._cand = np.empty(n, dtype=np.int32)
+        # boundary edges for the projection's surface contact (contact_surface="edges")
+        self.boundary_edges = boundary_edges_ccw(model.tri_indices)
+        """Every body's boundary edges, ordered with the body on the left, (K, 2) int32."""
+        self._edge_cand = np.empty(self.boundary_edges.shape[0], dtype=np.int32)
+        self._is_cand = np.zeros(n, dtype=bool)
         self._body_min = np.empty(model.n_bodies)
         self._body_arg = np.empty(model.n_bodies, dtype=np.int32)
         self._pose = ToolPose(0.0, 0.0, 0.0)
@@ -645,8 +879,24 @@ class ContactModel:
         dyaw = abs(math.atan2(math.sin(pose1.yaw - pose0.yaw), math.cos(pose1.yaw - pose0.yaw)))
         travel = math.hypot(pose1.x - pose0.x, pose1.y - pose0.y) + dyaw * radius
         reach = vmax * dt + abs(p.gravity) * dt * dt + travel
-        n = swept_candidates(np.ascontiguousarray(state.particle_q), self.model.particle_inv_mass, shape0, shape1,
-                             reach, self._cand)
+        x = np.ascontiguousarray(state.particle_q)
+        inv_mass = self.model.particle_inv_mass
+        n = swept_candidates(x, inv_mass, shape0, shape1, reach, self._cand)
         contacts.candidates = self._cand[:n].copy()
         contacts.tool_shape0 = shape0
         contacts.tool_shape1 = shape1
+        if p.contact_surface == "edges" and self.boundary_edges.shape[0]:
+            k = swept_edge_candidates(x, inv_mass, self.boundary_edges, shape0, shape1, reach, self._edge_cand)
+            if k:
+                edges = self.boundary_edges[self._edge_cand[:k]]
+                # the edges' free particles join the particle candidates: the solver runs the projection
+                # when either set is non-empty, and a particle an edge moves is tested against the tool too
+                ends = edges.ravel()
+                ends = ends[inv_mass[ends] > 0.0]
+                self._is_cand[contacts.candidates] = True
+                extra = np.unique(ends[~self._is_cand[ends]])
+                self._is_cand[contacts.candidates] = False
+                if extra.size:
+                    contacts.candidates = np.sort(np.concatenate([contacts.candidates, extra.astype(np.int32)]))
+                contacts.surface_edges = np.ascontiguousarray(edges)
+            contacts.edge_side_tol = max(p.contact_margin, EDGE_SIDE_TOL_MIN)

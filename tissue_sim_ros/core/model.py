@@ -20,6 +20,7 @@ METHODS = ("pbd", "xpbd")
 SCHEMES = ("gauss_seidel", "jacobi")
 AREA_MODES = ("signed", "abs")
 CONTACT_MODELS = ("paper", "projection", "none")
+CONTACT_SURFACES = ("edges", "particles")
 
 #: Method names of the design card, mapped onto the orthogonal options.
 METHOD_ALIASES: dict[str, dict[str, Any]] = {
@@ -104,6 +105,10 @@ class SimParams:
     """Paper contact: distance alpha below which contact starts [m]."""
     contact_margin: float = 0.002
     """Projection contact: the tool's shape inflated by this margin [m]."""
+    contact_surface: str = "edges"
+    """Projection contact: what is kept out of the tool. ``edges`` (default): particles and boundary edges,
+    so a tool thinner than the mesh spacing indents the surface instead of slipping between particles;
+    ``particles``: particles only (such a tool pierces the tissue between them)."""
 
     def __post_init__(self) -> None:
         self.validate()
@@ -154,6 +159,8 @@ class SimParams:
             raise bad("area_mode", f"one of {', '.join(AREA_MODES)}")
         if self.contact_model not in CONTACT_MODELS:
             raise bad("contact_model", f"one of {', '.join(CONTACT_MODELS)}")
+        if self.contact_surface not in CONTACT_SURFACES:
+            raise bad("contact_surface", f"one of {', '.join(CONTACT_SURFACES)}")
         for name in ("k_spring", "k_area"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise bad(name, "a PBD stiffness coefficient in [0, 1]")

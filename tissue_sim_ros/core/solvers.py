@@ -335,9 +335,11 @@ class Solver:
         held_idx = np.ascontiguousarray(contacts.held_idx, dtype=np.int32)
         held_dx = np.ascontiguousarray(contacts.held_dx, dtype=np.float64).reshape(-1, 2)
         candidates = np.ascontiguousarray(contacts.candidates, dtype=np.int32)
-        projection = candidates.shape[0] > 0
+        surface_edges = np.ascontiguousarray(contacts.surface_edges, dtype=np.int32).reshape(-1, 2)
+        projection = candidates.shape[0] > 0 or surface_edges.shape[0] > 0
         # the kernels index without bounds checks: refuse indices outside the model here
-        for name, idx in (("contacts.held_idx", held_idx), ("contacts.candidates", candidates)):
+        for name, idx in (("contacts.held_idx", held_idx), ("contacts.candidates", candidates),
+                          ("contacts.surface_edges", surface_edges.ravel())):
             if idx.shape[0] and (idx.min() < 0 or idx.max() >= n):
                 raise InputError(f"{name} must lie in [0, {n}); got [{idx.min()}, {idx.max()}]")
         if held_dx.shape[0] != held_idx.shape[0]:
@@ -371,9 +373,9 @@ class Solver:
             if projection:
                 self._interpolate_shape(s0, s1, sub / n_sub, self._shape0)
                 self._interpolate_shape(s0, s1, (sub + 1) / n_sub, self._shape1)
-                cand = candidates
+                cand, surf = candidates, surface_edges
             else:
-                cand = self._no_index
+                cand, surf = self._no_index, self._no_edges
             if self.jacobi:
                 if p.method == "xpbd" and self.jacobi_relaxation == "stiffness":
                     kernels.jacobi_relaxation(x, w, edges, alpha_e, tris, alpha_t, self.signed, self.relaxation_scale,
@@ -381,12 +383,14 @@ class Solver:
                 kernels.jacobi_iterations(x, w, edges, rest, k_e, alpha_e, self.lam_e, self.omega_e,
                                           tris, area0, k_t, alpha_t, self.lam_t, self.omega_t,
                                           self.signed, p.iterations, self.particle_scale, self._dx_acc,
-                                          self.x_start, cand, self._shape0, self._shape1, self.contact_dx)
+                                          self.x_start, cand, self._shape0, self._shape1, self.contact_dx,
+                                          surf, float(contacts.edge_side_tol))
             else:
                 kernels.gauss_seidel_iterations(x, w, edges, rest, k_e, alpha_e, self.lam_e, self.edge_offsets,
                                                 tris, area0, k_t, alpha_t, self.lam_t, self.tri_offsets,
                                                 self.signed, p.iterations, self.gs_mode,
-                                                self.x_start, cand, self._shape0, self._shape1, self.contact_dx)
+                                                self.x_start, cand, self._shape0, self._shape1, self.contact_dx,
+                                                surf, float(contacts.edge_side_tol))
             kernels.update_velocity(x, self.x_start, h, v)
             kernels.apply_boundary_lines(x, v, inv_mass, p.boundary_y_top, p.boundary_y_bottom)
 
