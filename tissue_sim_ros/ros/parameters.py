@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 from ..core.errors import InputError
-from ..core.model import AREA_MODES, CONTACT_MODELS, METHOD_ALIASES, METHODS, SCHEMES, SimParams
+from ..core.model import AREA_MODES, CONTACT_MODELS, CONTACT_SURFACES, METHOD_ALIASES, METHODS, SCHEMES, SimParams
 from ..core.scene import SceneConfig, tool_from_mapping
 from ..core.tool import TOOL_SHAPES, ToolShape
 
@@ -102,6 +102,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("contact_radius", float, _SIM.contact_radius, "m", "Paper contact: radius r of the displaced neighbourhood (Table I: 0.25).", False, "contact"),
     ParamSpec("contact_threshold", float, _SIM.contact_threshold, "m", "Paper contact: distance alpha below which contact starts (Table I: 0.025).", False, "contact"),
     ParamSpec("contact_margin", float, _SIM.contact_margin, "m", "Projection contact: the tool inflated by this margin.", False, "contact"),
+    ParamSpec("contact_surface", str, _SIM.contact_surface, "", f"Projection contact keeps out of the tool: {', '.join(CONTACT_SURFACES)} (edges = particles and boundary edges; particles = particles only, a thin tool slips between them).", False, "contact"),
     # tool shape (read-only: the contact model is built around it)
     ParamSpec("tool_shape", str, _TOOL.kind, "", f"Tool shape: {', '.join(TOOL_SHAPES)}.", True, "tool"),
     ParamSpec("tool_length", float, _TOOL.length, "m", "Tool length along its axis (box, capsule).", True, "tool"),
