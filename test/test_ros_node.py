@@ -410,7 +410,7 @@ def test_tool_driver_plays_a_trajectory_in_lock_step(ros_client: RosClient, star
     ros_client.spin_until(lambda: driver.returncode is not None, TIMEOUT, None, "the driver to finish")
     assert driver.returncode == 0, driver.output()
     ros_client.spin_for(0.2)
-    assert len(energy.messages) == 16, driver.output()  # k = 0..15: the start pose, 10 moving, 5 holding
+    assert len(energy.messages) == 15, driver.output()  # k = 1..15: the end of each step, 10 moving, 5 holding
     assert np.isfinite([M.decode_float64(m) for m in energy.messages]).all()
 
 

@@ -281,6 +281,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"the node published {got} of {n_steps} steps (logs in {out}/)")
 
     run_ = read_demo_bag(bag_path)
+    if len(run_["steps"]) != n_steps or len(run_["points"]) != n_steps:
+        raise InputError(f"the bag {bag_path} holds {len(run_['steps'])} energy and {len(run_['points'])} point "
+                         f"messages of {n_steps} steps: the recorder lost messages (see {out}/record.log)")
     model = Model.from_mesh(SceneConfig.from_mapping(values).build_mesh(), params)
     snaps = []
     for s in tr.A_SNAPSHOTS:

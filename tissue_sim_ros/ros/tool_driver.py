@@ -11,10 +11,13 @@ experiment a; resolved by ``tissue_sim_ros.experiments.trajectories.preset``)
 or, with ``preset:=straight``, a straight insertion
 (:class:`~tissue_sim_ros.core.tool.StraightInsertion`) toward ``target_x,
 target_y`` at ``angle`` [deg] over ``distance`` [m]. Messages go out at 1/dt
-of the node's clock, stamped with that clock; in ``lock_step`` mode the driver
-sends the next pose only once the simulation has published the energy of the
-previous step (or after ``lock_step_timeout``), stamps poses k*dt after the
-start, and so drives the simulation as fast as it steps.
+of the node's clock, stamped with that clock. Step k's message is the pose at
+the end of step k and the pose change over it divided by dt, exactly the
+commands :meth:`Trajectory.steps` gives an offline rollout. In ``lock_step``
+mode the driver sends the next pose only once the simulation has published the
+energy of the previous step, stamps poses k*dt after the start, resends a pose
+that got no step within ``lock_step_timeout`` (same stamp), and paces itself
+at 1/dt (``lock_step_realtime``) or as fast as the simulation steps.
 """
 from __future__ import annotations
 
@@ -55,7 +58,8 @@ DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
     "wait_timeout": (30.0, "Give up waiting for a subscriber after this long [s]; 0 = forever."),
     "exit_when_done": (True, "Exit when the trajectory ends (else keep publishing the last pose)."),
     "lock_step": (False, "Send the next pose only after the simulation published tissue/energy for the previous one."),
-    "lock_step_timeout": (1.0, "Lock-step: send the next pose anyway after this long without a step [s]."),
+    "lock_step_timeout": (1.0, "Lock-step: resend the same pose (same stamp) after this long without a step [s]: a best-effort message may be lost, and the node drops a pose it already stepped on as out of order."),
+    "lock_step_realtime": (True, "Lock-step: send at most one pose per dt (real-time pace, e.g. for recording); false: as fast as the node steps."),
     "publish_twist": (True, "Also publish tool/twist (false: the node derives velocity from poses)."),
 }
 
@@ -101,8 +105,14 @@ class ToolDriver(Node):
             raise InputError(f"parameter dt={self.values['dt']!r}: expected a period > 0 s")
         self.trajectory = _trajectory(self.values)
         self.dt: float = self.values["dt"]
-        self.n_steps = max(1, math.ceil(self.trajectory.duration / self.dt - 1e-9))
-        self.k = 0
+        # exactly the (pose, twist) sequence an offline rollout steps through (Trajectory.steps): the pose at the
+        # end of step k and the pose change over it, so a live lock-step run equals the offline one
+        self.commands = list(self.trajectory.steps(self.dt))
+        self.n_steps = len(self.commands)
+        if self.n_steps == 0:
+            raise InputError(f"the trajectory lasts {self.trajectory.duration} s: shorter than one step of dt={self.dt} s")
+        self.k = 1
+        self._acked = True
         self.done = Future()
         self.steps_seen = 0
         self._sent_at: Time | None = None
@@ -119,7 +129,9 @@ class ToolDriver(Node):
     def _on_energy(self, msg: Float64) -> None:
         self.steps_seen += 1
         if self.values["lock_step"] and self._start_ns is not None:
-            self._publish_next()
+            self._acked = True
+            if not self.values["lock_step_realtime"]:
+                self._publish_next()
 
     def _ready(self) -> bool:
         """True once a subscriber matches (or waiting is off or timed out)."""
@@ -142,10 +154,16 @@ class ToolDriver(Node):
             self._publish_next()
             return
         if self.values["lock_step"]:
-            # resend only when the simulation has not stepped for lock_step_timeout
+            if self._acked:
+                if self.values["lock_step_realtime"]:
+                    self._publish_next()
+                return
             if self._sent_at is not None and (self.get_clock().now() - self._sent_at).nanoseconds * 1e-9 \
                     > self.values["lock_step_timeout"]:
-                self.get_logger().warning(f"no step for {self.values['lock_step_timeout']} s; sending the next pose")
+                # the pose (best effort) was lost: send it again, same stamp; a node that did step on it
+                # drops the copy as out of order, so no step is ever taken twice
+                self.get_logger().warning(f"no step for {self.values['lock_step_timeout']} s; resending step {self.k - 1}")
+                self.k -= 1
                 self._publish_next()
             return
         self._publish_next()
@@ -159,9 +177,7 @@ class ToolDriver(Node):
                 self.done.set_result(True)
                 return
             self.k = self.n_steps  # keep holding the last pose
-        t = min(self.k * self.dt, self.trajectory.duration)
-        pose = self.trajectory.pose_at(self.trajectory.start_time + t)
-        twist = self.trajectory.twist_at(self.trajectory.start_time + t)
+        pose, twist = self.commands[min(self.k, self.n_steps) - 1]
         now = self.get_clock().now()
         stamp_ns = self._start_ns + round(self.k * self.dt * 1e9) if self.values["lock_step"] else now.nanoseconds
         stamp = (stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000)
@@ -170,6 +186,7 @@ class ToolDriver(Node):
             self.pub_twist.publish(messages.encode_twist_stamped(stamp, frame, twist.vx, twist.vy, twist.wz))
         self.pub_pose.publish(messages.encode_pose_stamped(stamp, frame, pose.x, pose.y, pose.yaw))
         self._sent_at = now
+        self._acked = False
         self.k += 1
 
 
