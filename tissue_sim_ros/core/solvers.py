@@ -41,9 +41,14 @@ from .collision import Contacts
 from .errors import InputError
 from .model import Model, State
 
-#: Particle count from which Gauss-Seidel runs coloured on all threads by
-#: default. Below it thread hand-offs (~1.5 us per colour with OpenMP, 13
-#: colours per iteration) cost as much as the work; see ``tissue-sim bench solver``.
+#: Particle count from which Gauss-Seidel runs on all threads by default.
+#: Measured on the 2-core VM (``tissue-sim bench solver``, slab partition):
+#: 1.0x at 500 particles, 1.0-1.5x at 1k-4k, 1.3-2.3x at 8k-20k between runs
+#: (the serial path is steady at 7-8 ns per projection). On a machine busy
+#: with other work (more runnable threads than cores) the parallel path can be
+#: several times slower than the serial one: a thread waits at every sweep's
+#: barrier for a descheduled partner. Set NUMBA_NUM_THREADS=1 there (the
+#: default then stays serial) or pass ``parallel=False``.
 PARALLEL_MIN_PARTICLES = 4000
 
 ORDERS = ("mesh", "colour", "stored")
