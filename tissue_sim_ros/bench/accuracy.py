@@ -468,7 +468,8 @@ def plot_chart(path: Path, rows: Sequence[dict[str, Any]], title: str, error_key
                 lw=2.5, alpha=0.35, label=f"Pareto front ({front[0]['particles']} p., dt {dts[0]:g})")
         ax.scatter([r["ms_per_step"] for r in front], [r[error_key] for r in front], s=70, facecolors="none",
                    edgecolors="k", zorder=5)
-    newton = sorted({(r["particles"], r["newton_ms"]) for r in rows if math.isfinite(r.get("newton_ms", math.nan))})
+    newton = sorted({(r["particles"], r["newton_ms"]) for r in rows
+                     if r["dt"] == dts[0] and math.isfinite(r.get("newton_ms", math.nan))})
     for i, (particles, ms) in enumerate(newton):
         ax.axvline(ms, color="k", ls=":", lw=1)
         ax.annotate(f"exact Newton\n{particles} p.", (ms, 0.02 + 0.08 * (i % 3)), xycoords=("data", "axes fraction"),
