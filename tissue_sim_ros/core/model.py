@@ -69,9 +69,9 @@ class SimParams:
 
     Each constraint c steps omega_c = 2 relaxation / r_c, with r_c a Gershgorin
     bound of the (scaled) XPBD system at the substep's start (stiff constraints
-    get small omega, soft ones ~1); stable at every stiffness tried (1e2..1e6
-    N/m). A uniform omega of 1 or 0.5 diverged within 10 steps on the 1 m x
-    0.5 m strip at the default stiffnesses. PBD Jacobi averages by constraint
+    get small omega, soft ones ~1); stable at every stiffness tried (13..1e6
+    N/m). A uniform omega of 1 or 0.5 diverged within 6 and 11 steps on the
+    1 m x 0.5 m strip at the default stiffnesses. PBD Jacobi averages by constraint
     count instead (the paper authors' code) and ignores this value.
     """
     k_spring: float = 0.15
