@@ -397,8 +397,8 @@ def test_paper_contact_moves_held_particles_by_held_dx(substeps: int) -> None:
 
 
 @pytest.mark.parametrize("substeps", [1, 4])
-@pytest.mark.parametrize("scheme", ["gauss_seidel", "jacobi"])
-def test_projection_contact_keeps_tissue_out_of_the_tool(substeps: int, scheme: str) -> None:
+@pytest.mark.parametrize("scheme,parallel", [("gauss_seidel", False), ("gauss_seidel", True), ("jacobi", False)])
+def test_projection_contact_keeps_tissue_out_of_the_tool(substeps: int, scheme: str, parallel: bool) -> None:
     params = SimParams(method="xpbd", scheme=scheme, substeps=substeps, iterations=max(1, 30 // substeps),
                        gravity=0.0, contact_model="projection")
     model = strip_model(params, pin="bottom")
@@ -410,7 +410,7 @@ def test_projection_contact_keeps_tissue_out_of_the_tool(substeps: int, scheme: 
     contacts.candidates = np.arange(model.n_particles, dtype=np.int32)
     contacts.tool_shape0, contacts.tool_shape1 = s0, s1
     out = model.state()
-    info = Solver(model).step(model.state(), out, contacts, DT)
+    info = Solver(model, parallel=parallel).step(model.state(), out, contacts, DT)
     sdf = np.array([_rounded_box_sdf(px, py, s1)[0] for px, py in out.particle_q])
     assert sdf.min() >= -1e-12
     assert contacts.touched.size > 0
