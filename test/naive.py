@@ -429,3 +429,119 @@ def wavefront_levels(indices, n_particles, block):
 
 def count_inverted(x, tris):
     return int(np.count_nonzero(signed_areas(x, tris) <= 0)) if len(tris) else 0
+
+
+# ----------------------------------------------------------------------------- surface (boundary-edge) contact
+# References of collision.boundary_edges_ccw, edge_depth, project_edges and swept_edge_candidates.
+
+
+def boundary_edges_ccw(tris):
+    """Directed edges (a, b) of CCW triangles whose undirected edge is used once, sorted by (a, b)."""
+    count = {}
+    for tri in np.asarray(tris).reshape(-1, 3):
+        for k in range(3):
+            a, b = int(tri[k]), int(tri[(k + 1) % 3])
+            count.setdefault(frozenset((a, b)), []).append((a, b))
+    return np.array(sorted(v[0] for v in count.values() if len(v) == 1), dtype=np.int64).reshape(-1, 2)
+
+
+def deepest_on_line(q, n, shape, span=None):
+    """Largest t with sdf(q + t n) <= 0 (the tool's far point on the line q + t n), or -inf when the line misses."""
+    hx, hy, r = shape[4], shape[5], shape[6]
+    span = span or 4.0 * (hx + hy + r) + 1.0 + float(np.linalg.norm(q - shape[:2]))
+    f = lambda t: rounded_box_sdf_local(tool_local(q + t * n, shape), hx, hy, r)  # noqa: E731
+    t_min = _golden_min(f, -span, span)
+    if f(t_min) > 0.0:
+        return -np.inf
+    return _bisect_root(f, t_min, span)
+
+
+def edge_depth(a, b, shape, samples=0):
+    """(depth, t, line_depth) of collision.edge_depth by another route.
+
+    The deepest tool point over the edge's span is max_u g(u), g(u) the tool's
+    far point on the normal line at u (root finding on the SDF). g is concave,
+    so the maximum is at the support point's u (from the four core corners)
+    when that lies in the span, else at the nearer span end. ``samples`` > 0
+    also evaluates g on that many points of the span (a check of the maximum).
+    """
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    e = b - a
+    length = float(np.linalg.norm(e))
+    if length * length <= 1e-24:
+        return -np.inf, 0.0, -np.inf
+    u_hat = e / length
+    n = np.array([-u_hat[1], u_hat[0]])
+    corners = np.array([tool_world(np.array([sx * shape[4], sy * shape[5]]), shape)
+                        for sx in (-1.0, 1.0) for sy in (-1.0, 1.0)])
+    dots = corners @ n
+    best = dots.max()
+    support = corners[dots >= best - 1e-12 * max(1.0, abs(best))]  # a corner, or a face parallel to the edge
+    line_depth = float(best + shape[6] - a @ n)
+    us = (support - a) @ u_hat
+    lo, hi = max(us.min(), 0.0), min(us.max(), length)
+    g = lambda u: deepest_on_line(a + u * u_hat, n, shape)  # noqa: E731
+    if lo <= hi:
+        u_best = 0.5 * (lo + hi)
+        depth = line_depth
+    else:
+        u_best = 0.0 if us.max() < 0.0 else length
+        depth = g(u_best)
+        if depth == -np.inf:
+            return -np.inf, 0.0, line_depth
+    if samples:
+        sampled = max(g(u) for u in np.linspace(0.0, length, samples))
+        assert sampled <= depth + 1e-9, (sampled, depth)
+    return float(depth), u_best / length, line_depth
+
+
+def project_edges(x, x_start, inv_mass, edges, shape0, shape1, side_tol, turn_cos=0.7071):
+    """Reference of collision.project_edges: returns (x, dx_accum, moved) as new arrays (edges in order)."""
+    x = np.array(x, dtype=float)
+    acc = np.zeros_like(x)
+    ddx = shape1[:2] - shape0[:2]
+    dang = abs(math.atan2(shape0[2] * shape1[3] - shape0[3] * shape1[2], shape0[2] * shape1[2] + shape0[3] * shape1[3]))
+    sweep = float(np.hypot(*ddx)) + dang * (math.hypot(shape1[4], shape1[5]) + shape1[6])
+    moved = 0
+    for a, b in edges:
+        wa, wb = inv_mass[a], inv_mass[b]
+        if wa == 0 and wb == 0:
+            continue
+        depth, t, _ = edge_depth(x[a], x[b], shape1)
+        if not depth > 0:
+            continue
+        depth0, _, line0 = edge_depth(x_start[a], x_start[b], shape0)
+        if depth0 > side_tol or (depth0 == -np.inf and line0 > side_tol):
+            continue
+        e, e0 = x[b] - x[a], x_start[b] - x_start[a]
+        if e @ e0 <= turn_cos * np.linalg.norm(e) * np.linalg.norm(e0):
+            continue
+        motion = max(np.linalg.norm(x[a] - x_start[a]), np.linalg.norm(x[b] - x_start[b]))
+        if depth > max(depth0, 0.0) + sweep + motion + side_tol:
+            continue
+        denom = (1 - t) ** 2 * wa + t ** 2 * wb
+        if denom <= 0:
+            continue
+        n = np.array([-e[1], e[0]]) / np.linalg.norm(e)
+        s = depth / denom
+        for i, f in ((a, (1 - t) * wa * s), (b, t * wb * s)):
+            x[i] += f * n
+            acc[i] += f * n
+        moved += 1
+    return x, acc, moved
+
+
+def swept_edge_candidates(x, inv_mass, edges, shape0, shape1, reach):
+    """Rows of ``edges`` with a free particle whose Lipschitz lower bound on the tool distance is <= reach + sweep / 2."""
+    dang = abs(math.atan2(shape0[2] * shape1[3] - shape0[3] * shape1[2], shape0[2] * shape1[2] + shape0[3] * shape1[3]))
+    sweep = math.hypot(*(shape1[:2] - shape0[:2])) + dang * (math.hypot(shape1[4], shape1[5]) + shape1[6])
+    a, b = x[edges[:, 0]], x[edges[:, 1]]
+    length = np.linalg.norm(b - a, axis=1)
+    mid = 0.5 * (a + b)
+    lower = np.full(len(edges), np.inf)
+    for s in (shape0, shape1):
+        bound = np.maximum.reduce([rounded_box_sdf(a, s) - length, rounded_box_sdf(b, s) - length,
+                                   rounded_box_sdf(mid, s) - 0.5 * length])
+        lower = np.minimum(lower, bound)
+    free = (inv_mass[edges[:, 0]] > 0) | (inv_mass[edges[:, 1]] > 0)
+    return np.flatnonzero((lower <= reach + 0.5 * sweep) & free)
