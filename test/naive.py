@@ -400,18 +400,6 @@ def swept_candidates(x, inv_mass, shape0, shape1, reach):
     return np.flatnonzero((d <= reach + 0.5 * sweep) & (inv_mass > 0))
 
 
-def body_nearest(sdf, particle_body, n_bodies):
-    """Per body: smallest signed distance and the first particle attaining it (inf / -1 for an empty body)."""
-    out_min = np.full(n_bodies, np.inf)
-    out_arg = np.full(n_bodies, -1, dtype=np.int32)
-    for b in range(n_bodies):
-        idx = np.flatnonzero(particle_body == b)
-        if idx.size:
-            k = int(np.argmin(sdf[idx]))  # argmin returns the first of equal minima
-            out_min[b], out_arg[b] = sdf[idx[k]], idx[k]
-    return out_min, out_arg
-
-
 def paper_displacement(x, body_particles, q, d_star, v, r):
     """Eq. (3) of the paper for one body: (indices, displacements) of particles within r of x_q.
 
