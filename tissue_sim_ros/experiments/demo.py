@@ -252,7 +252,8 @@ def run(args: argparse.Namespace) -> int:
         monitor = _Monitor(domain)
         # the recorder's and this monitor's subscriptions are matched before the first pose is sent
         monitor.wait_for_subscribers({"/tissue/energy": 2, "/tissue/energy/bodies": 1, "/tissue/points": 1,
-                                      "/tissue/markers": 1}, timeout=args.timeout)
+                                      "/tissue/markers": 1, "/tool/pose": 2, "/tool/twist": 2},
+                                     timeout=args.timeout)
         driver = _Process("tool_driver", [_script("tool_driver"), "--ros-args", "-p", "preset:=experiment_a",
                                           "-p", "lock_step:=true", "-p", "exit_when_done:=true"], env,
                           out / "driver.log")
