@@ -2,8 +2,8 @@
 
 Every method (the paper's PBD Gauss-Seidel and Jacobi, XPBD Gauss-Seidel and
 Jacobi, substepped XPBD, and Newton itself stopped after a few iterations) runs
-the standard tool trajectory (experiment a: the tool, in the gap between the
-tissues, pushes the bottom tissue down) at several iteration / substep
+the standard tool trajectory (experiment a's insertion from the side, over the
+30 steps where the tool meets the lower tissue) at several iteration / substep
 counts, time steps and mesh resolutions. For each setting it measures
 
 * the median wall time of one solver step (contact detection excluded: it is
@@ -134,15 +134,47 @@ def push_poses(mesh: TissueMesh, tool: ToolShape, n_steps: int, speed: float, ap
     return poses, (tip_x, poses[-1].y)
 
 
+#: Experiment a's steps where the tool meets the lower tissue (it comes within alpha near step 150 of the
+#: tissue as it sags; from the tissue at rest, contact starts at once).
+EXPERIMENT_A_FIRST_STEP = 175
+
+
+def experiment_a_poses(tool: ToolShape, dt: float, n_steps: int, first_step: int = EXPERIMENT_A_FIRST_STEP,
+                       dt_ref: float = 0.01) -> tuple[list[ToolPose], tuple[float, float]]:
+    """Experiment a's tool poses (:func:`~tissue_sim_ros.experiments.trajectories.experiment_a`) over a window.
+
+    The trajectory is defined at ``dt_ref`` (0.001 m per step); at another dt the same motion in time
+    is used (speed per step and step indices scaled by dt / dt_ref). Returns n_steps + 1 poses (the pose
+    before the window's first step, then one per step) and the tool tip at the end [m].
+    """
+    from ..experiments.trajectories import A_SPEED, A_STEPS, experiment_a  # noqa: PLC0415
+
+    scale = dt / dt_ref
+    traj = experiment_a(tool, dt, speed=A_SPEED * scale, steps=int(round(A_STEPS / scale)))
+    poses = [traj.pose_at(traj.start_time)] + [pose for pose, _ in traj.steps(dt)]
+    k0 = int(round(first_step / scale))
+    window = poses[k0:k0 + n_steps + 1]
+    if len(window) < n_steps + 1:
+        raise InputError(f"experiment a has {len(poses) - 1} steps at dt={dt}: the window {k0}..{k0 + n_steps} "
+                         "does not fit")
+    end = window[-1]
+    half = 0.5 * tool.length if tool.kind != "sphere" else 0.0
+    tip = (end.x + half * math.cos(end.yaw), end.y + half * math.sin(end.yaw))
+    return window, tip
+
+
 def default_scene(spacing: float = 0.05, dt: float = 0.01, n_steps: int = 40, speed: float = 0.002,
                   grading: tuple[float, float, float, float] | None = None,
                   overrides: dict[str, Any] | None = None,
                   like: "Scene | None" = None) -> Scene:
-    """The shipped tissue image and parameters (config/tissue_sim.yaml) with experiment a's push.
+    """The shipped tissue image and parameters (config/tissue_sim.yaml) with a stretch of experiment a.
 
+    The tool follows experiment a's insertion over ``n_steps`` steps from step 175 (dt 0.01 s; the same
+    motion in time at other dt), where it meets the lower tissue, starting from the tissue at rest.
+    ``speed`` is unused (kept for :func:`push_poses`-style callers).
     ``grading`` = (x, y, radius, fine_spacing) meshes finer near a point (H1's graded mesh).
     ``like``: take the tool trajectory from this scene (so that meshes of other resolutions
-    see exactly the same tool motion; ``n_steps`` and ``speed`` are then ignored).
+    see exactly the same tool motion; ``n_steps`` is then ignored).
     """
     from ..core.scene import SceneConfig, default_params, tool_from_mapping  # noqa: PLC0415
 
@@ -165,7 +197,7 @@ def default_scene(spacing: float = 0.05, dt: float = 0.01, n_steps: int = 40, sp
     if like is not None:
         poses, focus = list(like.poses), like.focus
     else:
-        poses, focus = push_poses(mesh, tool, n_steps, speed)
+        poses, focus = experiment_a_poses(tool, params.dt, n_steps)
     return Scene("tissue image", mesh, params, tool, poses, spacing, graded=grading is not None, focus=focus)
 
 
@@ -567,7 +599,7 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
 
     # the scenes: every resolution at the first dt; the other dts at the base resolution; graded at base spacing
-    base_speed = 0.002  # m per step at dt 0.01 (0.2 m/s); the same speed in m/s at every dt
+    base_speed = 0.002  # unused by experiment a's scenes (their speed is the experiment's)
     scenes: list[tuple[Scene, list[Setting], int]] = []
     fine_scene: dict[int, bool] = {}
     finest: Scene | None = None
@@ -637,7 +669,7 @@ def run(args: argparse.Namespace) -> int:
                                                           near_radius=0.15) if scene is not finest else 0.0,
         })
 
-    # sleeping: a slow push on the 2x mesh, long enough for far regions to settle
+    # sleeping: experiment a on the 2x mesh, long enough for far regions to settle
     sleep_scene = default_scene(plan.sleep_spacing, plan.dts[0], plan.sleep_steps, 0.001)
     with tqdm(total=(len(sleep_scene.poses) - 1) * (1 + len(SLEEP_SETTINGS)), desc="sleeping", unit="step",
               dynamic_ncols=True) as bar:
@@ -649,7 +681,7 @@ def run(args: argparse.Namespace) -> int:
     base_rows = [r for r in rows if r["particles"] == refinement[0].n_particles and r["dt"] == plan.dts[0]
                  and "graded" not in r["scene"]]
     plot_chart(out / "accuracy.png", rows,
-               f"Error against the exact implicit Euler step vs time, {plan.n_steps}-step push (experiment a)")
+               f"Error against the exact implicit Euler step vs time: experiment a, steps 175-{175 + plan.n_steps}")
     plot_chart(out / "accuracy_accumulated.png", rows,
                "Accumulated error of the run against the exact run", error_key="err_accum_final")
 
@@ -673,7 +705,7 @@ def run(args: argparse.Namespace) -> int:
     print(format_table(ref_rows, ["scene", "spacing", "particles", "step", "newton_ms", "err_vs_finest_all",
                                   "err_vs_finest_near_tool"]))
     print(f"\nsleeping far, quiet particles (XPBD 50 iterations, {sleep_scene.n_particles} particles, "
-          f"{len(sleep_scene.poses) - 1} steps of a 1 mm/step push; error against the same run awake):")
+          f"{len(sleep_scene.poses) - 1} steps of experiment a from step 175; error against the same run awake):")
     print(format_table(sleep_rows, ["sleep_speed", "quiet_steps", "ms_per_step", "ms_per_step_2nd_half",
                                     "awake_constraints_mean", "awake_constraints_end", "err_vs_awake"]))
     print(f"\nwrote {out / 'accuracy.csv'}, {out / 'accuracy_refinement.csv'}, {out / 'accuracy_sleeping.csv'}, "
