@@ -255,7 +255,8 @@ def run(args: argparse.Namespace) -> int:
                                       "/tissue/markers": 1, "/tool/pose": 2, "/tool/twist": 2},
                                      timeout=args.timeout)
         driver = _Process("tool_driver", [_script("tool_driver"), "--ros-args", "-p", "preset:=experiment_a",
-                                          "-p", "lock_step:=true", "-p", "exit_when_done:=true"], env,
+                                          "-p", "lock_step:=true", "-p", "exit_when_done:=true",
+                                          "-p", "min_subscribers:=2"], env,
                           out / "driver.log")
         procs.append(driver)
         t_drive = time.monotonic()

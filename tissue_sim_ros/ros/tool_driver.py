@@ -55,6 +55,7 @@ DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
     "tool_width": (0.005, "Box tool width [m]."),
     "tool_radius": (0.0025, "Capsule or sphere radius [m]."),
     "wait_for_subscriber": (True, "Wait until a subscriber of tool/pose matches before starting."),
+    "min_subscribers": (1, "Start once this many tool/pose subscribers match (e.g. 2: the node and a recorder)."),
     "wait_timeout": (30.0, "Give up waiting for a subscriber after this long [s]; 0 = forever."),
     "exit_when_done": (True, "Exit when the trajectory ends (else keep publishing the last pose)."),
     "lock_step": (False, "Send the next pose only after the simulation published tissue/energy for the previous one."),
@@ -135,7 +136,8 @@ class ToolDriver(Node):
 
     def _ready(self) -> bool:
         """True once a subscriber matches (or waiting is off or timed out)."""
-        if not self.values["wait_for_subscriber"] or self.pub_pose.get_subscription_count() > 0:
+        if not self.values["wait_for_subscriber"] or \
+                self.pub_pose.get_subscription_count() >= max(1, self.values["min_subscribers"]):
             return True
         waited = (self.get_clock().now() - self._wait_start).nanoseconds * 1e-9
         timeout = self.values["wait_timeout"]
