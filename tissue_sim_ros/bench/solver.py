@@ -74,7 +74,7 @@ METHODS = (
            dict(parallel=False, order="stored")),
     Method("xpbd_gs_colour", "XPBD Gauss-Seidel, colour order, 1 thread", dict(method="xpbd"),
            dict(parallel=False, order="colour")),
-    Method("xpbd_gs_parallel", "XPBD Gauss-Seidel, slab-partitioned, all threads", dict(method="xpbd"),
+    Method("xpbd_gs_parallel", "XPBD Gauss-Seidel, partitioned, all threads", dict(method="xpbd"),
            dict(parallel=True)),
     Method("xpbd_gs_par_colour", "XPBD Gauss-Seidel, coloured, all threads", dict(method="xpbd"),
            dict(parallel=True, parallel_mode="colour")),
@@ -279,7 +279,7 @@ def print_summary(rows: list[dict[str, Any]]) -> None:
         stored, auto = by.get((n, "xpbd_gs_stored")), by.get((n, "xpbd_gs_auto"))
         if serial and par and stored and auto and par_c:
             print(f"  {n:>6} particles: XPBD GS serial {serial['ns_per_projection']:.2f} ns/projection "
-                  f"(plain mesh-order loop {stored['ns_per_projection']:.2f}); all threads: slabs "
+                  f"(plain mesh-order loop {stored['ns_per_projection']:.2f}); all threads: parts "
                   f"x{serial['ms_per_step'] / par['ms_per_step']:.2f}, colours x{serial['ms_per_step'] / par_c['ms_per_step']:.2f} "
                   f"vs serial; default uses {auto['threads']} thread(s); serial x{serial['x_numpy']:.1f} NumPy")
     for r in rows:

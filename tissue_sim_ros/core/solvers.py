@@ -18,15 +18,15 @@ One step (the paper's Algorithm 1, with Macklin's multipliers for XPBD)::
 Orders. Serial Gauss-Seidel gives the result of sweeping the constraints in
 mesh order, as the paper does (executed in a wavefront schedule that changes
 no bit of it, see :func:`wavefront_order`). The parallel path (default from
-:data:`PARALLEL_MIN_PARTICLES` particles) cuts the mesh into one slab per
-thread: each thread sweeps its slab's constraints in mesh order, then the
-constraints across slabs are swept. Optionally (``parallel_mode="colour"``)
+:data:`PARALLEL_MIN_PARTICLES` particles) cuts the mesh into one part per
+thread (:func:`partition_particles`): each thread sweeps its part's
+constraints in mesh order, then the constraints across parts are swept. Optionally (``parallel_mode="colour"``)
 constraints are sorted by greedy colour (no two constraints of one colour
 share a particle) and each colour runs on all threads. Both are still
 Gauss-Seidel, in another order: a result differs from the mesh-order sweep's
 by what the iterations have not converged plus XPBD's small path dependence
 (measured: 2e-3 of a step's displacement), not bit for bit. Neither depends
-on thread timing: within a slab or a colour the projections are independent.
+on thread timing: within a part or a colour the projections are independent.
 """
 from __future__ import annotations
 
@@ -186,9 +186,9 @@ class Solver:
         threads (Jacobi is always serial).
     parallel_mode : {"partition", "colour"}
         How Gauss-Seidel runs in parallel. ``partition`` (default): the mesh
-        is cut into one slab per thread; each thread sweeps its slab's
-        constraints (mesh order, wavefront-scheduled), then the few
-        constraints across slabs are swept on one thread: one fork-join per
+        is cut into one part per thread (:func:`partition_particles`); each
+        thread sweeps its part's constraints (mesh order, wavefront-scheduled),
+        then the few constraints across parts are swept on one thread: one fork-join per
         sweep, and the result does not depend on the thread count's timing.
         ``colour``: constraints sorted by greedy colour, each colour on all
         threads (one fork-join per colour, ~16 per iteration).
