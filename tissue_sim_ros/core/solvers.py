@@ -42,9 +42,10 @@ from .errors import InputError
 from .model import Model, State
 
 #: Particle count from which Gauss-Seidel runs on all threads by default.
-#: Measured on the 2-core VM (``tissue-sim bench solver``, slab partition):
-#: 1.0x at 500 particles, 1.0-1.5x at 1k-4k, 1.3-2.3x at 8k-20k between runs
-#: (the serial path is steady at 7-8 ns per projection). On a machine busy
+#: Measured on the 2-core VM (``tissue-sim bench solver``, partitioned), speed-up
+#: over serial: 0.7-1.0x at 500 particles, 1.0-1.75x at 1k-4k, 1.1-1.9x at
+#: 8k-20k between runs (median of runs ~1.45x; the serial path is steady at
+#: 7-8 ns per projection, the two-thread one is not on this shared host). On a machine busy
 #: with other work (more runnable threads than cores) the parallel path can be
 #: several times slower than the serial one: a thread waits at every sweep's
 #: barrier for a descheduled partner. Set NUMBA_NUM_THREADS=1 there (the
