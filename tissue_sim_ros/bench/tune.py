@@ -1,7 +1,7 @@
 """``tissue-sim tune``: the cheapest mesh spacing, method, iterations and substeps meeting an error tolerance.
 
 Model no more than the scene needs. On the scene of a parameter file (the
-shipped one by default) and experiment a's push, every candidate mesh spacing
+shipped one by default) and experiment a's steps 175-205, every candidate mesh spacing
 is solved exactly (Newton, :mod:`~tissue_sim_ros.bench.reference`) and against
 an exact run on a mesh twice as fine as the finest candidate; every method is
 run at growing iteration (substep) counts. The error of a setting is
@@ -145,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
         path = Path(args.out)
         path.parent.mkdir(parents=True, exist_ok=True)
         header = (f"# written by tissue-sim tune --tolerance {args.tolerance:g} --budget-ms {args.budget_ms:g}\n"
-                  f"# measured: {best['ms_per_step']:.3g} ms per step, error {best['error']:.3g} on experiment a's push\n")
+                  f"# measured: {best['ms_per_step']:.3g} ms per step, error {best['error']:.3g} on experiment a (steps 175-205)\n")
         path.write_text(header + yaml.safe_dump(doc, sort_keys=False))
         print(f"wrote {path}")
     return 0
