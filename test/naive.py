@@ -557,3 +557,13 @@ def swept_edge_candidates(x, inv_mass, edges, shape0, shape1, reach):
         lower = np.minimum(lower, bound)
     free = (inv_mass[edges[:, 0]] > 0) | (inv_mass[edges[:, 1]] > 0)
     return np.flatnonzero((lower <= reach + 0.5 * sweep) & free)
+
+
+def gather_surface_edges(edges, sel, inv_mass, cand):
+    """(edges[sel], cand followed by the free particles of those edges not in it, in edge order)."""
+    out = list(cand)
+    for a, b in edges[sel]:
+        for p in (a, b):
+            if inv_mass[p] > 0 and p not in out:
+                out.append(p)
+    return edges[sel], np.array(out, dtype=np.int64)

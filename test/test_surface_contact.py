@@ -335,3 +335,22 @@ def test_experiment_a_projection_pushes_the_lower_tissue():
     values = [under[k] for k in sorted(under)]
     assert all(b > a for a, b in zip(values, values[1:]))  # pushed deeper and deeper through steps 200-300
     assert values[-1] > 0.05
+
+
+def test_gather_surface_edges_matches_naive():
+    rng = np.random.default_rng(2)
+    edges = C.boundary_edges_ccw(mesh_rectangle(1.0, 0.3, 0.1).triangles)
+    n_p = int(edges.max()) + 1
+    for _ in range(20):
+        inv_mass = rng.choice([0.0, 1.0], size=n_p, p=[0.3, 0.7])
+        sel = rng.choice(len(edges), size=rng.integers(0, 8), replace=False).astype(np.int32)
+        cand0 = np.sort(rng.choice(n_p, size=rng.integers(0, 6), replace=False)).astype(np.int32)
+        cand = np.zeros(n_p + 1, np.int32)
+        cand[:len(cand0)] = cand0
+        mark = np.zeros(n_p, dtype=bool)
+        out = np.empty((len(edges), 2), np.int32)
+        n = C.gather_surface_edges(edges, sel, len(sel), inv_mass, cand, len(cand0), mark, out)
+        e_ref, c_ref = naive.gather_surface_edges(edges, sel, inv_mass, cand0)
+        np.testing.assert_array_equal(out[:len(sel)], e_ref.reshape(-1, 2))
+        np.testing.assert_array_equal(cand[:n], c_ref)
+        assert not mark.any()

@@ -66,11 +66,26 @@ Semantics chosen here (the paper leaves them open):
   when that line misses the shape. A particle that started inside the shape is
   pushed out to the nearest surface point. A tool moving many times its
   thickness per step therefore cannot pass through the tissue's particles.
-  Only particles are kept out: a tool thinner than the mesh spacing slips
-  between them across the tissue's edges (the authors' 5 mm box on the 5 cm
-  default mesh met its first particle at step 272 of experiment a with
-  ``contact_margin`` 0.002, at step 183 with 0.01), which is what lets it be
-  inserted at all; raise ``contact_margin`` toward the spacing for a blunter tool.
+* **Projection, surface** (``contact_surface="edges"``, default). Particles
+  alone let a tool thinner than the mesh spacing slip between them into the
+  tissue (the authors' 5 mm box on the 5 cm default mesh met its first
+  particle only at step 272 of experiment a, its tip inside the lower tissue
+  from step 201). So each body's boundary edges (used by one triangle,
+  ordered as in their CCW triangle: body on the left) are kept out of the
+  tool as well, in the same solver iterations, right after the particles
+  (:func:`project_edges`): the tool's deepest point past an edge, within the
+  edge's span (:func:`edge_depth`), is put back on the edge by moving its two
+  particles along the inward normal with barycentric PBD weights. Which side
+  the tool came from is read from the start of the (sub)step: an edge the
+  tool was not through then (by more than ``max(contact_margin, 1e-4)``)
+  pushes it back out however far it moved (swept); an edge it was already
+  through (a tool left inside by the paper model or a pose jump) ignores it
+  instead of snapping the tissue over it. Experiment a: contact at step 194,
+  the lower tissue indented ~70 mm by step 300, no inverted triangle, the
+  tip never inside a triangle. ``contact_surface="particles"`` is the
+  particle-only behaviour. Candidate edges (:func:`swept_edge_candidates`)
+  put their free particles among the particle candidates, so the solver
+  runs the projection whenever either set is non-empty.
 """
 from __future__ import annotations
 
@@ -505,6 +520,32 @@ def swept_edge_candidates(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray
 
 
 @njit(cache=True)
+def gather_surface_edges(edges: np.ndarray, sel: np.ndarray, n_sel: int, inv_mass: np.ndarray,
+                         cand: np.ndarray, n_cand: int, mark: np.ndarray, out_edges: np.ndarray) -> int:
+    """Gather the selected edges and add their free particles to the particle candidates; returns the new count.
+
+    out_edges[:n_sel] = edges[sel[:n_sel]] ((K, 2) int32). Every free particle
+    (``inv_mass`` > 0) of those edges not already in ``cand[:n_cand]`` is
+    appended to ``cand`` (int32, room for every particle), in edge order.
+    ``mark`` (N,) bool must be all False on entry and is left all False.
+    """
+    for k in range(n_cand):
+        mark[cand[k]] = True
+    n = n_cand
+    for k in range(n_sel):
+        for j in range(2):
+            p = edges[sel[k], j]
+            out_edges[k, j] = p
+            if inv_mass[p] > 0.0 and not mark[p]:
+                mark[p] = True
+                cand[n] = p
+                n += 1
+    for k in range(n):
+        mark[cand[k]] = False
+    return n
+
+
+@njit(cache=True)
 def points_sdf(x: np.ndarray, shape: np.ndarray, out: np.ndarray, grad: np.ndarray) -> None:
     """Signed distance of every point to the posed tool shape, and its outward unit gradient.
 
@@ -743,6 +784,7 @@ class ContactModel:
         self.boundary_edges = boundary_edges_ccw(model.tri_indices)
         """Every body's boundary edges, ordered with the body on the left, (K, 2) int32."""
         self._edge_cand = np.empty(self.boundary_edges.shape[0], dtype=np.int32)
+        self._edge_rows = np.empty((self.boundary_edges.shape[0], 2), dtype=np.int32)
         self._is_cand = np.zeros(n, dtype=bool)
         self._body_min = np.empty(model.n_bodies)
         self._body_arg = np.empty(model.n_bodies, dtype=np.int32)
@@ -882,21 +924,15 @@ class ContactModel:
         x = np.ascontiguousarray(state.particle_q)
         inv_mass = self.model.particle_inv_mass
         n = swept_candidates(x, inv_mass, shape0, shape1, reach, self._cand)
-        contacts.candidates = self._cand[:n].copy()
-        contacts.tool_shape0 = shape0
-        contacts.tool_shape1 = shape1
         if p.contact_surface == "edges" and self.boundary_edges.shape[0]:
             k = swept_edge_candidates(x, inv_mass, self.boundary_edges, shape0, shape1, reach, self._edge_cand)
             if k:
-                edges = self.boundary_edges[self._edge_cand[:k]]
                 # the edges' free particles join the particle candidates: the solver runs the projection
                 # when either set is non-empty, and a particle an edge moves is tested against the tool too
-                ends = edges.ravel()
-                ends = ends[inv_mass[ends] > 0.0]
-                self._is_cand[contacts.candidates] = True
-                extra = np.unique(ends[~self._is_cand[ends]])
-                self._is_cand[contacts.candidates] = False
-                if extra.size:
-                    contacts.candidates = np.sort(np.concatenate([contacts.candidates, extra.astype(np.int32)]))
-                contacts.surface_edges = np.ascontiguousarray(edges)
+                n = gather_surface_edges(self.boundary_edges, self._edge_cand, k, inv_mass, self._cand, n,
+                                         self._is_cand, self._edge_rows)
+                contacts.surface_edges = self._edge_rows[:k].copy()
             contacts.edge_side_tol = max(p.contact_margin, EDGE_SIDE_TOL_MIN)
+        contacts.candidates = self._cand[:n].copy()
+        contacts.tool_shape0 = shape0
+        contacts.tool_shape1 = shape1
