@@ -42,3 +42,7 @@ def test_mujoco_flex_keeps_the_pinned_row() -> None:
     xy = d.flexvert_xpos[:, :2]
     assert np.abs(xy[model.particle_pinned] - model.particle_q0[model.particle_pinned]).max() < 1e-6
     assert xy[~model.particle_pinned, 1].min() < model.particle_q0[~model.particle_pinned, 1].min() + 1e-9
+
+
+def test_bench_peers_bad_steps_exits_2(tmp_path: Path) -> None:
+    assert main(["bench", "peers", "--quick", "--steps", "0", "--out", str(tmp_path)]) == 2

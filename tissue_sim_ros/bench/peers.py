@@ -263,6 +263,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm  # noqa: PLC0415
 
+    from ..core.errors import InputError  # noqa: PLC0415
+
+    if args.steps < 1:
+        raise InputError(f"--steps={args.steps}: expected at least 1 timed step")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     sizes = {"500": SIZES["500"]} if args.quick else SIZES
