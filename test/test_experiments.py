@@ -140,3 +140,24 @@ def test_demo_runs_through_ros_and_its_bag_decodes_with_mcap(tmp_path):
     assert np.isfinite(energy).all() and (energy >= 0).all()
     assert len(msgs["/tissue/points"]) == steps and len(msgs["/tool/wrench"]) == steps
     assert len(msgs["/tool/pose"]) >= steps
+
+
+def test_plan_ranks_insertions_on_two_processes(tmp_path, capsys):
+    from tissue_sim_ros.cli import main
+    from tissue_sim_ros.experiments.plan import angle_grid, plan
+
+    assert angle_grid(-10, -30, 10) == [-10, -20, -30]
+    rows = plan({"tool_length": 0.3}, [-10.0, -30.0], [0.002], tr.B_TARGET, 0.06, jobs=2, progress=False)
+    assert [r["cost"] for r in rows] == sorted(r["cost"] for r in rows)
+    assert {r["angle_deg"] for r in rows} == {-10.0, -30.0}
+    assert all(r["finite"] and r["steps"] == 30 for r in rows)
+    # the worker result equals the same insertion run here (processes change nothing)
+    from tissue_sim_ros.experiments.plan import evaluate
+
+    again = evaluate({"tool_length": 0.3}, rows[0]["angle_deg"], 0.002, tr.B_TARGET, 0.06)
+    assert again["cost"] == rows[0]["cost"]
+    code = main(["plan", "--angles", "-10", "-30", "20", "--speeds", "0.002", "--distance", "0.04", "--jobs", "1",
+                 "--out", str(tmp_path), "--no-progress"])
+    assert code == 0 and (tmp_path / "plan.png").is_file() and (tmp_path / "plan.csv").is_file()
+    assert "cheapest" in capsys.readouterr().out
+    assert main(["plan", "--speeds", "-1", "--out", str(tmp_path), "--no-progress"]) == 2
