@@ -29,6 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=int, default=tr.A_STEPS, help=f"experiment a: steps (default {tr.A_STEPS})")
     parser.add_argument("--angles", type=float, nargs="+", default=list(tr.B_ANGLES_DEG),
                         help="experiment b: insertion angles in degrees (default: %(default)s)")
+    parser.add_argument("--contact", nargs="+", choices=["paper", "projection"], default=None,
+                        help="contact model(s) to run, each writing its own figures (default: both for experiment a, "
+                             "the parameter file's for b); the paper's eq. (3) lets the tool pass into the tissue "
+                             "once it touches, projection keeps it out")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -48,18 +52,26 @@ def parse_overrides(items: list[str]) -> dict:
 def run(args: argparse.Namespace) -> int:
     params = load_params_file(args.params) if args.params else {}
     params.update(parse_overrides(args.set))
-    if args.which == "a":
-        if args.steps < 1:
-            raise InputError(f"--steps {args.steps}: expected at least 1 step")
-        result = paper.experiment_a(args.out, params=params, steps=args.steps, progress=not args.no_progress)
-    else:
-        result = paper.experiment_b(args.out, params=params, angles_deg=args.angles, progress=not args.no_progress)
-    print(f"experiment {args.which}:")
-    print(result.summary_text())
-    print("wrote:")
-    for f in result.files:
-        print(f"  {f}")
-    return 0 if result.summary.get("energy finite", True) else 1
+    if args.which == "a" and args.steps < 1:
+        raise InputError(f"--steps {args.steps}: expected at least 1 step")
+    models = args.contact or (["paper", "projection"] if args.which == "a" else [None])
+    finite = True
+    for model in models:
+        values = dict(params, **({"contact_model": model} if model else {}))
+        tag = f"_{model}" if model and len(models) > 1 else ""
+        if args.which == "a":
+            result = paper.experiment_a(args.out, params=values, steps=args.steps, progress=not args.no_progress,
+                                        prefix=f"experiment_a{tag}")
+        else:
+            result = paper.experiment_b(args.out, params=values, angles_deg=args.angles,
+                                        progress=not args.no_progress, prefix=f"experiment_b{tag}")
+        print(f"experiment {args.which}" + (f" ({model} contact)" if model else "") + ":")
+        print(result.summary_text())
+        print("wrote:")
+        for f in result.files:
+            print(f"  {f}")
+        finite &= bool(result.summary.get("energy finite", True))
+    return 0 if finite else 1
 
 
 def summary_json(result: paper.ExperimentResult) -> str:

@@ -39,6 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID to use (default: a free-looking one derived from the process id)")
     parser.add_argument("--timeout", type=float, default=120.0, help="give up after this many seconds (default 120)")
+    parser.add_argument("--contact-model", choices=["paper", "projection"], default="projection",
+                        help="contact model of the node (default projection: the tissue is pushed; the paper's eq. (3) "
+                             "lets the tool pass into the tissue once it touches)")
 
 
 class _Process:
@@ -122,12 +125,34 @@ class _Monitor:
         self.last_time = time.monotonic()
         self.node.create_subscription(Float64, "tissue/energy", self._on_energy,
                                       QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE), raw=True)
+        from diagnostic_msgs.msg import DiagnosticArray  # noqa: PLC0415
+
+        self.step_ms: list[tuple[float, int]] = []  # the node's mean step time [ms] and steps per diagnostics window
+        self._steps_seen = 0
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics,
+                                      QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
 
     def _on_energy(self, _raw: bytes) -> None:
         self.count += 1
         self.last_time = time.monotonic()
+
+    def _on_diagnostics(self, msg: Any) -> None:
+        for status in msg.status:
+            kv = {v.key: v.value for v in status.values}
+            if "step_time_mean_ms" in kv and "steps" in kv:
+                steps = int(kv["steps"])
+                if steps > self._steps_seen:
+                    self.step_ms.append((float(kv["step_time_mean_ms"]), steps - self._steps_seen))
+                    self._steps_seen = steps
+
+    def node_step_ms(self) -> float | None:
+        """The node's mean step time over the run (simulation + messages) [ms], from its diagnostics."""
+        if not self.step_ms:
+            return None
+        ms = np.array(self.step_ms)
+        return float((ms[:, 0] * ms[:, 1]).sum() / ms[:, 1].sum())
 
     def wait_for_subscribers(self, topics: dict[str, int], timeout: float) -> None:
         """Wait until each topic has at least the given number of subscribers in the graph."""
@@ -169,10 +194,11 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
 
     poses: dict[int, np.ndarray] = {}
     energy: list[np.ndarray] = []
+    energy_t: list[int] = []
     points: list[tuple[int, np.ndarray]] = []
     contact: dict[int, bool] = {}
     with Bag(path) as bag:
-        for topic, _msgtype, _t_ns, raw in bag.messages():
+        for topic, _msgtype, t_ns, raw in bag.messages():
             if topic == "/tool/pose":
                 stamp, _frame, pos, q = decode_pose_stamped(raw)
                 yaw = 2.0 * math.atan2(q[2], q[3])  # planar pose: a rotation about +z
@@ -180,6 +206,7 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
             elif topic == "/tissue/energy/bodies":
                 data, _labels = decode_float64_multiarray(raw)
                 energy.append(np.asarray(data, dtype=np.float64))
+                energy_t.append(t_ns)
             elif topic == "/tissue/points":
                 stamp, _frame, pts = decode_point_cloud(raw)
                 points.append((_ns(stamp), np.stack([pts["x"], pts["y"]], axis=1).astype(np.float64)))
@@ -199,6 +226,7 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
         "points": {k: x for k, (_t, x) in enumerate(points, start=1)},
         "contact": np.array([contact.get(step_stamp.get(k, -1), False) for k in range(1, len(energy) + 1)], dtype=bool),
         "tool": {k: poses[t] for k, t in step_stamp.items() if t in poses},
+        "energy_time_ns": np.array(energy_t, dtype=np.int64),
     }
 
 
@@ -213,6 +241,7 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     params_file = Path(args.params) if args.params else config_path(DEFAULT_PARAMS_FILE)
     values = load_params_file(params_file)
+    values["contact_model"] = args.contact_model
     params = SimParams.from_mapping(values)
     tool = tool_from_mapping(values)
     n_steps = tr.experiment_a(tool, params.dt).n_steps(params.dt)
@@ -233,7 +262,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         node = _Process("tissue_sim_node", [_script("tissue_sim_node"), "--ros-args", "--params-file", str(params_file),
                                             "-p", "lock_step:=true", "-p", "points_rate:=1000.0",
-                                            "-p", "marker_rate:=1000.0"], env, out / "node.log")
+                                            "-p", "marker_rate:=1000.0", "-p", f"contact_model:={args.contact_model}"],
+                            env, out / "node.log")
         procs.append(node)
         recorder = _Process("recorder", [_script("tissue-sim"), "record", "--output", str(bag_path)], env,
                             out / "record.log")
@@ -259,13 +289,14 @@ def run(args: argparse.Namespace) -> int:
                                           "-p", "min_subscribers:=2"], env,
                           out / "driver.log")
         procs.append(driver)
-        t_drive = time.monotonic()
         try:
             with tqdm(total=n_steps, desc="experiment a through ROS", unit="step") as bar:
                 got = monitor.spin(n_steps, lambda: driver.proc.poll() is not None, 3.0, args.timeout, bar)
+            # the node reports its step times on /diagnostics once a second: take the last window too
+            monitor.spin(10**9, lambda: monitor._steps_seen >= got, 0.0, 2.5, tqdm(disable=True))
+            node_ms = monitor.node_step_ms()
         finally:
             monitor.close()
-        t_done = time.monotonic()
         driver.proc.wait(timeout=args.timeout)
         # the recorder prints its message count every second: stop it once two fresh counts agree
         recorder.drain()
@@ -296,7 +327,7 @@ def run(args: argparse.Namespace) -> int:
         snaps.append((s, x, None if p is None else ToolPose(*map(float, p))))
     files = [
         save_snapshots(out / "demo_snapshots.png", model, snaps, tool=tool,
-                       title="Demo (through ROS): experiment a, the tool approaches the bottom tissue"),
+                       title=f"Demo (through ROS): experiment a, the tool pushes the bottom tissue ({args.contact_model} contact)"),
         plot_energy(out / "demo_energy.png", run_["steps"],
                     {"inertial": run_["inertial"], "spring": run_["spring"], "area": run_["area"]},
                     body_names=("upper tissue", "lower tissue")[: run_["inertial"].shape[1]],
@@ -306,17 +337,21 @@ def run(args: argparse.Namespace) -> int:
     ]
     total = run_["inertial"] + run_["spring"] + run_["area"]
     sim_time = len(run_["steps"]) * params.dt
-    wall = t_done - t_drive
+    # from the first step to the last, as the recorder received them (the driver's start-up is not the run)
+    wall = float(run_["energy_time_ns"][-1] - run_["energy_time_ns"][0]) * 1e-9 + params.dt
     peak_b = total.max(axis=0)
     print()
+    node_rtf = f"{params.dt * 1e3 / node_ms:.0f}x real time" if node_ms else "not reported"
     print(f"Ran experiment a through ROS: {len(run_['steps'])} steps ({sim_time:.2f} s simulated) in {wall:.2f} s "
-          f"wall, a real-time factor of {sim_time / wall:.1f} with the node in lock-step (driver, node and recorder "
-          f"as separate processes on domain {domain}); peak implicit Euler energy "
+          f"wall (real-time factor {sim_time / wall:.2f}: the driver paces the lock-step node at 1/dt so the recorder "
+          f"keeps every message); the node's own step, simulation and messages, took {node_ms or float('nan'):.2f} ms "
+          f"on average ({node_rtf}). Driver, node and recorder ran as separate processes on ROS domain {domain}. "
+          f"Peak implicit Euler energy "
           + ", ".join(f"{n} {v:.3g}" for n, v in zip(("upper", "lower"), peak_b))
           + f" at steps {', '.join(str(int(run_['steps'][i])) for i in total.argmax(axis=0))}; the tool touched "
           f"the tissue in {int(run_['contact'].sum())} steps (first at step "
           f"{int(np.argmax(run_['contact'])) + 1 if run_['contact'].any() else '-'}). "
-          f"Setup and shutdown took {time.monotonic() - t_start - wall:.1f} s.")
+          f"Contact model: {args.contact_model}. Setup and shutdown took {time.monotonic() - t_start - wall:.1f} s.")
     print()
     print("wrote:")
     for f in [bag_path, *files, out / "node.log", out / "record.log", out / "driver.log"]:

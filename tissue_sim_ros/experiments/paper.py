@@ -159,7 +159,8 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | None = None,
         ax.set_title(f"{angle:+.0f} deg: cost (sum of energy) {insertion_cost(run):.3g}", fontsize=10)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="upper left")
-    fig.suptitle("Experiment b: two insertion angles, same target (yellow)", fontsize=11)
+    fig.suptitle(f"Experiment b: two insertion angles, same target (yellow), {runs[0][2].params.contact_model} contact",
+                 fontsize=11)
     fig.tight_layout()
     fig_path = out / f"{prefix}.png"
     fig.savefig(fig_path, dpi=120)
@@ -170,6 +171,7 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | None = None,
     best = min(costs, key=costs.get)
     worst = max(costs, key=costs.get)
     res.summary = {
+        "contact model": runs[0][2].params.contact_model,
         "target": target,
         "angles [deg]": list(angles_deg),
         "cost (energy summed over steps)": {f"{a:+.0f} deg": float(f"{c:.4g}") for a, c in costs.items()},

@@ -123,7 +123,9 @@ class ToolDriver(Node):
         if self.values["lock_step"]:
             self.create_subscription(Float64, "tissue/energy", self._on_energy, qos.energy())
         self._wait_start = self.get_clock().now()
-        self.timer = self.create_timer(self.dt, self._on_tick)
+        # lock-step at real-time pace checks often whether the step is acknowledged and a period has passed
+        paced = self.values["lock_step"] and self.values["lock_step_realtime"]
+        self.timer = self.create_timer(self.dt / 5 if paced else self.dt, self._on_tick)
         self.get_logger().info(f"{type(self.trajectory).__name__}: {self.n_steps} steps of {self.dt} s "
                                f"({'lock-step' if self.values['lock_step'] else 'timed'})")
 
@@ -131,7 +133,10 @@ class ToolDriver(Node):
         self.steps_seen += 1
         if self.values["lock_step"] and self._start_ns is not None:
             self._acked = True
-            if not self.values["lock_step_realtime"]:
+            # real-time pace: send now if a period has passed since the last pose (else the next tick does),
+            # so an acknowledgement arriving just after a tick does not cost a whole period
+            if not self.values["lock_step_realtime"] or self._sent_at is None or \
+                    (self.get_clock().now() - self._sent_at).nanoseconds >= 0.999e9 * self.dt:
                 self._publish_next()
 
     def _ready(self) -> bool:
@@ -157,7 +162,8 @@ class ToolDriver(Node):
             return
         if self.values["lock_step"]:
             if self._acked:
-                if self.values["lock_step_realtime"]:
+                if self.values["lock_step_realtime"] and (self._sent_at is None or (
+                        self.get_clock().now() - self._sent_at).nanoseconds >= 0.999e9 * self.dt):
                     self._publish_next()
                 return
             if self._sent_at is not None and (self.get_clock().now() - self._sent_at).nanoseconds * 1e-9 \
