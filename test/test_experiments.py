@@ -82,7 +82,7 @@ def _model_bodies() -> np.ndarray:
 def test_experiment_b_ranks_the_two_angles(tmp_path):
     res = paper.experiment_b(tmp_path, angles_deg=(-10.0, -30.0), distance=0.12, progress=False)
     assert (tmp_path / "experiment_b.png").is_file()
-    costs = res.summary["cost (energy summed over steps)"]
+    costs = res.summary["cost (energy added, summed over steps)"]
     assert set(costs) == {"-10 deg", "-30 deg"}
     assert all(np.isfinite(v) and v > 0 for v in costs.values())
     cheaper = res.summary["cheaper angle [deg]"]

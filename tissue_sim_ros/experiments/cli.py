@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     finite = True
     for model in models:
         values = dict(params, **({"contact_model": model} if model else {}))
-        tag = f"_{model}" if model and len(models) > 1 else ""
+        tag = f"_{model}" if model else ""
         if args.which == "a":
             result = paper.experiment_a(args.out, params=values, steps=args.steps, progress=not args.no_progress,
                                         prefix=f"experiment_a{tag}")

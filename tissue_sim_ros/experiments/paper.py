@@ -40,9 +40,24 @@ class ExperimentResult:
         return "\n".join(f"  {k}: {v}" for k, v in self.summary.items())
 
 
-def insertion_cost(run: Rollout) -> float:
-    """The planning cost of a run: the implicit Euler energy of the scene summed over all steps."""
-    return float(run.scene_total.sum())
+def insertion_cost(run: Rollout, baseline: Rollout) -> float:
+    """The planning cost of an insertion: the energy it adds to the scene, summed over its steps.
+
+    Even at rest under gravity every step has some implicit Euler energy (the
+    solve pulls the prediction's g dt^2 back each step), so a plain sum would
+    mostly measure how long an insertion takes. ``baseline`` is the same scene
+    stepped as long without the tool; the cost is sum_t (E_t - E_t^baseline).
+    """
+    n = min(len(run.steps), len(baseline.steps))
+    if n < len(run.steps):
+        raise ValueError(f"baseline has {len(baseline.steps)} steps, the run {len(run.steps)}")
+    return float((run.scene_total - baseline.scene_total[:n]).sum())
+
+
+def baseline_rollout(values: Mapping[str, Any], steps: int) -> Rollout:
+    """The scene of ``values`` stepped ``steps`` times without a tool (the energy an insertion is measured from)."""
+    sim = build_simulation(dict(values))
+    return rollout(sim, ((None, None) for _ in range(steps)))
 
 
 def run_trajectory(sim: Simulation, traj: Trajectory, *, snapshot_steps: Sequence[int] = (),
@@ -131,10 +146,13 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | None = None,
     values.update(params or {})
     res = ExperimentResult("b")
     runs: list[tuple[float, Rollout, Simulation, float]] = []
+    baseline: Rollout | None = None
     for angle in angles_deg:
         sim = build_simulation(values)
         traj = tr.experiment_b(sim.tool, sim.params.dt, angle, speed=speed, target=target, distance=distance)
         run, wall = run_trajectory(sim, traj, progress=f"experiment b {angle:+.0f} deg" if progress else False)
+        if baseline is None or len(baseline.steps) < len(run.steps):
+            baseline = baseline_rollout(values, len(run.steps))
         runs.append((angle, run, sim, wall))
         res.rollouts[f"{angle:+.0f}deg"] = run
         run.write_csv(out / f"{prefix}_{angle:+.0f}deg_energy.csv")
@@ -156,7 +174,7 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | None = None,
         ax.set_ylim(0, ymax)
         ax.set_xlabel("step")
         ax.set_ylabel("implicit Euler energy (scene)")
-        ax.set_title(f"{angle:+.0f} deg: cost (sum of energy) {insertion_cost(run):.3g}", fontsize=10)
+        ax.set_title(f"{angle:+.0f} deg: cost (energy added) {insertion_cost(run, baseline):.3g}", fontsize=10)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="upper left")
     fig.suptitle(f"Experiment b: two insertion angles, same target (yellow), {runs[0][2].params.contact_model} contact",
@@ -167,15 +185,16 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | None = None,
     plt.close(fig)
     res.files.insert(0, fig_path)
 
-    costs = {angle: insertion_cost(run) for angle, run, _, _ in runs}
+    costs = {angle: insertion_cost(run, baseline) for angle, run, _, _ in runs}
     best = min(costs, key=costs.get)
     worst = max(costs, key=costs.get)
     res.summary = {
         "contact model": runs[0][2].params.contact_model,
         "target": target,
         "angles [deg]": list(angles_deg),
-        "cost (energy summed over steps)": {f"{a:+.0f} deg": float(f"{c:.4g}") for a, c in costs.items()},
-        "peak energy": {f"{a:+.0f} deg": float(f"{r.scene_total.max():.4g}") for a, r, _, _ in runs},
+        "cost (energy added, summed over steps)": {f"{a:+.0f} deg": float(f"{c:.4g}") for a, c in costs.items()},
+        "peak energy added": {f"{a:+.0f} deg": float(f"{(r.scene_total - baseline.scene_total[:len(r.steps)]).max():.4g}")
+                              for a, r, _, _ in runs},
         "contact steps": {f"{a:+.0f} deg": int(r.in_contact.any(axis=1).sum()) for a, r, _, _ in runs},
         "cheaper angle [deg]": best,
         "saving vs the other": (f"{(1 - costs[best] / costs[worst]) * 100:.1f}% less energy than {worst:+.0f} deg"

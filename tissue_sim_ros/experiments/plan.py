@@ -4,8 +4,9 @@ The paper's point of tracking the energy is to choose between ways of doing a
 task (its experiment b compares two insertion angles). This generalises it:
 every (angle, speed) pair is a full simulated insertion from the same rest
 state toward the same target, run in parallel over the machine's cores; the
-cost of an insertion is the scene's energy summed over its steps (the peak
-and the final energy are reported too). Output: a ranked table, plan.csv and
+cost of an insertion is the energy it adds to the scene, summed over its steps
+(the energy of each step minus that of the same scene without the tool; the
+peak and the final energy are reported too). Output: a ranked table, plan.csv and
 plan.png (cost against angle, one curve per speed, the best marked).
 """
 from __future__ import annotations
@@ -59,16 +60,20 @@ def evaluate(values: dict[str, Any], angle_deg: float, speed: float, target: tup
     from ..core.rollout import rollout  # noqa: PLC0415
     from ..core.scene import build_simulation  # noqa: PLC0415
 
+    from .paper import baseline_rollout, insertion_cost  # noqa: PLC0415
+
     sim = build_simulation(values)
     traj = tr.experiment_b(sim.tool, sim.params.dt, angle_deg, speed=speed, target=target, distance=distance)
     t0 = time.perf_counter()
     run = rollout(sim, traj.steps(sim.params.dt))
     wall = time.perf_counter() - t0
+    baseline = baseline_rollout(values, len(run.steps))
     total = run.scene_total
+    added = total - baseline.scene_total[: len(total)]
     force = np.linalg.norm(run.reaction_force, axis=1)
     return {
         "angle_deg": angle_deg, "speed_m_per_step": speed, "steps": int(len(run.steps)),
-        "cost": float(total.sum()), "peak_energy": float(total.max()), "final_energy": float(total[-1]),
+        "cost": insertion_cost(run, baseline), "peak_added": float(added.max()), "final_added": float(added[-1]),
         "contact_steps": int(run.in_contact.any(axis=1).sum()), "max_reaction_N": float(force.max()),
         "max_inverted": int(sim.count_inverted()), "finite": bool(np.isfinite(total).all()), "wall_s": wall,
     }
@@ -116,8 +121,9 @@ def chart(path: Path, rows: list[dict[str, Any]], target: tuple[float, float]) -
     ax.plot([best["angle_deg"]], [best["cost"]], marker="*", ms=16, color="#ffd600", mec="#8d6e00",
             label=f"cheapest: {best['angle_deg']:+.0f} deg, {best['speed_m_per_step'] * 1e3:g} mm/step")
     ax.set_xlabel("insertion angle [deg] (direction of the tip's motion)")
-    ax.set_ylabel("cost: energy summed over the insertion")
-    ax.set_yscale("log")
+    ax.set_ylabel("cost: energy added by the insertion")
+    ax.set_yscale("symlog", linthresh=max(1e-15, min(abs(r["cost"]) for r in rows if r["cost"] != 0) if any(
+        r["cost"] != 0 for r in rows) else 1e-15))
     ax.set_title(f"Insertions toward ({target[0]:.3f}, {target[1]:.3f}) m", fontsize=10)
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
@@ -148,15 +154,16 @@ def run(args: argparse.Namespace) -> int:
             fh.write(",".join(repr(r[c]) if isinstance(r[c], float) else str(r[c]) for c in cols) + "\n")
     chart(out / "plan.png", rows, target)
     print(f"{len(rows)} insertions toward {target} in {wall:.1f} s on {args.jobs} processes, ranked by cost "
-          f"(energy summed over the insertion):")
-    print(f"{'rank':>4} {'angle':>7} {'speed':>11} {'cost':>11} {'peak E':>11} {'contact':>8} {'max force':>10}")
+          f"(energy the insertion adds, summed over its steps):")
+    print(f"{'rank':>4} {'angle':>7} {'speed':>11} {'cost':>11} {'peak added':>11} {'contact':>8} {'max force':>10}")
     for i, r in enumerate(rows, 1):
         print(f"{i:>4} {r['angle_deg']:>+6.1f}° {r['speed_m_per_step'] * 1e3:>5.2f} mm/st {r['cost']:>11.4g} "
-              f"{r['peak_energy']:>11.4g} {r['contact_steps']:>8} {r['max_reaction_N']:>9.3g}N"
+              f"{r['peak_added']:>11.4g} {r['contact_steps']:>8} {r['max_reaction_N']:>9.3g}N"
               + ("" if r["finite"] else "  (not finite)"))
     best, worst = rows[0], rows[-1]
-    print(f"cheapest: {best['angle_deg']:+.1f} deg at {best['speed_m_per_step'] * 1e3:g} mm per step, "
-          f"{(1 - best['cost'] / worst['cost']) * 100:.0f}% less energy than the most expensive "
-          f"({worst['angle_deg']:+.1f} deg at {worst['speed_m_per_step'] * 1e3:g} mm per step)")
+    saving = (f"{(1 - best['cost'] / worst['cost']) * 100:.0f}% less energy than the most expensive "
+              f"({worst['angle_deg']:+.1f} deg at {worst['speed_m_per_step'] * 1e3:g} mm per step)"
+              if worst["cost"] > 0 else "no insertion added energy (the tool never reached the tissue?)")
+    print(f"cheapest: {best['angle_deg']:+.1f} deg at {best['speed_m_per_step'] * 1e3:g} mm per step, {saving}")
     print(f"wrote {out / 'plan.csv'} and {out / 'plan.png'}")
     return 0
