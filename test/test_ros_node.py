@@ -498,3 +498,45 @@ def test_method_alias_decides_unless_set(ros_env: dict[str, str], scene_files: d
         node.destroy_node()
     finally:
         rclpy.try_shutdown(context=context)
+
+
+def test_record_path_writes_every_message_in_and_out(ros_client: RosClient, start_process: Any,
+                                                     scene_files: dict[str, Any], tmp_path: Path) -> None:
+    """record_path: the node writes what it publishes and the poses it receives; SIGTERM leaves a closed bag."""
+    from tissue_sim_ros.ros.bags import Bag  # noqa: PLC0415
+
+    bag_path = tmp_path / "node_bag"
+    proc = start_process(["tissue_sim_node", "--ros-args", "-r", "__ns:=/rec", "--params-file",
+                          str(scene_files["params"]), "-p", "lock_step:=true", "-p", f"record_path:={bag_path}"],
+                         name="recording")
+    rec = Node(proc, ros_client, ns="/rec")
+    ros_client.wait_for_subscriber(rec.pose_pub, TIMEOUT, proc)
+    ros_client.wait_for_publisher("/rec/tissue/energy", TIMEOUT, proc)
+    ros_client.spin_for(0.3)  # let the energy reader match too
+    t0 = ros_client.node.get_clock().now()
+    n = 12
+    for k in range(n):
+        rec.pose_pub.publish(rec.pose(0.2, -0.06 + 0.005 * k, stamp=(t0 + rclpy_duration(k * DT)).to_msg()))
+        ros_client.spin_until(lambda k=k: len(rec.energy.messages) > k, TIMEOUT, proc, f"step {k}")
+    live = [M.decode_float64(m) for m in rec.energy.messages]
+    # energy goes out first in a step, the markers last: stop once the last step is fully out
+    ros_client.spin_until(lambda: len(rec.markers.messages) >= n, TIMEOUT, proc, "the last step's markers")
+    assert proc.stop(signal.SIGTERM) == 0
+    with Bag(bag_path) as bag:
+        counts = bag.message_counts
+        topics = bag.topics
+        recorded = [M.decode_float64(raw) for t, _, _, raw in bag.messages(["/rec/tissue/energy"])]
+    assert topics["/rec/tissue/markers"] == "visualization_msgs/msg/MarkerArray"
+    assert topics["/rec/tool/pose"] == "geometry_msgs/msg/PoseStamped"
+    for topic in ("/rec/tissue/energy", "/rec/tissue/points", "/rec/tissue/markers", "/rec/tool/wrench",
+                  "/rec/tissue/energy/bodies", "/rec/tool/pose"):
+        assert counts[topic] == n, (topic, counts)
+    assert counts["/rec/tissue/rest_mesh"] == 1
+    assert recorded == live  # the same bytes the subscribers got
+
+
+def test_record_path_that_exists_is_refused(start_process: Any, scene_files: dict[str, Any], tmp_path: Path) -> None:
+    proc = start_process(["tissue_sim_node", "--ros-args", "--params-file", str(scene_files["params"]),
+                          "-p", f"record_path:={tmp_path}"], name="bad_record")
+    assert proc.wait(timeout=60) == 2
+    assert "record_path" in proc.output() and "Traceback" not in proc.output()

@@ -111,7 +111,7 @@ def _signals_held() -> Iterator[None]:
     note = lambda signum, _frame: pending.append(signum)  # noqa: E731
     for sig in _SIGNALS:
         handler = _getsignal(sig)
-        if handler is not None:
+        if callable(handler):  # SIG_DFL/SIG_IGN (ints) or None: a handler installed from C may be behind it
             saved[sig] = handler
             _setsignal(sig, note)
     try:
@@ -147,7 +147,8 @@ class BagWriter:
     ...     bag.write("/tissue/energy", cdr_bytes, t_ns)
     """
 
-    def __init__(self, path: str | Path, storage: str = "mcap", *, flush_period: float = 1.0) -> None:
+    def __init__(self, path: str | Path, storage: str = "mcap", *, flush_period: float = 1.0,
+                 hold_signals: bool = True) -> None:
         from rosbags.rosbag2 import StoragePlugin, Writer  # noqa: PLC0415
         from rosbags.rosbag2.errors import WriterError  # noqa: PLC0415
 
@@ -158,6 +159,9 @@ class BagWriter:
         self.path = Path(path)
         self.storage = storage
         self.flush_period = float(flush_period)
+        # a process whose signals rclpy handles from C (a node) must not have its handlers swapped: there a
+        # signal raises nothing mid-write, and restoring Python's table would uninstall rclpy's handler
+        self._hold = _signals_held if hold_signals else contextlib.nullcontext
         if self.path.exists():
             raise InputError(f"bag {str(self.path)!r} exists already: choose a new output path (rosbag2 never overwrites)")
         if not self.path.parent.exists():
@@ -198,7 +202,7 @@ class BagWriter:
                     raise InputError(f"topic {name!r} was added as {existing.msgtype}, not {msgtype}")
                 return
             qos = () if reliable is None else (_qos_profile(reliable, transient_local, depth),)
-            with _signals_held():
+            with self._hold():
                 self._connections[name] = self._writer.add_connection(name, msgtype, typestore=store,
                                                                       offered_qos_profiles=qos)
             self._counts[name] = 0
@@ -242,7 +246,7 @@ class BagWriter:
             data = memoryview(np.ascontiguousarray(data).view(np.uint8).reshape(-1))
         with self._lock:
             self._check_open()
-            with _signals_held():
+            with self._hold():
                 self._writer.write(conn, t_ns, data)
                 self._counts[name] += 1
                 now = time.monotonic()
@@ -263,7 +267,7 @@ class BagWriter:
             conns.append(conn)
         with self._lock:
             self._check_open()
-            with _signals_held():
+            with self._hold():
                 for conn, (name, data, t_ns) in zip(conns, items):
                     self._writer.write(conn, int(t_ns), data)
                     self._counts[name] += 1
@@ -283,7 +287,7 @@ class BagWriter:
         """Put everything written so far on disk (MCAP: close the pending chunk; sqlite3: commit)."""
         with self._lock:
             if not self._closed:
-                with _signals_held():
+                with self._hold():
                     self._flush_locked()
 
     def _flush_locked(self) -> None:
@@ -304,7 +308,7 @@ class BagWriter:
             if self._closed:
                 return
             self._closed = True
-            with _signals_held():
+            with self._hold():
                 self._writer.close()
 
     def _check_open(self) -> None:

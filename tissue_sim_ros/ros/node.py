@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import gc
 import math
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -46,6 +47,7 @@ from ..core.scene import SceneConfig, default_params, tool_from_mapping
 from ..core.simulation import Simulation, StepReport
 from ..core.tool import ToolPose, ToolTwist
 from . import messages, qos
+from .node_recording import NodeRecorder
 from .parameters import BY_NAME, PARAMETERS, SIM_NAMES, coerce, validate
 
 #: Prefixes of parameters a parameter file may hold that this node does not declare itself.
@@ -144,8 +146,11 @@ class TissueSimNode(Node):
         self.pub_energy_bodies = self.create_publisher(Float64MultiArray, "tissue/energy/bodies", qos.energy())
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", qos.diagnostics())
         lock_step = self._values["lock_step"]
-        self.create_subscription(PoseStamped, "tool/pose", self._on_pose, qos.tool_input(lock_step))
-        self.create_subscription(TwistStamped, "tool/twist", self._on_twist, qos.tool_input(lock_step))
+        self.sub_pose = self.create_subscription(PoseStamped, "tool/pose", self._on_pose, qos.tool_input(lock_step))
+        self.sub_twist = self.create_subscription(TwistStamped, "tool/twist", self._on_twist, qos.tool_input(lock_step))
+        self.recorder: NodeRecorder | None = None
+        if self._values["record_path"]:
+            self._start_recording(self._values["record_path"], self._values["record_storage"])
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         self.step_timer = None if lock_step else self.create_timer(self.sim.params.dt, self._on_tick)
@@ -299,6 +304,8 @@ class TissueSimNode(Node):
         return True
 
     def _on_pose(self, msg: PoseStamped) -> None:
+        if self.recorder is not None:
+            self.recorder.write(self.sub_pose.topic_name, msg)  # as received, before any check
         p, o = msg.pose.position, msg.pose.orientation
         values = (p.x, p.y, p.z, o.x, o.y, o.z, o.w)
         if not all(math.isfinite(v) for v in values) or (o.x * o.x + o.y * o.y + o.z * o.z + o.w * o.w) < 1e-12:
@@ -315,6 +322,8 @@ class TissueSimNode(Node):
             self._step(stamp if stamp != (0, 0) else _stamp_of(self.get_clock().now()), twist)
 
     def _on_twist(self, msg: TwistStamped) -> None:
+        if self.recorder is not None:
+            self.recorder.write(self.sub_twist.topic_name, msg)
         v, w = msg.twist.linear, msg.twist.angular
         if not all(math.isfinite(x) for x in (v.x, v.y, v.z, w.x, w.y, w.z)):
             self._drop("nonfinite", "tool/twist with a NaN/inf value")
@@ -395,6 +404,24 @@ class TissueSimNode(Node):
     def _every(self, rate: float) -> int:
         """Publish every this many steps for a rate [Hz] (at least every step)."""
         return max(1, int(round(1.0 / (self.sim.params.dt * rate))))
+
+    def _start_recording(self, path: str, storage: str) -> None:
+        """Wrap every publisher so what it publishes is also written to the bag; record the tool inputs."""
+        if os.path.exists(path):
+            raise InputError(f"parameter record_path={path!r}: that path exists; expected a new bag directory")
+        self.recorder = NodeRecorder(self, path, storage)
+        for name in ("pub_markers", "pub_points", "pub_rest", "pub_wrench", "pub_energy", "pub_energy_bodies",
+                     "pub_diagnostics"):
+            setattr(self, name, self.recorder.wrap(getattr(self, name)))
+        self.pub_energy_terms = {k: self.recorder.wrap(p) for k, p in self.pub_energy_terms.items()}
+        for sub in (self.sub_pose, self.sub_twist):
+            self.recorder.add(sub.topic_name, sub.msg_type, sub.qos_profile)
+        self.get_logger().info(f"recording every message in and out to {path} ({storage})")
+
+    def destroy_node(self) -> None:
+        if self.recorder is not None:
+            self.recorder.close()  # a closed bag, whatever ended the node
+        super().destroy_node()
 
     def _publish_step(self, stamp: tuple[int, int], report: StepReport) -> None:
         q = self.sim.state.particle_q

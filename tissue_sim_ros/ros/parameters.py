@@ -123,6 +123,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("twist_timeout", float, 0.05, "s", "A tool twist received longer ago than this is stale: velocity is derived from poses.", False, "node", _positive),
     ParamSpec("twist_source", str, "auto", "", "auto: tool/twist when fresh, else from poses; poses: always derived from poses.", False, "node", _one_of(("auto", "poses"))),
     ParamSpec("warn_period", float, 2.0, "s", "Each kind of warning about bad input is logged at most once per period.", False, "node", _positive),
+    ParamSpec("record_path", str, "", "path", "Record every message in and out (the very bytes published) to this new rosbag2 bag directory; empty = no recording.", True, "node"),
+    ParamSpec("record_storage", str, "mcap", "", "Storage of the recorded bag: mcap (default, as ros2 bag in Jazzy) or sqlite3.", True, "node", _one_of(("mcap", "sqlite3"))),
 )
 
 BY_NAME: dict[str, ParamSpec] = {p.name: p for p in PARAMETERS}

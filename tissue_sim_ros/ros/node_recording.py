@@ -1,0 +1,68 @@
+"""Recording inside the node (parameter ``record_path``): every message in and out, into a rosbag2 bag.
+
+A recorder beside the node (``tissue-sim record``) receives what DDS delivers
+and can fall behind; recording in the node writes the very bytes it publishes
+(and the tool messages it takes in), so the bag holds every step. Outputs are
+written from their serialized CDR bytes, never re-encoded; the tool inputs
+and diagnostics, which arrive or are built as message objects, are serialized
+once with rclpy.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+from rclpy.serialization import serialize_message
+
+from .bags import BagWriter
+
+
+def _type_name(msg_class: Any) -> str:
+    """'pkg/msg/Type' of a generated message class."""
+    module = msg_class.__module__.split(".")  # e.g. visualization_msgs.msg._marker_array
+    return f"{module[0]}/msg/{msg_class.__name__}"
+
+
+class RecordingPublisher:
+    """A publisher that also writes what it publishes into the node's bag."""
+
+    def __init__(self, publisher: Publisher, recorder: "NodeRecorder") -> None:
+        self._publisher = publisher
+        self._recorder = recorder
+        self.topic_name = publisher.topic_name
+        recorder.add(publisher.topic_name, publisher.msg_type, publisher.qos_profile)
+
+    def publish(self, msg: Any) -> None:
+        self._publisher.publish(msg)
+        self._recorder.write(self.topic_name, msg)
+
+    def __getattr__(self, name: str) -> Any:  # get_subscription_count, destroy, ...
+        return getattr(self._publisher, name)
+
+
+class NodeRecorder:
+    """Owns the node's bag: topics with their types and QoS, writes stamped with the node's clock."""
+
+    def __init__(self, node: Node, path: str, storage: str) -> None:
+        self._node = node
+        self.writer = BagWriter(path, storage, hold_signals=False)
+        self.path = path
+
+    def add(self, topic: str, msg_class: Any, qos: Any) -> None:
+        self.writer.add_topic(topic, _type_name(msg_class),
+                              reliable=qos.reliability == ReliabilityPolicy.RELIABLE,
+                              transient_local=qos.durability == DurabilityPolicy.TRANSIENT_LOCAL, depth=qos.depth)
+
+    def wrap(self, publisher: Publisher) -> RecordingPublisher:
+        return RecordingPublisher(publisher, self)
+
+    def write(self, topic: str, msg: Any) -> None:
+        if self.writer.closed:
+            return
+        data = msg if isinstance(msg, (bytes, bytearray, memoryview)) else serialize_message(msg)
+        self.writer.write(topic, data, self._node.get_clock().now().nanoseconds)
+
+    def close(self) -> None:
+        self.writer.close()
