@@ -49,6 +49,9 @@ class SimParams:
     # physics (Table I)
     mass: float = 1e-4
     """Mass of each particle [kg]."""
+    mass_per_area: float = 0.0
+    """Areal density [kg/m^2]; > 0: each particle gets a third of its triangles' rest area times it (lumped
+    mass), so refining or grading a mesh keeps the tissue's mass where it is; 0 (paper): every particle has ``mass``."""
     gravity: float = -9.8
     """Gravity along world y [m/s^2]."""
     dt: float = 0.01
@@ -129,7 +132,7 @@ class SimParams:
         def bad(name: str, expected: str) -> InputError:
             return InputError(f"parameter {name}={getattr(self, name)!r}: expected {expected}")
 
-        for name in ("mass", "gravity", "dt", "damping", "relaxation", "k_spring", "k_area",
+        for name in ("mass", "mass_per_area", "gravity", "dt", "damping", "relaxation", "k_spring", "k_area",
                      "stiffness_spring", "stiffness_area", "contact_radius", "contact_threshold",
                      "contact_margin"):
             value = getattr(self, name)
@@ -143,6 +146,8 @@ class SimParams:
             raise bad("dt", "a time step > 0 s")
         if self.mass <= 0:
             raise bad("mass", "a particle mass > 0 kg")
+        if self.mass_per_area < 0:
+            raise bad("mass_per_area", "an areal density >= 0 kg/m^2 (0: the per-particle mass)")
         if self.iterations < 1:
             raise bad("iterations", "at least 1 solver iteration")
         if self.substeps < 1:
@@ -312,14 +317,18 @@ class Model:
             pin |= q0[:, 1] >= params.boundary_y_top
         if math.isfinite(params.boundary_y_bottom):
             pin |= q0[:, 1] <= params.boundary_y_bottom
-        mass = np.full(n, params.mass, dtype=np.float64)
-        inv_mass = np.where(pin, 0.0, 1.0 / params.mass)
         edges = np.ascontiguousarray(mesh.edges, dtype=np.int32)
         tris = np.ascontiguousarray(mesh.triangles, dtype=np.int32)
         d = q0[edges[:, 1]] - q0[edges[:, 0]]
         rest_len = np.sqrt((d * d).sum(axis=1))
         a, b, c = q0[tris[:, 0]], q0[tris[:, 1]], q0[tris[:, 2]]
         rest_area = 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+        mass = np.full(n, params.mass, dtype=np.float64)
+        if params.mass_per_area > 0 and len(tris):
+            # lumped mass: a third of each triangle's area to each of its corners
+            lumped = np.bincount(tris.ravel(), weights=np.repeat(np.abs(rest_area) / 3.0, 3), minlength=n)
+            mass = np.where(lumped > 0, params.mass_per_area * lumped, params.mass)  # a lone vertex keeps `mass`
+        inv_mass = np.where(pin, 0.0, 1.0 / mass)
         body = np.ascontiguousarray(mesh.body, dtype=np.int32)
         arrays = dict(
             particle_q0=q0, particle_mass=mass, particle_inv_mass=inv_mass, particle_body=body,

@@ -83,6 +83,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("boundary_y_bottom", float, _SIM.boundary_y_bottom, "m", "Particles at or below this y are pinned (the paper's lower line); NaN = none.", True, "scene"),
     # physics (Table I)
     ParamSpec("mass", float, _SIM.mass, "kg", "Mass of each particle (Table I: 1e-4).", True, "physics"),
+    ParamSpec("mass_per_area", float, _SIM.mass_per_area, "kg/m^2", "Areal density: > 0 lumps a third of each triangle's area times it on its corners (refined or graded meshes keep the same tissue); 0 = every particle has mass (the paper).", True, "physics"),
     ParamSpec("gravity", float, _SIM.gravity, "m/s^2", "Gravity along world y (Table I: -9.8).", False, "physics"),
     ParamSpec("dt", float, _SIM.dt, "s", "Time step; the node steps at 1/dt of its clock (Table I: 0.01).", True, "physics"),
     ParamSpec("damping", float, _SIM.damping, "1/s", "Velocity damping rate; 0 = off (paper).", False, "physics"),
