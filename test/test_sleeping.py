@@ -60,3 +60,19 @@ def test_bad_settings() -> None:
         SleepingSolver(_model(), quiet_steps=0)
     with pytest.raises(InputError):
         SleepingSolver(_model(), wake_radius=-1.0)
+
+
+def test_a_scene_asks_for_sleeping_by_parameter() -> None:
+    """sleep_speed > 0 (YAML, node parameter) puts the SleepingSolver in the Simulation; 0 keeps the Solver."""
+    from tissue_sim_ros.core.scene import build_simulation
+
+    mesh = mesh_rectangle(1.0, 0.5, 0.1)
+    plain = build_simulation({"boundary_y_bottom": 0.01, "boundary_y_top": 0.49}, mesh=mesh)
+    assert type(plain.solver) is Solver
+    sim = build_simulation({"boundary_y_bottom": 0.01, "boundary_y_top": 0.49, "sleep_speed": 1e-3,
+                            "sleep_wake_radius": 0.1}, mesh=mesh)
+    assert isinstance(sim.solver, SleepingSolver) and sim.solver.wake_radius == 0.1
+    for _ in range(200):  # no tool: the strip settles and falls asleep
+        report = sim.step()
+        assert np.isfinite(report.energy.total).all()
+    assert sim.solver.sleeping[~sim.model.particle_pinned].all()

@@ -577,6 +577,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tolerance", type=float, action="append",
                         help="error tolerance to pick the cheapest setting for (repeatable; default 0.3, 0.1, 0.01, 1e-3)")
     parser.add_argument("--steps", type=int, default=None, help="trajectory length in steps (default 30; quick 4)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="override a parameter of config/tissue_sim.yaml for every scene (repeatable), e.g. "
+                             "--set mass_per_area=0.0506 so that refined and graded meshes are the same tissue")
     parser.add_argument("--parallel", action="store_true",
                         help="let the solver use its default threading (coloured Gauss-Seidel on all threads from "
                              "4000 particles); default: one thread, so times compare across methods and do not "
@@ -597,6 +600,9 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--tolerance={tol}: expected an error > 0")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    from ..experiments.cli import parse_overrides  # noqa: PLC0415
+
+    overrides = parse_overrides(args.set)
 
     # the scenes: every resolution at the first dt; the other dts at the base resolution; graded at base spacing
     base_speed = 0.002  # unused by experiment a's scenes (their speed is the experiment's)
@@ -609,7 +615,7 @@ def run(args: argparse.Namespace) -> int:
         for dt in dts:
             n_steps = int(round(plan.n_steps * plan.dts[0] / dt))
             like = refinement[0] if refinement and dt == plan.dts[0] else None
-            scene = default_scene(spacing, dt, n_steps, base_speed * dt / plan.dts[0], like=like)
+            scene = default_scene(spacing, dt, n_steps, base_speed * dt / plan.dts[0], overrides=overrides, like=like)
             if si > 0:  # finer meshes: the first steps of the same motion (see Plan.n_steps_fine)
                 scene.poses = scene.poses[:plan.n_steps_fine + 1]
             counts = plan.counts if si == 0 else plan.counts_fine
@@ -625,7 +631,8 @@ def run(args: argparse.Namespace) -> int:
     if plan.graded:
         focus = refinement[0].focus
         graded = default_scene(plan.spacings[0], plan.dts[0], plan.n_steps, base_speed,
-                               grading=(focus[0], focus[1], 0.15, plan.spacings[-1]), like=refinement[0])
+                               grading=(focus[0], focus[1], 0.15, plan.spacings[-1]), overrides=overrides,
+                               like=refinement[0])
         graded.poses = graded.poses[:plan.n_steps_fine + 1]
         refinement.insert(-1, graded)
         scenes.append((graded, [Setting(m, c) for m in ("xpbd", "xpbd_substep") for c in plan.counts_fine],
@@ -670,7 +677,7 @@ def run(args: argparse.Namespace) -> int:
         })
 
     # sleeping: experiment a on the 2x mesh, long enough for far regions to settle
-    sleep_scene = default_scene(plan.sleep_spacing, plan.dts[0], plan.sleep_steps, 0.001)
+    sleep_scene = default_scene(plan.sleep_spacing, plan.dts[0], plan.sleep_steps, 0.001, overrides=overrides)
     with tqdm(total=(len(sleep_scene.poses) - 1) * (1 + len(SLEEP_SETTINGS)), desc="sleeping", unit="step",
               dynamic_ncols=True) as bar:
         sleep_rows = measure_sleeping(sleep_scene, Setting("xpbd", 50), progress=bar.update)

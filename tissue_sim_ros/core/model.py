@@ -94,6 +94,11 @@ class SimParams:
     """XPBD area-constraint stiffness [N/m^3] (C in m^2); calibrated with ``stiffness_spring``."""
     area_mode: str = "signed"
     """``signed`` area constraint (resists inversion) or the paper's ``abs`` |area| form."""
+    sleep_speed: float = 0.0
+    """Sleeping: particles slower than this [m/s] and farther than ``sleep_wake_radius`` from any contact for
+    10 steps are skipped by the solver (``core/sleeping.py``); 0 = off (every particle is solved every step)."""
+    sleep_wake_radius: float = 0.15
+    """Sleeping: particles within this rest distance [m] of a contact particle stay awake."""
     # boundary (the paper's horizontal lines; NaN = no line)
     boundary_y_top: float = math.nan
     """Particles at or above this world y are held (velocity zero) [m]; NaN = no upper line."""
@@ -134,7 +139,7 @@ class SimParams:
 
         for name in ("mass", "mass_per_area", "gravity", "dt", "damping", "relaxation", "k_spring", "k_area",
                      "stiffness_spring", "stiffness_area", "contact_radius", "contact_threshold",
-                     "contact_margin"):
+                     "contact_margin", "sleep_speed", "sleep_wake_radius"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise bad(name, "a finite number")
@@ -172,6 +177,9 @@ class SimParams:
         for name in ("stiffness_spring", "stiffness_area"):
             if getattr(self, name) < 0:
                 raise bad(name, "a stiffness >= 0")
+        for name in ("sleep_speed", "sleep_wake_radius"):
+            if getattr(self, name) < 0:
+                raise bad(name, "a value >= 0 (sleep_speed 0 turns sleeping off)")
         if self.contact_radius <= 0:
             raise bad("contact_radius", "a radius > 0 m")
         if self.contact_threshold < 0:

@@ -70,7 +70,13 @@ class Simulation:
         self.model = model
         self.params = model.params
         self.tool = tool
-        self.solver = Solver(model)
+        if model.params.sleep_speed > 0:
+            from .sleeping import SleepingSolver  # noqa: PLC0415  (a scene that asks for it)
+
+            self.solver: Solver = SleepingSolver(model, wake_radius=model.params.sleep_wake_radius,
+                                                 sleep_speed=model.params.sleep_speed)
+        else:
+            self.solver = Solver(model)
         self.contact = ContactModel(model, tool) if tool is not None else None
         self.state: State = model.state()
         self._state_out: State = model.state()

@@ -98,6 +98,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("stiffness_spring", float, _SIM.stiffness_spring, "N/m", "XPBD distance stiffness (method xpbd).", False, "solver"),
     ParamSpec("stiffness_area", float, _SIM.stiffness_area, "N/m^3", "XPBD area stiffness (method xpbd).", False, "solver"),
     ParamSpec("area_mode", str, _SIM.area_mode, "", f"Area constraint: {', '.join(AREA_MODES)} (abs = the paper's |area| form).", False, "solver"),
+    ParamSpec("sleep_speed", float, _SIM.sleep_speed, "m/s", "Sleeping: particles slower than this and far from any contact for 10 steps are skipped by the solver; 0 = off.", False, "solver"),
+    ParamSpec("sleep_wake_radius", float, _SIM.sleep_wake_radius, "m", "Sleeping: particles within this rest distance of a contact particle stay awake.", False, "solver"),
     # contact
     ParamSpec("contact_model", str, _SIM.contact_model, "", f"Contact: {', '.join(CONTACT_MODELS)}.", False, "contact"),
     ParamSpec("contact_radius", float, _SIM.contact_radius, "m", "Paper contact: radius r of the displaced neighbourhood (Table I: 0.25).", False, "contact"),
