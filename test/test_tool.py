@@ -133,3 +133,17 @@ def test_waypoint_validation():
     assert single.duration == 0.0 and list(single.steps(0.01)) == []
     with pytest.raises(InputError, match="dt"):
         single.n_steps(0.0)
+
+
+def test_yaw_from_quaternion_is_shared_and_normalises():
+    """One formula for the node, bag replay and demo: yaw of q = (0, 0, sin(a/2), cos(a/2)) is a, also scaled."""
+    import math
+
+    from tissue_sim_ros.core.tool import yaw_from_quaternion
+
+    for a in (-3.0, -0.5, 0.0, 0.7, 3.1):
+        q = (0.0, 0.0, math.sin(a / 2), math.cos(a / 2))
+        assert yaw_from_quaternion(*q) == pytest.approx(a, abs=1e-12)
+        assert yaw_from_quaternion(*(1.02 * c for c in q)) == pytest.approx(a, abs=1e-12)  # a robot's 2% off
+    assert yaw_from_quaternion(0.0, 0.0, 0.0, 0.0) is None
+    assert yaw_from_quaternion(float("nan"), 0.0, 0.0, 1.0) is None

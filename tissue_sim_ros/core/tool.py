@@ -89,6 +89,21 @@ def tool_shape_array(shape: ToolShape, pose: ToolPose, margin: float = 0.0) -> n
 # --------------------------------------------------------------------------- trajectories
 
 
+def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float | None:
+    """Heading about +z [rad] of a quaternion (x, y, z, w); None when it is not a rotation (zero or non-finite).
+
+    A slightly denormalised quaternion (common in robot bags) is normalised first. The one formula the node,
+    bag replay and demo share, so an offline replay equals the node in lock-step to the bit.
+    """
+    n2 = x * x + y * y + z * z + w * w
+    if not math.isfinite(n2) or n2 < 1e-12:
+        return None
+    if abs(n2 - 1.0) > 1e-9:
+        s = 1.0 / math.sqrt(n2)
+        x, y, z, w = x * s, y * s, z * s, w * s
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
 def wrap_angle(a: float) -> float:
     """An angle wrapped to [-pi, pi) [rad]."""
     return float((a + math.pi) % (2.0 * math.pi) - math.pi)

@@ -12,7 +12,6 @@ snapshots from ``tissue/points``, energy and its terms per tissue from
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import queue
 import signal
@@ -27,6 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..core.errors import InputError
+from ..core.tool import yaw_from_quaternion
 from . import trajectories as tr
 
 HELP = "the main job: node + tool driver on a private ROS domain, experiment a, recorded to a bag"
@@ -201,7 +201,7 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
         for topic, _msgtype, t_ns, raw in bag.messages():
             if topic == "/tool/pose":
                 stamp, _frame, pos, q = decode_pose_stamped(raw)
-                yaw = 2.0 * math.atan2(q[2], q[3])  # planar pose: a rotation about +z
+                yaw = yaw_from_quaternion(*map(float, q))
                 poses[_ns(stamp)] = np.array([pos[0], pos[1], yaw])
             elif topic == "/tissue/energy/bodies":
                 data, _labels = decode_float64_multiarray(raw)

@@ -52,6 +52,7 @@ from typing import TYPE_CHECKING, Any, Iterator
 import numpy as np
 
 from ..core.errors import InputError
+from ..core.tool import yaw_from_quaternion
 
 if TYPE_CHECKING:
     from rosbags.interfaces import Connection
@@ -606,16 +607,8 @@ def _stamp_ns(header: Any) -> int:
 
 
 def _yaw(q: Any) -> float | None:
-    """Heading about +z of a quaternion (x, y, z, w); None when it is not a rotation."""
-    x, y, z, w = float(q.x), float(q.y), float(q.z), float(q.w)
-    n2 = x * x + y * y + z * z + w * w
-    if not math.isfinite(n2) or n2 < 1e-12:
-        return None
-    if abs(n2 - 1.0) > 1e-9:  # a robot's slightly denormalised quaternion
-        s = 1.0 / math.sqrt(n2)
-        x, y, z, w = x * s, y * s, z * s, w * s
-    # the node's formula, to the bit: an offline replay must equal the node in lock-step
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    """Heading about +z of a quaternion message; None when it is not a rotation (the node's formula)."""
+    return yaw_from_quaternion(float(q.x), float(q.y), float(q.z), float(q.w))
 
 
 # each extractor: msg -> list of (stamp_ns or 0, x, y, quaternion, frame_id, child_frame)

@@ -45,7 +45,7 @@ from ..core.errors import InputError
 from ..core.model import METHOD_ALIASES, Model, SimParams
 from ..core.scene import SceneConfig, default_params, tool_from_mapping
 from ..core.simulation import Simulation, StepReport
-from ..core.tool import ToolPose, ToolTwist
+from ..core.tool import ToolPose, ToolTwist, yaw_from_quaternion
 from . import messages, qos
 from .node_recording import NodeRecorder
 from .parameters import BY_NAME, PARAMETERS, SIM_NAMES, coerce, validate
@@ -92,11 +92,6 @@ class ToolInput:
 def _stamp_of(t: Time) -> tuple[int, int]:
     sec, nsec = t.seconds_nanoseconds()
     return int(sec), int(nsec)
-
-
-def _yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
-    """Rotation about +z of a quaternion (its heading in the tissue plane)."""
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 class TissueSimNode(Node):
@@ -307,14 +302,14 @@ class TissueSimNode(Node):
         if self.recorder is not None:
             self.recorder.write(self.sub_pose.topic_name, msg)  # as received, before any check
         p, o = msg.pose.position, msg.pose.orientation
-        values = (p.x, p.y, p.z, o.x, o.y, o.z, o.w)
-        if not all(math.isfinite(v) for v in values) or (o.x * o.x + o.y * o.y + o.z * o.z + o.w * o.w) < 1e-12:
+        yaw = yaw_from_quaternion(o.x, o.y, o.z, o.w)
+        if not all(math.isfinite(v) for v in (p.x, p.y, p.z)) or yaw is None:
             self._drop("nonfinite", "tool/pose with a NaN/inf value or a zero quaternion")
             return
         stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
         if not self._check_header("tool/pose", stamp, msg.header.frame_id, self.tool.pose_stamp):
             return
-        self.tool.pose = ToolPose(p.x, p.y, _yaw_from_quaternion(o.x, o.y, o.z, o.w))
+        self.tool.pose = ToolPose(p.x, p.y, yaw)
         self.tool.pose_stamp = stamp
         if self._values["lock_step"] and not self.paused:
             twist = self.tool.twist if (self._values["twist_source"] == "auto" and stamp != (0, 0)
