@@ -131,6 +131,10 @@ def test_demo_runs_through_ros_and_its_bag_decodes_with_mcap(tmp_path):
                           env=env, capture_output=True, text=True, timeout=400)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "real-time factor" in proc.stdout
+    import re
+
+    touched = re.search(r"touched the tissue in (\d+) steps \(first at step (\d+)\)", proc.stdout)
+    assert touched and int(touched.group(1)) > 0 and 100 < int(touched.group(2)) < 300, proc.stdout[-2000:]
     for name in ("demo_snapshots.png", "demo_energy.png"):
         assert (out / name).stat().st_size > 1000
     msgs = _mcap_messages(out / "demo_bag")

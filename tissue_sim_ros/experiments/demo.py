@@ -188,7 +188,7 @@ def _ns(stamp: tuple[int, int]) -> int:
 
 
 def read_demo_bag(path: Path) -> dict[str, Any]:
-    """Series of a recorded run from the bag alone: energy terms, snapshots by step, contact, stamps."""
+    """Series of a recorded run from the bag alone: energy terms, snapshots by step, contact per body, stamps."""
     from ..ros.bags import Bag  # noqa: PLC0415
     from ..ros.messages import decode_float64_multiarray, decode_marker_array, decode_point_cloud, decode_pose_stamped  # noqa: PLC0415
 
@@ -196,7 +196,8 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
     energy: list[np.ndarray] = []
     energy_t: list[int] = []
     points: list[tuple[int, np.ndarray]] = []
-    contact: dict[int, bool] = {}
+    body: np.ndarray | None = None
+    contact: dict[int, np.ndarray] = {}  # pose stamp -> positions of the particles the contact moved (K, 2)
     with Bag(path) as bag:
         for topic, _msgtype, t_ns, raw in bag.messages():
             if topic == "/tool/pose":
@@ -210,21 +211,32 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
             elif topic == "/tissue/points":
                 stamp, _frame, pts = decode_point_cloud(raw)
                 points.append((_ns(stamp), np.stack([pts["x"], pts["y"]], axis=1).astype(np.float64)))
+                body = pts["body"].astype(np.int64)
             elif topic == "/tissue/markers":
                 markers = decode_marker_array(raw)
                 tool = next((m for m in markers if m.ns == "tool"), None)
                 hit = next((m for m in markers if m.ns == "contact"), None)
                 if tool is not None:
-                    contact[_ns(tool.stamp)] = hit is not None and hit.action == 0 and len(hit.points) > 0
+                    moved = hit is not None and hit.action == 0 and len(hit.points) > 0
+                    contact[_ns(tool.stamp)] = hit.points[:, :2] if moved else np.zeros((0, 2))
     # lock-step with points and markers at every step: the k-th points message is step k, stamped with the
     # stamp of the tool pose that step used (energy messages carry no stamp: the k-th is step k as well)
     step_stamp = {k + 1: t for k, (t, _x) in enumerate(points)}
     terms = np.array(energy).reshape(len(energy), -1, 4) if energy else np.zeros((0, 0, 4))
+    # contact per body: the body of the particle each contact marker point sits on
+    n_bodies = terms.shape[1]
+    in_contact = np.zeros((len(energy), n_bodies), dtype=bool)
+    for k in range(1, len(energy) + 1):
+        moved = contact.get(step_stamp.get(k, -1))
+        if moved is not None and len(moved) and body is not None:
+            x = points[k - 1][1]
+            nearest = np.argmin(((moved[:, None, :] - x[None, :, :]) ** 2).sum(axis=2), axis=1)
+            in_contact[k - 1, np.unique(body[nearest])] = True
     return {
         "steps": np.arange(1, len(energy) + 1),
         "inertial": terms[:, :, 0], "spring": terms[:, :, 1], "area": terms[:, :, 2],
         "points": {k: x for k, (_t, x) in enumerate(points, start=1)},
-        "contact": np.array([contact.get(step_stamp.get(k, -1), False) for k in range(1, len(energy) + 1)], dtype=bool),
+        "contact": in_contact,
         "tool": {k: poses[t] for k, t in step_stamp.items() if t in poses},
         "energy_time_ns": np.array(energy_t, dtype=np.int64),
     }
@@ -332,10 +344,11 @@ def run(args: argparse.Namespace) -> int:
                     {"inertial": run_["inertial"], "spring": run_["spring"], "area": run_["area"]},
                     body_names=("upper tissue", "lower tissue")[: run_["inertial"].shape[1]],
                     markers=[s for s in tr.A_SNAPSHOTS if s > 0],
-                    contact=np.repeat(run_["contact"][:, None], run_["inertial"].shape[1], axis=1),
+                    contact=run_["contact"],
                     title="Demo: implicit Euler energy per tissue, recorded through ROS"),
     ]
     total = run_["inertial"] + run_["spring"] + run_["area"]
+    touched = run_["contact"].any(axis=1)
     sim_time = len(run_["steps"]) * params.dt
     # from the first step to the last, as the recorder received them (the driver's start-up is not the run)
     wall = float(run_["energy_time_ns"][-1] - run_["energy_time_ns"][0]) * 1e-9 + params.dt
@@ -349,8 +362,8 @@ def run(args: argparse.Namespace) -> int:
           f"Peak implicit Euler energy "
           + ", ".join(f"{n} {v:.3g}" for n, v in zip(("upper", "lower"), peak_b))
           + f" at steps {', '.join(str(int(run_['steps'][i])) for i in total.argmax(axis=0))}; the tool touched "
-          f"the tissue in {int(run_['contact'].sum())} steps (first at step "
-          f"{int(np.argmax(run_['contact'])) + 1 if run_['contact'].any() else '-'}). "
+          f"the tissue in {int(touched.sum())} steps (first at step "
+          f"{int(np.argmax(touched)) + 1 if touched.any() else '-'}). "
           f"Contact model: {args.contact_model}. Setup and shutdown took {time.monotonic() - t_start - wall:.1f} s.")
     print()
     print("wrote:")
