@@ -20,27 +20,17 @@ from matplotlib.patches import Circle, Polygon  # noqa: E402
 
 from .core.model import Model  # noqa: E402
 from .core.strain import vertex_strain  # noqa: E402
-from .core.tool import ToolPose, ToolShape  # noqa: E402
+from .core.tool import ToolPose, ToolShape, rounded_box_outline  # noqa: E402
 
 BODY_COLOURS = ["#e58fa0", "#d9667d", "#f2b8c6", "#c94f6d"]
 TERM_STYLES = {"inertial": ("#1f77b4", "--"), "spring": ("#2ca02c", "-."), "area": ("#9467bd", ":")}
 
 
-def tool_outline(shape: ToolShape, pose: ToolPose, n_arc: int = 8) -> np.ndarray:
+def tool_outline(shape: ToolShape, pose: ToolPose, segments: int = 8) -> np.ndarray:
     """Polygon of the tool's outline in world coordinates, shape (K, 2)."""
-    hx, hy, rr = shape.rounded_box()
-    pts = []
-    corners = [(hx, hy, 0.0), (-hx, hy, 0.5 * math.pi), (-hx, -hy, math.pi), (hx, -hy, 1.5 * math.pi)]
-    for cx, cy, a0 in corners:
-        if rr > 0:
-            for a in np.linspace(a0, a0 + 0.5 * math.pi, n_arc):
-                pts.append((cx + rr * math.cos(a), cy + rr * math.sin(a)))
-        else:
-            pts.append((cx, cy))
-    local = np.array(pts)
+    local = rounded_box_outline(*shape.rounded_box(), segments=segments)
     c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-    rot = np.array([[c, -s], [s, c]])
-    return local @ rot.T + np.array([pose.x, pose.y])
+    return local @ np.array([[c, s], [-s, c]]) + np.array([pose.x, pose.y])
 
 
 def draw_scene(ax, model: Model, x: np.ndarray, *, tool: ToolShape | None = None, pose: ToolPose | None = None,
@@ -85,6 +75,13 @@ def draw_scene(ax, model: Model, x: np.ndarray, *, tool: ToolShape | None = None
     ax.set_yticks([])
 
 
+def _save(fig, path: str | Path, dpi: int) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return Path(path)
+
+
 def save_frame(path: str | Path, model: Model, x: np.ndarray, *, title: str | None = None, size: float = 5.0,
                dpi: int = 100, **kwargs) -> Path:
     """Write one frame of the scene as PNG."""
@@ -92,10 +89,7 @@ def save_frame(path: str | Path, model: Model, x: np.ndarray, *, title: str | No
     draw_scene(ax, model, x, **kwargs)
     if title:
         ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    return Path(path)
+    return _save(fig, path, dpi)
 
 
 def save_snapshots(path: str | Path, model: Model, snapshots: Sequence[tuple[int, np.ndarray, ToolPose | None]], *,
@@ -109,10 +103,7 @@ def save_snapshots(path: str | Path, model: Model, snapshots: Sequence[tuple[int
         ax.set_title(f"step {step}", fontsize=10)
     if title:
         fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    return Path(path)
+    return _save(fig, path, dpi)
 
 
 def plot_energy(path: str | Path, steps: np.ndarray, terms: Mapping[str, np.ndarray], *,
@@ -148,10 +139,7 @@ def plot_energy(path: str | Path, steps: np.ndarray, terms: Mapping[str, np.ndar
         ax.legend(fontsize=8, loc="upper left")
     if title:
         fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-    return Path(path)
+    return _save(fig, path, dpi)
 
 
 def write_video(path: str | Path, frames: Sequence[str | Path], fps: float = 20.0) -> Path:

@@ -80,6 +80,21 @@ class ToolTwist:
         return np.array([self.vx, self.vy, self.wz], dtype=np.float64)
 
 
+def rounded_box_outline(hx: float, hy: float, radius: float, segments: int = 8) -> np.ndarray:
+    """Closed outline of a rounded box in the tool frame, counter-clockwise, shape (K, 2), float64 [m].
+
+    ``hx, hy`` are the half extents of the inner box and ``radius`` the rounding
+    (see :meth:`ToolShape.rounded_box`); drawn by the node's tool marker and the pictures.
+    """
+    if radius <= 0.0:
+        return np.array([[hx, -hy], [hx, hy], [-hx, hy], [-hx, -hy]], dtype=np.float64)
+    out = []
+    for cx, cy, a0 in ((hx, -hy, -0.5 * math.pi), (hx, hy, 0.0), (-hx, hy, 0.5 * math.pi), (-hx, -hy, math.pi)):
+        a = a0 + np.linspace(0.0, 0.5 * math.pi, segments + 1)
+        out.append(np.stack([cx + radius * np.cos(a), cy + radius * np.sin(a)], axis=1))
+    return np.concatenate(out)
+
+
 def tool_shape_array(shape: ToolShape, pose: ToolPose, margin: float = 0.0) -> np.ndarray:
     """Pack a posed shape for numba kernels: [cx, cy, cos(yaw), sin(yaw), hx, hy, radius + margin], float64 (7,)."""
     hx, hy, rr = shape.rounded_box()

@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..core.tool import rounded_box_outline as tool_outline  # the outline the pictures draw too
+
 #: CDR little-endian encapsulation header (representation id 0x0001, options 0).
 CDR_LE_HEADER = b"\x00\x01\x00\x00"
 
@@ -526,21 +528,6 @@ def strain_colormap(n: int = 256) -> np.ndarray:
     lut[pos, 1] = 1.0 - s[pos] * 0.8
     lut[pos, 2] = 1.0 - s[pos] * 0.85
     return lut
-
-
-def tool_outline(hx: float, hy: float, radius: float, segments: int = 8) -> np.ndarray:
-    """Closed outline of a rounded box in the tool frame, counter-clockwise, shape (K, 2), float64 [m].
-
-    ``hx, hy`` are the half extents of the inner box and ``radius`` the rounding
-    (see :meth:`~tissue_sim_ros.core.tool.ToolShape.rounded_box`).
-    """
-    if radius <= 0.0:
-        return np.array([[hx, -hy], [hx, hy], [-hx, hy], [-hx, -hy]], dtype=np.float64)
-    out = []
-    for cx, cy, a0 in ((hx, -hy, -0.5 * math.pi), (hx, hy, 0.0), (-hx, hy, 0.5 * math.pi), (-hx, -hy, math.pi)):
-        a = a0 + np.linspace(0.0, 0.5 * math.pi, segments + 1)
-        out.append(np.stack([cx + radius * np.cos(a), cy + radius * np.sin(a)], axis=1))
-    return np.concatenate(out)
 
 
 class SceneEncoder:
