@@ -128,7 +128,7 @@ class _Monitor:
         from diagnostic_msgs.msg import DiagnosticArray  # noqa: PLC0415
 
         self.step_ms: list[tuple[float, int]] = []  # the node's mean step time [ms] and steps per diagnostics window
-        self._steps_seen = 0
+        self.steps_reported = 0
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics,
                                       QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         self.executor = SingleThreadedExecutor(context=self.context)
@@ -143,9 +143,9 @@ class _Monitor:
             kv = {v.key: v.value for v in status.values}
             if "step_time_mean_ms" in kv and "steps" in kv:
                 steps = int(kv["steps"])
-                if steps > self._steps_seen:
-                    self.step_ms.append((float(kv["step_time_mean_ms"]), steps - self._steps_seen))
-                    self._steps_seen = steps
+                if steps > self.steps_reported:
+                    self.step_ms.append((float(kv["step_time_mean_ms"]), steps - self.steps_reported))
+                    self.steps_reported = steps
 
     def node_step_ms(self) -> float | None:
         """The node's mean step time over the run (simulation + messages) [ms], from its diagnostics."""
@@ -164,13 +164,14 @@ class _Monitor:
         have = {t: self.node.count_subscribers(t) for t in topics}
         raise InputError(f"subscribers did not appear in {timeout:.0f} s: {have} (wanted {topics})")
 
-    def spin(self, expected: int, done, quiet_after: float, timeout: float, bar: tqdm) -> int:
+    def spin(self, expected: int, done, quiet_after: float, timeout: float, bar: tqdm | None = None) -> int:
         """Spin until ``expected`` messages, or ``done()`` and nothing new for ``quiet_after`` s, or timeout."""
         deadline = time.monotonic() + timeout
         shown = 0
         while self.count < expected and time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=0.05)
-            bar.update(self.count - shown)
+            if bar is not None:
+                bar.update(self.count - shown)
             shown = self.count
             if done() and time.monotonic() - self.last_time > quiet_after:
                 break
@@ -305,7 +306,7 @@ def run(args: argparse.Namespace) -> int:
             with tqdm(total=n_steps, desc="experiment a through ROS", unit="step") as bar:
                 got = monitor.spin(n_steps, lambda: driver.proc.poll() is not None, 3.0, args.timeout, bar)
             # the node reports its step times on /diagnostics once a second: take the last window too
-            monitor.spin(10**9, lambda: monitor._steps_seen >= got, 0.0, 2.5, tqdm(disable=True))
+            monitor.spin(10**9, lambda: monitor.steps_reported >= got, 0.0, 2.5)
             node_ms = monitor.node_step_ms()
         finally:
             monitor.close()
