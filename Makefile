@@ -27,6 +27,7 @@ demo: $(STAMP)
 	$(VENV)/bin/tissue-sim demo --out $(OUT)
 
 test: $(STAMP)
+	$(VENV)/bin/ruff check .
 	$(PY) -m pytest -q $(PYTEST_ARGS) test
 
 bench: $(STAMP)

@@ -9,7 +9,7 @@ use the faster announcement profile in ``/work/shared/fastdds_fast_discovery.xml
 
 Use from a test module::
 
-    from ros_env import RosClient, ros_env, start_process  # noqa: F401  (fixtures)
+    from ros_env import RosClient  # the fixtures ros_env, ros_client, start_process come from conftest.py
 
     def test_x(ros_client, start_process):
         node = start_process(["tissue_sim_node", "--ros-args", "-p", "dt:=0.01"], name="sim")

@@ -15,10 +15,18 @@ from rosbags.rosbag2 import Reader
 
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.ros import messages as m
-from tissue_sim_ros.ros.bags import (POSE_TYPES, STORAGES, Bag, BagWriter, read_tool_track, recover_mcap,
-                                     tool_candidates, typestore)
+from tissue_sim_ros.ros.bags import (
+    POSE_TYPES,
+    STORAGES,
+    Bag,
+    BagWriter,
+    read_tool_track,
+    recover_mcap,
+    tool_candidates,
+    typestore,
+)
 
-from bag_fixtures import T, TS, tool_bag, tool_msg, twist_msg, write_bag
+from bag_fixtures import TS, T, tool_bag, tool_msg, twist_msg, write_bag
 
 POSE_MSG_TYPES = ["geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/Pose",
                   "geometry_msgs/msg/TransformStamped", "tf2_msgs/msg/TFMessage",

@@ -4,12 +4,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import naive
-from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.energy import energy_terms
+from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_from_arrays, mesh_rectangle
 from tissue_sim_ros.core.model import Model, SimParams
 from tissue_sim_ros.core.simulation import Simulation
+
+import naive
 
 
 def two_body_model(params: SimParams) -> Model:

@@ -5,9 +5,16 @@ import math
 
 import numpy as np
 
-from tissue_sim_ros.bench.failures import (FailureMonitor, has_nonfinite, inverted_triangles, kinetic_energy,
-                                           penetration_depth, plausible_kinetic_energy, residual_falls,
-                                           tunnelled_particles)
+from tissue_sim_ros.bench.failures import (
+    FailureMonitor,
+    has_nonfinite,
+    inverted_triangles,
+    kinetic_energy,
+    penetration_depth,
+    plausible_kinetic_energy,
+    residual_falls,
+    tunnelled_particles,
+)
 from tissue_sim_ros.core.mesh import mesh_rectangle
 from tissue_sim_ros.core.model import Model, SimParams
 from tissue_sim_ros.core.tool import ToolPose, ToolShape

@@ -12,9 +12,10 @@ import math
 import numpy as np
 import pytest
 
-import naive
 from tissue_sim_ros.core import kernels
 from tissue_sim_ros.core.solvers import colour_constraints
+
+import naive
 
 RTOL = 1e-12
 

@@ -14,8 +14,18 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.core.errors import InputError
-from tissue_sim_ros.core.mesh import (Grading, TissueMesh, load_mesh, mesh_from_image, mesh_quality, mesh_rectangle,
-                                      tissue_mask, triangle_angles, write_gmsh, write_triangle)
+from tissue_sim_ros.core.mesh import (
+    Grading,
+    TissueMesh,
+    load_mesh,
+    mesh_from_image,
+    mesh_quality,
+    mesh_rectangle,
+    tissue_mask,
+    triangle_angles,
+    write_gmsh,
+    write_triangle,
+)
 from tissue_sim_ros.resources import DEFAULT_IMAGE, config_path
 
 SCALE = 0.005  # m/px: a 200 px image is 1 m

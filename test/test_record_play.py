@@ -13,7 +13,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from ros_env import ros_client, ros_env, start_process  # noqa: E402, F401  (fixtures)
+
 
 from tissue_sim_ros.core.scene import build_simulation  # noqa: E402
 from tissue_sim_ros.ros import messages as m  # noqa: E402

@@ -29,10 +29,11 @@ from std_msgs.msg import Float64  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
 from visualization_msgs.msg import MarkerArray  # noqa: E402
 
-from ros_env import RosClient, RosProcess, ros_client, ros_env, start_process  # noqa: E402,F401  (fixtures)
 from tissue_sim_ros.core.mesh import mesh_rectangle  # noqa: E402
 from tissue_sim_ros.ros import messages as M  # noqa: E402
 from tissue_sim_ros.ros import qos  # noqa: E402
+
+from ros_env import RosClient, RosProcess  # noqa: E402
 
 DT = 0.01
 TIMEOUT = 20.0  # discovery + start-up of a node process, generous for a loaded 2-core machine

@@ -13,13 +13,14 @@ import math
 import numpy as np
 import pytest
 
-import naive
 from tissue_sim_ros.core import collision as C
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_rectangle
 from tissue_sim_ros.core.model import Model, SimParams
 from tissue_sim_ros.core.simulation import Simulation
 from tissue_sim_ros.core.tool import ToolPose, ToolShape, tool_shape_array
+
+import naive
 
 BOX = ToolShape("box", length=0.8, width=0.005)
 SHAPES = [BOX, ToolShape("capsule", length=0.3, radius=0.004), ToolShape("sphere", radius=0.02)]

@@ -7,8 +7,14 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.core.errors import InputError
-from tissue_sim_ros.core.tool import (StraightInsertion, ToolPose, ToolShape, WaypointTrajectory, tool_shape_array,
-                                      wrap_angle)
+from tissue_sim_ros.core.tool import (
+    StraightInsertion,
+    ToolPose,
+    ToolShape,
+    WaypointTrajectory,
+    tool_shape_array,
+    wrap_angle,
+)
 
 BOX = ToolShape()
 

@@ -8,8 +8,16 @@ from pathlib import Path
 import numpy as np
 
 from .core.errors import InputError
-from .core.mesh import (MESH_SUFFIXES, Grading, TissueMesh, load_mesh, mesh_from_mask, mesh_quality, read_image,
-                        tissue_mask)
+from .core.mesh import (
+    MESH_SUFFIXES,
+    Grading,
+    TissueMesh,
+    load_mesh,
+    mesh_from_mask,
+    mesh_quality,
+    read_image,
+    tissue_mask,
+)
 
 HELP = "mesh a tissue image (or load a mesh file), report quality, write .npz and a picture"
 DESCRIPTION = """\

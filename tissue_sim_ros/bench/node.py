@@ -135,12 +135,12 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
     """Run one scene: node process + driving client; return the measurements."""
     import rclpy  # noqa: PLC0415
     from diagnostic_msgs.msg import DiagnosticArray  # noqa: PLC0415
+    from geometry_msgs.msg import PoseStamped  # noqa: PLC0415
     from rclpy.context import Context  # noqa: PLC0415
     from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
     from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: PLC0415
     from sensor_msgs.msg import PointCloud2  # noqa: PLC0415
     from visualization_msgs.msg import MarkerArray  # noqa: PLC0415
-    from geometry_msgs.msg import PoseStamped  # noqa: PLC0415
 
     from ..core.scene import default_params  # noqa: PLC0415
     from ..ros import messages, qos  # noqa: PLC0415

@@ -27,8 +27,15 @@ import yaml
 
 from ..core.errors import InputError
 from ..core.model import SimParams
-from .accuracy import (Setting, default_scene, displacement_error, format_table, measure_setting, reference_run,
-                       write_csv)
+from .accuracy import (
+    Setting,
+    default_scene,
+    displacement_error,
+    format_table,
+    measure_setting,
+    reference_run,
+    write_csv,
+)
 
 HELP = "pick the cheapest mesh spacing/method/iterations meeting an error tolerance"
 DESCRIPTION = __doc__

@@ -59,7 +59,6 @@ def evaluate(values: dict[str, Any], angle_deg: float, speed: float, target: tup
     """One insertion from rest; the numbers a planner ranks by (runs in a worker process)."""
     from ..core.rollout import rollout  # noqa: PLC0415
     from ..core.scene import build_simulation  # noqa: PLC0415
-
     from .paper import baseline_rollout, insertion_cost  # noqa: PLC0415
 
     sim = build_simulation(values)

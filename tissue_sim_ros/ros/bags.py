@@ -78,7 +78,8 @@ TF_TYPE = "tf2_msgs/msg/TFMessage"
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 _SIGNALS = (int(signal.SIGINT), int(signal.SIGTERM))
 try:  # the C functions: the signal module wraps them in enum conversions that cost ~10 us a call
-    from _signal import getsignal as _getsignal, signal as _setsignal
+    from _signal import getsignal as _getsignal
+    from _signal import signal as _setsignal
 except ImportError:  # pragma: no cover
     _getsignal, _setsignal = signal.getsignal, signal.signal
 
@@ -330,8 +331,7 @@ class BagWriter:
 
 def _qos_profile(reliable: bool, transient_local: bool, depth: int) -> Any:
     """A rosbags Qos record (durations 0 = unspecified, i.e. the RMW default: infinite)."""
-    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,  # noqa: PLC0415
-                                    QosReliability, QosTime)
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime  # noqa: PLC0415
 
     zero = QosTime(0, 0)
     return Qos(history=QosHistory.KEEP_LAST, depth=int(depth),

@@ -447,9 +447,9 @@ def write_outputs(out: Path, sim: Simulation, result: ReplayResult, *, video: bo
 
 
 def main() -> int:  # pragma: no cover - `python -m tissue_sim_ros.ros.replay`
-    from ..cli import main as cli_main  # noqa: PLC0415
-
     import sys  # noqa: PLC0415
+
+    from ..cli import main as cli_main  # noqa: PLC0415
 
     return cli_main(["replay", *sys.argv[1:]])
 
