@@ -41,7 +41,7 @@ from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
-from ..core.config import FOREIGN_PREFIXES, METHOD_ALIASES, Config, resolve_config
+from ..core.config import FOREIGN_PREFIXES, METHOD_ALIASES, Config, load_params_file, resolve_config
 from ..core.errors import InputError
 from ..core.simulation import Simulation, StepReport
 from ..core.tool import ToolPose, ToolTwist, yaw_from_quaternion
@@ -526,8 +526,29 @@ class TissueSimNode(Node):
         s.window_sim_time_sum = 0.0
 
 
+def _params_files(argv: list[str]) -> list[str]:
+    """The ``--params-file`` paths inside the ``--ros-args`` sections of a command line."""
+    files, in_ros, it = [], False, iter(argv)
+    for arg in it:
+        if arg == "--ros-args":
+            in_ros = True
+        elif arg == "--":
+            in_ros = False
+        elif in_ros and arg == "--params-file":
+            files.append(next(it, ""))
+    return files
+
+
 def main(args: list[str] | None = None) -> int:
     """Console script ``tissue_sim_node``: exit 0 on SIGINT/SIGTERM, 2 on a bad parameter (named)."""
+    try:
+        # read every --params-file ourselves first: a malformed one is one line naming it and where,
+        # before rcl logs its own parse error
+        for path in _params_files(sys.argv if args is None else args):
+            load_params_file(path)
+    except InputError as exc:
+        print(f"tissue_sim_node: error: {exc}", file=sys.stderr)
+        return 2
     try:
         rclpy.init(args=args)
     except Exception as exc:  # noqa: BLE001  rcl's parse errors (a missing or malformed --params-file)
