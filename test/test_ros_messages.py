@@ -162,11 +162,6 @@ def test_reader_rejects_non_cdr_bytes() -> None:
         M.decode_float64(b"\x00\x00\x00\x00" + bytes(8))
 
 
-def test_stamp_conversion() -> None:
-    assert M.stamp_from_seconds(1.5) == (1, 500_000_000)
-    assert M.stamp_to_seconds((2, 250_000_000)) == 2.25
-
-
 def test_scene_encoder_rest_and_stretch() -> None:
     mesh = mesh_rectangle(0.4, 0.2, 0.05)
     from tissue_sim_ros.core.model import Model  # noqa: PLC0415

@@ -11,8 +11,10 @@ from tissue_sim_ros.core.tool import (
     StraightInsertion,
     ToolPose,
     ToolShape,
+    ToolTwist,
     WaypointTrajectory,
     tool_shape_array,
+    twist_from_poses,
     wrap_angle,
 )
 
@@ -153,3 +155,41 @@ def test_yaw_from_quaternion_is_shared_and_normalises():
         assert yaw_from_quaternion(*(1.02 * c for c in q)) == pytest.approx(a, abs=1e-12)  # a robot's 2% off
     assert yaw_from_quaternion(0.0, 0.0, 0.0, 0.0) is None
     assert yaw_from_quaternion(float("nan"), 0.0, 0.0, 1.0) is None
+
+
+def test_twist_from_poses_wraps_the_yaw():
+    """The one pose-to-twist conversion: (pose - prev) / dt with the yaw change along the shortest arc."""
+    dt = 0.01
+    a = ToolPose(0.1, 0.2, math.radians(179.0))
+    b = ToolPose(0.1 + 0.003, 0.2 - 0.001, math.radians(-179.0))
+    tw = twist_from_poses(a, b, dt)
+    assert tw.vx == pytest.approx(0.3) and tw.vy == pytest.approx(-0.1)
+    assert tw.wz == pytest.approx(math.radians(2.0) / dt)  # +2 deg, not -358 deg
+    assert twist_from_poses(b, a, dt).wz == pytest.approx(-math.radians(2.0) / dt)
+    assert twist_from_poses(None, b, dt) == ToolTwist()
+    # a small change is kept to the bit (no sin/cos round trip)
+    c = ToolPose(0.0, 0.0, 0.3)
+    assert twist_from_poses(ToolPose(0.0, 0.0, 0.1), c, dt).wz == (0.3 - 0.1) / dt
+    assert wrap_angle(0.2) == 0.2 and wrap_angle(math.pi) == -math.pi and wrap_angle(-math.pi) == -math.pi
+
+
+def test_the_simulation_derives_the_twist_with_the_shared_function():
+    """A step without a twist uses twist_from_poses of the previous and the new pose (yaw wrapped)."""
+    from tissue_sim_ros.core.mesh import mesh_rectangle
+    from tissue_sim_ros.core.model import Model, SimParams
+    from tissue_sim_ros.core.simulation import Simulation
+
+    dt = 0.01
+    sim = Simulation(Model.from_mesh(mesh_rectangle(0.1, 0.1, 0.05), SimParams(dt=dt)), tool=ToolShape())
+    a, b = ToolPose(2.0, 2.0, math.radians(179.0)), ToolPose(2.001, 2.0, math.radians(-179.0))
+    sim.step(a)
+    seen = []
+    detect = sim.contact.detect
+
+    def spy(state, pose0, pose1, twist, dt_):
+        seen.append(twist)
+        return detect(state, pose0, pose1, twist, dt_)
+
+    sim.contact.detect = spy
+    sim.step(b)
+    assert seen == [twist_from_poses(a, b, dt)]

@@ -41,7 +41,7 @@ def draw_scene(ax, model: Model, x: np.ndarray, *, tool: ToolShape | None = None
     tris = model.tri_indices
     polys = x[tris]
     if colour == "strain":
-        s = vertex_strain(model, x)[tris].mean(axis=1)
+        s = vertex_strain(model, x, absolute=True)[tris].mean(axis=1)  # shade how much, either way
         cmap = plt.get_cmap("Reds")
         facecolors = cmap(0.25 + 0.75 * np.clip(s / strain_max, 0.0, 1.0))
     else:

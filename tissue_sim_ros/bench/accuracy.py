@@ -41,7 +41,7 @@ from ..core.config import parse_assignments, resolve_config
 from ..core.errors import InputError
 from ..core.mesh import TissueMesh, mesh_rectangle
 from ..core.model import Model, SimParams, State
-from ..core.tool import ToolPose, ToolShape, ToolTwist
+from ..core.tool import ToolPose, ToolShape, twist_from_poses
 from .reference import reference_step, relative_error
 
 HELP = "error against an exact Newton solve versus time per step, Pareto front"
@@ -232,8 +232,7 @@ class Stepper:
         if self.contact is None:
             return Contacts.empty(self.model.n_bodies)
         dt = self.model.params.dt
-        twist = ToolTwist((pose1.x - pose0.x) / dt, (pose1.y - pose0.y) / dt, (pose1.yaw - pose0.yaw) / dt)
-        return self.contact.detect(state, pose0, pose1, twist, dt)
+        return self.contact.detect(state, pose0, pose1, twist_from_poses(pose0, pose1, dt), dt)
 
     def step(self, state: State, contacts: Contacts) -> tuple[State, float]:
         """One step from ``state``; returns the new state (a fresh copy) and the solve's wall time [s]."""

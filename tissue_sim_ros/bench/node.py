@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import InputError
+from ..core.stamps import stamp_from_ns, stamp_to_seconds
 
 HELP = "sustained rate, overruns and pose-to-mesh latency of the ROS node"
 DESCRIPTION = __doc__
@@ -203,7 +204,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
 
     def publish_pose() -> None:
         now_ns = time.time_ns()
-        stamp = (now_ns // 1_000_000_000, now_ns % 1_000_000_000)
+        stamp = stamp_from_ns(now_ns)
         y = _tool_y(time.monotonic() - t_start["t"])
         pose_pub.publish(messages.encode_pose_stamped(stamp, params.get("frame_id", "world"), 0.5, y, 0.0))
         if measuring["on"]:
@@ -289,7 +290,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         writer = csv.writer(f)
         writer.writerow(["pose_stamp_s", "markers_latency_ms", "points_latency_ms"])
         for stamp in sent:
-            s = messages.stamp_to_seconds(stamp)
+            s = stamp_to_seconds(stamp)
             lm = 1e3 * (first_markers[stamp] - s) if stamp in first_markers else math.nan
             lp = 1e3 * (first_points[stamp] - s) if stamp in first_points else math.nan
             writer.writerow([f"{s:.9f}", f"{lm:.3f}", f"{lp:.3f}"])

@@ -39,7 +39,7 @@ from ..core.mesh import TissueMesh, mesh_from_arrays, mesh_rectangle
 from ..core.model import Model, SimParams
 from ..core.simulation import Simulation
 from ..core.solvers import Solver
-from ..core.tool import ToolPose, ToolShape
+from ..core.tool import ToolPose, ToolShape, twist_from_poses
 from .accuracy import format_table, push_poses, write_csv
 from .failures import FAILURE_KINDS, Failure, FailureMonitor, iteration_residuals, residual_falls
 
@@ -228,9 +228,7 @@ def _residual_check(model: Model, sim: Simulation, state, pose0: ToolPose, pose1
                     solver_options: dict[str, Any]) -> list[float]:
     """Residuals of one step from ``state`` at 1, 4, 16, 64 iterations (substeps for the substep method)."""
     dt = model.params.dt
-    from ..core.tool import ToolTwist  # noqa: PLC0415
-
-    twist = ToolTwist((pose1.x - pose0.x) / dt, (pose1.y - pose0.y) / dt, 0.0)
+    twist = twist_from_poses(pose0, pose1, dt)
     contacts = sim.contact.detect(state, pose0, pose1, twist, dt)
     if model.params.substeps > 1:
         from ..core.solvers import Solver  # noqa: PLC0415

@@ -9,7 +9,6 @@ the contact model; it never imports ROS.
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable
@@ -23,7 +22,7 @@ from .errors import InputError
 from .kernels import count_inverted
 from .model import Model, State
 from .solvers import Solver
-from .tool import ToolPose, ToolShape, ToolTwist
+from .tool import ToolPose, ToolShape, ToolTwist, twist_from_poses
 
 if TYPE_CHECKING:
     from .mesh import TissueMesh
@@ -174,7 +173,7 @@ class Simulation:
         model = self.model
         nb = model.n_bodies
         if tool_pose is not None and tool_twist is None:
-            tool_twist = self._twist_from_poses(self.tool_pose, tool_pose, p.dt)
+            tool_twist = twist_from_poses(self.tool_pose, tool_pose, p.dt)
         if self.contact is not None and tool_pose is not None and p.contact_model != "none":
             contacts = self.contact.detect(self.state, self.tool_pose or tool_pose, tool_pose, tool_twist, p.dt)
         else:
@@ -218,13 +217,6 @@ class Simulation:
             timings={"contact": t_contact - t_start, "solve": t_solve - t_contact,
                      "energy": t_energy - t_solve, "total": time.perf_counter() - t_start},
         )
-
-    @staticmethod
-    def _twist_from_poses(prev: ToolPose | None, pose: ToolPose, dt: float) -> ToolTwist:
-        if prev is None:
-            return ToolTwist()
-        dyaw = math.atan2(math.sin(pose.yaw - prev.yaw), math.cos(pose.yaw - prev.yaw))
-        return ToolTwist((pose.x - prev.x) / dt, (pose.y - prev.y) / dt, dyaw / dt)
 
     def _reaction(self, contact_dx: np.ndarray | None, tool_pose: ToolPose | None, dt: float,
                   contacts: Contacts | None = None, x: np.ndarray | None = None) -> tuple[np.ndarray, float]:

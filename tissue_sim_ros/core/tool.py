@@ -120,8 +120,22 @@ def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float | None:
 
 
 def wrap_angle(a: float) -> float:
-    """An angle wrapped to [-pi, pi) [rad]."""
+    """An angle wrapped to [-pi, pi) [rad]; an angle already in that range is returned as it is (to the bit)."""
+    if -math.pi <= a < math.pi:
+        return float(a)
     return float((a + math.pi) % (2.0 * math.pi) - math.pi)
+
+
+def twist_from_poses(prev: ToolPose | None, pose: ToolPose, dt: float) -> ToolTwist:
+    """The tool's velocity over a step: the pose change divided by ``dt`` [s], yaw along the shortest arc.
+
+    The one conversion the simulation (a step without a twist), trajectories
+    (:meth:`Trajectory.steps`) and the benchmarks share: a yaw step from
+    +179 deg to -179 deg is +2 deg, not -358 deg. No previous pose: zero.
+    """
+    if prev is None:
+        return ToolTwist()
+    return ToolTwist((pose.x - prev.x) / dt, (pose.y - prev.y) / dt, wrap_angle(pose.yaw - prev.yaw) / dt)
 
 
 def _check_point(name: str, p: object) -> tuple[float, float]:
@@ -174,8 +188,7 @@ class Trajectory:
         for k in range(1, n + 1):
             t = min(self.start_time + k * dt, end)
             pose = self.pose_at(t)
-            twist = ToolTwist((pose.x - prev.x) / dt, (pose.y - prev.y) / dt, wrap_angle(pose.yaw - prev.yaw) / dt)
-            yield pose, twist
+            yield pose, twist_from_poses(prev, pose, dt)
             prev = pose
 
 
@@ -356,6 +369,5 @@ class WaypointTrajectory(Trajectory):
         if t < times[0] or t >= times[-1]:
             return ToolTwist()
         k = self._segment(t)
-        h = times[k + 1] - times[k]
-        p0, p1 = poses[k], poses[k + 1]
-        return ToolTwist(float((p1[0] - p0[0]) / h), float((p1[1] - p0[1]) / h), wrap_angle(p1[2] - p0[2]) / h)
+        return twist_from_poses(ToolPose(*map(float, poses[k])), ToolPose(*map(float, poses[k + 1])),
+                                float(times[k + 1] - times[k]))

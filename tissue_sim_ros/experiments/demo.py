@@ -26,6 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..core.errors import InputError
+from ..core.stamps import stamp_to_ns
 from ..core.tool import yaw_from_quaternion
 from . import trajectories as tr
 
@@ -183,11 +184,6 @@ class _Monitor:
         self._rclpy.try_shutdown(context=self.context)
 
 
-def _ns(stamp: tuple[int, int]) -> int:
-    sec, nanosec = stamp
-    return int(sec) * 10**9 + int(nanosec)
-
-
 def read_demo_bag(path: Path) -> dict[str, Any]:
     """Series of a recorded run from the bag alone: energy terms, snapshots by step, contact per body, stamps."""
     from ..ros.bags import Bag  # noqa: PLC0415
@@ -204,14 +200,14 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
             if topic == "/tool/pose":
                 stamp, _frame, pos, q = decode_pose_stamped(raw)
                 yaw = yaw_from_quaternion(*map(float, q))
-                poses[_ns(stamp)] = np.array([pos[0], pos[1], yaw])
+                poses[stamp_to_ns(stamp)] = np.array([pos[0], pos[1], yaw])
             elif topic == "/tissue/energy/bodies":
                 data, _labels = decode_float64_multiarray(raw)
                 energy.append(np.asarray(data, dtype=np.float64))
                 energy_t.append(t_ns)
             elif topic == "/tissue/points":
                 stamp, _frame, pts = decode_point_cloud(raw)
-                points.append((_ns(stamp), np.stack([pts["x"], pts["y"]], axis=1).astype(np.float64)))
+                points.append((stamp_to_ns(stamp), np.stack([pts["x"], pts["y"]], axis=1).astype(np.float64)))
                 body = pts["body"].astype(np.int64)
             elif topic == "/tissue/markers":
                 markers = decode_marker_array(raw)
@@ -219,7 +215,7 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
                 hit = next((m for m in markers if m.ns == "contact"), None)
                 if tool is not None:
                     moved = hit is not None and hit.action == 0 and len(hit.points) > 0
-                    contact[_ns(tool.stamp)] = hit.points[:, :2] if moved else np.zeros((0, 2))
+                    contact[stamp_to_ns(tool.stamp)] = hit.points[:, :2] if moved else np.zeros((0, 2))
     # lock-step with points and markers at every step: the k-th points message is step k, stamped with the
     # stamp of the tool pose that step used (energy messages carry no stamp: the k-th is step k as well)
     step_stamp = {k + 1: t for k, (t, _x) in enumerate(points)}

@@ -52,6 +52,7 @@ from typing import TYPE_CHECKING, Any, Iterator
 import numpy as np
 
 from ..core.errors import InputError
+from ..core.stamps import stamp_to_ns
 from ..core.tool import yaw_from_quaternion
 
 if TYPE_CHECKING:
@@ -603,7 +604,7 @@ class ToolTrack:
 
 
 def _stamp_ns(header: Any) -> int:
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+    return stamp_to_ns((header.stamp.sec, header.stamp.nanosec))
 
 
 def _yaw(q: Any) -> float | None:

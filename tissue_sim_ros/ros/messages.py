@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..core.stamps import Stamp
+from ..core.strain import VertexStrain
 from ..core.tool import rounded_box_outline as tool_outline  # the outline the pictures draw too
 
 #: CDR little-endian encapsulation header (representation id 0x0001, options 0).
@@ -54,21 +56,6 @@ _POINTFIELD_NUMPY = {v: k for k, v in POINTFIELD_DATATYPES.items()}
 
 #: The fields of ``tissue/points``: position [m] (z = 0, the tissue plane), signed strain [-], body index.
 POINT_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("strain", "<f4"), ("body", "<u4")])
-
-Stamp = tuple[int, int]
-"""A ROS time as (sec, nanosec)."""
-
-
-def stamp_from_seconds(t: float) -> Stamp:
-    """(sec, nanosec) of a time in seconds (t >= 0)."""
-    ns = int(round(t * 1e9))
-    return ns // 1_000_000_000, ns % 1_000_000_000
-
-
-def stamp_to_seconds(stamp: Stamp) -> float:
-    """Seconds of a (sec, nanosec) stamp."""
-    return stamp[0] + stamp[1] * 1e-9
-
 
 class CdrWriter:
     """Append-only XCDR1 little-endian writer; alignment counted from the end of the header."""
@@ -558,10 +545,9 @@ class SceneEncoder:
                  strain_color_max: float = 0.2, wire_width: float = 0.002, wireframe: bool = True) -> None:
         self.tri = np.ascontiguousarray(tri_indices, dtype=np.int64)
         self.edges = np.ascontiguousarray(edge_indices, dtype=np.int64)
-        self.rest_length = np.where(edge_rest_length > 0, edge_rest_length, 1.0)
+        self.strain = VertexStrain(edge_indices, edge_rest_length, particle_body.shape[0])
         n = particle_body.shape[0]
         self.n = n
-        self.degree = np.maximum(np.bincount(self.edges.ravel(), minlength=n), 1).astype(np.float64)
         self.strain_color_max = strain_color_max
         self.wire_width = wire_width
         self.wireframe = wireframe
@@ -570,8 +556,6 @@ class SceneEncoder:
         # flat index arrays and preallocated buffers: np.take into them is ~3x faster than fancy indexing
         self.tri_flat = np.ascontiguousarray(self.tri.ravel())
         self.edge_flat = np.ascontiguousarray(self.edges.ravel())
-        self._edge_a = np.ascontiguousarray(self.edges[:, 0])
-        self._edge_b = np.ascontiguousarray(self.edges[:, 1])
         self.tri_points = np.zeros((3 * len(self.tri), 3), dtype="<f8")
         self.wire_points = np.zeros((2 * len(self.edges), 3), dtype="<f8")
         self._q3 = np.zeros((n, 3), dtype="<f8")  # particle positions with z = 0, gathered straight into points
@@ -584,14 +568,8 @@ class SceneEncoder:
         self.tool_outline = tool_outline(*tool_rounded_box) if tool_rounded_box is not None else None
 
     def vertex_strain(self, q: np.ndarray) -> np.ndarray:
-        """Signed strain per particle: mean of |x_a - x_b| / l0 - 1 over its edges, shape (N,), float64."""
-        d = np.take(q, self._edge_b, axis=0)
-        d -= np.take(q, self._edge_a, axis=0)
-        strain = np.hypot(d[:, 0], d[:, 1])
-        strain /= self.rest_length
-        strain -= 1.0
-        # each edge's strain goes to both its ends (edge_flat is a0, b0, a1, b1, ...)
-        return np.bincount(self.edge_flat, weights=np.repeat(strain, 2), minlength=self.n) / self.degree
+        """Signed strain per particle (:class:`~tissue_sim_ros.core.strain.VertexStrain`), shape (N,), float64."""
+        return self.strain(q)
 
     def point_cloud(self, stamp: Stamp, frame_id: str, q: np.ndarray, strain: np.ndarray) -> bytes:
         """``tissue/points``: x, y, z=0 [m], strain [-], body; float32 (body uint32)."""

@@ -44,6 +44,7 @@ from visualization_msgs.msg import MarkerArray
 from ..core.config import FOREIGN_PREFIXES, METHOD_ALIASES, Config, load_params_file, resolve_config
 from ..core.errors import InputError
 from ..core.simulation import Simulation, StepReport
+from ..core.stamps import Stamp, stamp_from_ns, stamp_to_seconds
 from ..core.tool import ToolPose, ToolTwist, yaw_from_quaternion
 from . import messages, qos
 from .node_recording import NodeRecorder
@@ -85,9 +86,8 @@ class ToolInput:
     """Node-clock time the twist arrived [s]."""
 
 
-def _stamp_of(t: Time) -> tuple[int, int]:
-    sec, nsec = t.seconds_nanoseconds()
-    return int(sec), int(nsec)
+def _stamp_of(t: Time) -> Stamp:
+    return stamp_from_ns(t.nanoseconds)
 
 
 class TissueSimNode(Node):
@@ -276,8 +276,8 @@ class TissueSimNode(Node):
                 self._drop("stale", f"{topic} is {age:.3f} s old (max_stamp_age {max_age} s)")
                 return False
         if last != (0, 0) and stamp <= last:
-            self._drop("out_of_order", f"{topic} stamped {messages.stamp_to_seconds(stamp):.6f} s, not after the "
-                                       f"previous {messages.stamp_to_seconds(last):.6f} s")
+            self._drop("out_of_order", f"{topic} stamped {stamp_to_seconds(stamp):.6f} s, not after the "
+                                       f"previous {stamp_to_seconds(last):.6f} s")
             return False
         return True
 

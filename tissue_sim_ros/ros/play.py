@@ -25,6 +25,7 @@ import time
 from typing import Any
 
 from ..core.errors import InputError
+from ..core.stamps import stamp_from_ns
 from .bags import POSE_TYPES, TWIST_TYPES, Bag
 from .record import message_class
 
@@ -193,7 +194,8 @@ def _publish_clock(pub: Any, t_ns: int) -> None:
     from builtin_interfaces.msg import Time  # noqa: PLC0415
     from rosgraph_msgs.msg import Clock  # noqa: PLC0415
 
-    pub.publish(Clock(clock=Time(sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000))))
+    sec, nanosec = stamp_from_ns(t_ns)
+    pub.publish(Clock(clock=Time(sec=sec, nanosec=nanosec)))
 
 
 def main() -> int:  # pragma: no cover

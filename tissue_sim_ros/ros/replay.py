@@ -40,6 +40,8 @@ from ..cli_config import add_config_arguments, config_from_args
 from ..core.errors import InputError
 from ..core.rollout import Rollout, rollout
 from ..core.simulation import Simulation, StepReport
+from ..core.stamps import ns_from_seconds, stamp_from_ns
+from ..core.strain import VertexStrain
 from ..core.tool import ToolPose, ToolTwist
 from . import messages as msgs
 from .bags import BagWriter, ToolTrack, read_tool_track
@@ -136,7 +138,7 @@ def schedule(track: ToolTrack, dt: float, mode: str) -> tuple[np.ndarray, np.nda
         return track.t_ns.copy(), track.pose.copy(), twist
     if mode != "fixed-rate":
         raise InputError(f"--mode {mode!r}: expected one of {', '.join(MODES)}")
-    dt_ns = int(round(dt * 1e9))
+    dt_ns = ns_from_seconds(dt)
     n = int((track.t_ns[-1] - track.t_ns[0]) // dt_ns)
     if n < 1:
         raise InputError(f"tool track {track.topic} spans {track.duration:.4f} s, shorter than one step dt={dt} s: "
@@ -147,39 +149,6 @@ def schedule(track: ToolTrack, dt: float, mode: str) -> tuple[np.ndarray, np.nda
         idx = np.searchsorted(track.t_ns, t, side="right") - 1
         twist = track.twist[idx]
     return t, track.interpolate(t), twist
-
-
-def _stamp(t_ns: int) -> tuple[int, int]:
-    return int(t_ns // 1_000_000_000), int(t_ns % 1_000_000_000)
-
-
-class VertexStrain:
-    """:func:`~tissue_sim_ros.core.strain.vertex_strain` with the mesh's constant parts computed once.
-
-    The mean absolute edge strain at each vertex. Recomputing the incidence
-    counts and fancy-indexing (N, 2) arrays every step made it the largest cost
-    of writing a step's points (~85 us at the paper scene's size); with the
-    counts kept and ``np.take`` it is ~20 us. Equal to the core function up to
-    summation order (checked in test_replay.py).
-    """
-
-    def __init__(self, model) -> None:
-        e = model.edge_indices.astype(np.intp)
-        n = model.n_particles
-        self._e0, self._e1 = e[:, 0].copy(), e[:, 1].copy()
-        self._ends = np.concatenate([self._e0, self._e1])
-        count = np.bincount(self._ends, minlength=n).astype(np.float64)
-        self._inv_count = 1.0 / np.maximum(count, 1.0)
-        self._n = n
-        l0 = model.edge_rest_length
-        self._inv_l0 = np.where(l0 > 0, 1.0 / np.where(l0 > 0, l0, 1.0), 0.0)
-        self._one = (l0 > 0).astype(np.float64)  # zero rest length: strain 0, as in the core function
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        """Mean |strain| of the edges at each vertex for positions ``x`` (N, 2) [m]; shape (N,), float64."""
-        d = np.take(x, self._e1, axis=0) - np.take(x, self._e0, axis=0)
-        strain = np.abs(np.hypot(d[:, 0], d[:, 1]) * self._inv_l0 - self._one)
-        return np.bincount(self._ends, weights=np.concatenate([strain, strain]), minlength=self._n) * self._inv_count
 
 
 class ReplayBagSink:
@@ -198,10 +167,10 @@ class ReplayBagSink:
         model = sim.model
         self._points = np.zeros(model.n_particles, dtype=msgs.POINT_DTYPE)
         self._points["body"] = model.particle_body
-        self._strain = VertexStrain(model)
+        self._strain = VertexStrain.of(model)  # signed, as the node publishes it (msg_docs/topics.md)
 
     def __call__(self, report: StepReport, t_ns: int, pose: ToolPose) -> None:
-        stamp, e = _stamp(t_ns), report.energy
+        stamp, e = stamp_from_ns(t_ns), report.energy
         # the node's layout: (B, 4) rows of inertial, spring, area, total
         table = np.column_stack([e.inertial, e.spring, e.area, e.total])
         f = report.reaction_force
@@ -357,7 +326,7 @@ def run(args: argparse.Namespace) -> int:
     warm.step(ToolPose(*map(float, track.pose[0])))
     print(f"warm-up (kernel load) {time.perf_counter() - t_warm:.2f} s, not counted in the replay speed")
     n_steps = track.n if args.mode == "per-message" else int(
-        (track.t_ns[-1] - track.t_ns[0]) // int(round(sim.params.dt * 1e9)))
+        (track.t_ns[-1] - track.t_ns[0]) // ns_from_seconds(sim.params.dt))
     if args.frame_every > 0:
         frame_every = args.frame_every
     else:  # -1: none; 0: about 40 frames

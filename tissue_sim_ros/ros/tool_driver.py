@@ -37,6 +37,7 @@ from std_msgs.msg import Float64
 from ..core.config import resolve_config
 from ..core.errors import InputError
 from ..core.scene import tool_from_mapping
+from ..core.stamps import ns_from_seconds, stamp_from_ns
 from ..core.tool import StraightInsertion, Trajectory
 from . import messages, qos
 
@@ -188,8 +189,8 @@ class ToolDriver(Node):
             self.k = self.n_steps  # keep holding the last pose
         pose, twist = self.commands[min(self.k, self.n_steps) - 1]
         now = self.get_clock().now()
-        stamp_ns = self._start_ns + round(self.k * self.dt * 1e9) if self.values["lock_step"] else now.nanoseconds
-        stamp = (stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000)
+        stamp_ns = self._start_ns + ns_from_seconds(self.k * self.dt) if self.values["lock_step"] else now.nanoseconds
+        stamp = stamp_from_ns(stamp_ns)
         frame = self.values["frame_id"]
         if self.values["publish_twist"]:
             self.pub_twist.publish(messages.encode_twist_stamped(stamp, frame, twist.vx, twist.vy, twist.wz))
