@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -643,3 +644,114 @@ class SceneEncoder:
             specs.append(MarkerSpec("pinned", 0, MARKER_SPHERE_LIST, stamp, frame_id, position=(0.0, 0.0, -0.001),
                                     scale=(d, d, d), color=(0.2, 0.2, 0.2, 0.8), points=q0[pinned]))
         return encode_marker_array(specs)
+
+
+# --------------------------------------------------------------------------- one step's outputs
+
+#: The energy terms of ``tissue/energy/bodies``' columns, in order.
+ENERGY_TERMS = ("inertial", "spring", "area", "total")
+
+#: The outputs of a step (topic relative to the node's namespace -> type), as the node publishes them.
+STEP_TOPICS: dict[str, str] = {
+    "tissue/energy": "std_msgs/msg/Float64",
+    "tissue/energy/inertial": "std_msgs/msg/Float64",
+    "tissue/energy/spring": "std_msgs/msg/Float64",
+    "tissue/energy/area": "std_msgs/msg/Float64",
+    "tissue/energy/bodies": "std_msgs/msg/Float64MultiArray",
+    "tool/wrench": "geometry_msgs/msg/WrenchStamped",
+    "tissue/points": "sensor_msgs/msg/PointCloud2",
+    "tissue/markers": "visualization_msgs/msg/MarkerArray",
+}
+
+
+@dataclass
+class StepMessages:
+    """The serialized outputs of one step, topic (relative, see :data:`STEP_TOPICS`) -> CDR bytes, in publishing order.
+
+    A message that would carry NaN is left out: ``withheld`` says which and why.
+    """
+
+    messages: dict[str, bytes] = field(default_factory=dict)
+    withheld: list[str] = field(default_factory=list)
+    """Why a message was left out (non-finite positions, energy or reaction); empty when none was."""
+
+
+class StepEncoder:
+    """A step's outputs as CDR bytes, the one encoding the node publishes and ``tissue-sim replay`` writes.
+
+    From a :class:`~tissue_sim_ros.core.simulation.StepReport` and the state
+    after the step: the scene energy and its terms (total and per body), the
+    reaction wrench, the points with their signed strain, and the markers. So a
+    replayed bag means what a live one means, message for message.
+
+    Parameters
+    ----------
+    model : Model
+        The simulation's model (mesh topology, rest lengths, bodies).
+    tool : ToolShape, optional
+        The tool (its marker's outline); None: no tool marker.
+    strain_color_max, wire_width, wireframe
+        Marker appearance (see :class:`SceneEncoder`).
+    """
+
+    def __init__(self, model: Any, tool: Any = None, *, strain_color_max: float = 0.2, wire_width: float = 0.002,
+                 wireframe: bool = True) -> None:
+        self.scene = SceneEncoder(model.tri_indices, model.edge_indices, model.edge_rest_length, model.particle_body,
+                                  tool_rounded_box=tool.rounded_box() if tool is not None else None,
+                                  strain_color_max=strain_color_max, wire_width=wire_width, wireframe=wireframe)
+
+    def strain(self, q: np.ndarray) -> np.ndarray:
+        """Signed vertex strain of positions ``q`` (N, 2) [m], shape (N,)."""
+        return self.scene.vertex_strain(q)
+
+    def encode(self, stamp: Stamp, frame_id: str, report: Any, q: np.ndarray, *, points: bool = True,
+               markers: bool = False, tool_pose: tuple[float, float, float] | None = None,
+               tool_stamp: Stamp | None = None) -> StepMessages:
+        """The messages of the step ``report`` that left positions ``q`` (N, 2) [m], all stamped ``stamp``.
+
+        Energy is left out of a step that diverged (its state was restored); with
+        non-finite positions nothing is encoded. ``points`` / ``markers`` choose
+        whether this step carries them (the node's rates); the tool marker
+        carries ``tool_stamp`` (default ``stamp``).
+        """
+        out = StepMessages()
+        if not np.isfinite(q).all():
+            # the Simulation restores the last good state, so this is a bug guard: never publish NaN
+            out.withheld.append(f"step {report.step} left non-finite positions; nothing published")
+            return out
+        e = report.energy
+        if not report.diverged:
+            terms = np.stack([e.inertial, e.spring, e.area, e.total], axis=1)  # (B, 4)
+            if np.isfinite(terms).all():
+                out.messages["tissue/energy"] = encode_float64(float(terms[:, 3].sum()))
+                for i, term in enumerate(ENERGY_TERMS[:3]):
+                    out.messages[f"tissue/energy/{term}"] = encode_float64(float(terms[:, i].sum()))
+                out.messages["tissue/energy/bodies"] = encode_float64_multiarray(
+                    terms, ["body", "term:" + ",".join(ENERGY_TERMS)])
+            else:
+                out.withheld.append(f"step {report.step}: non-finite energy not published")
+        f, tz = report.reaction_force, report.reaction_torque
+        if np.isfinite(f).all() and math.isfinite(tz):
+            out.messages["tool/wrench"] = encode_wrench_stamped(stamp, frame_id, (float(f[0]), float(f[1]), 0.0),
+                                                                (0.0, 0.0, float(tz)))
+        else:
+            out.withheld.append(f"step {report.step}: non-finite reaction not published")
+        if points or markers:
+            strain = self.strain(q)
+            if points:
+                out.messages["tissue/points"] = self.scene.point_cloud(stamp, frame_id, q, strain)
+            if markers:
+                out.messages["tissue/markers"] = self.scene.markers(
+                    stamp, frame_id, q, strain, tool_pose=tool_pose, tool_stamp=tool_stamp,
+                    contact_particles=report.contact_particles)
+        return out
+
+    def state(self, stamp: Stamp, frame_id: str, q: np.ndarray) -> StepMessages:
+        """Points and markers of a state outside a step (after a reset): no energy, no wrench, no tool."""
+        strain = self.strain(q)
+        return StepMessages({"tissue/points": self.scene.point_cloud(stamp, frame_id, q, strain),
+                             "tissue/markers": self.scene.markers(stamp, frame_id, q, strain)})
+
+    def rest_markers(self, stamp: Stamp, frame_id: str, model: Any) -> bytes:
+        """``tissue/rest_mesh`` of ``model``."""
+        return self.scene.rest_markers(stamp, frame_id, model.particle_q0, model.particle_pinned)

@@ -26,7 +26,6 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
@@ -49,8 +48,6 @@ from ..core.tool import ToolPose, ToolTwist, yaw_from_quaternion
 from . import messages, qos
 from .node_recording import NodeRecorder
 from .parameters import BY_NAME, PARAMETERS, SIM_NAMES, descriptor, parameter_value
-
-ENERGY_TERMS = ("inertial", "spring", "area", "total")
 
 
 @dataclass
@@ -128,7 +125,7 @@ class TissueSimNode(Node):
         self.pub_wrench = self.create_publisher(WrenchStamped, "tool/wrench", qos.state_stream())
         self.pub_energy = self.create_publisher(Float64, "tissue/energy", qos.energy())
         self.pub_energy_terms = {term: self.create_publisher(Float64, f"tissue/energy/{term}", qos.energy())
-                                 for term in ENERGY_TERMS[:3]}
+                                 for term in messages.ENERGY_TERMS[:3]}
         self.pub_energy_bodies = self.create_publisher(Float64MultiArray, "tissue/energy/bodies", qos.energy())
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", qos.diagnostics())
         lock_step = self._values["lock_step"]
@@ -232,13 +229,24 @@ class TissueSimNode(Node):
             self.get_logger().info("paused" if new["paused"] else "running")
         return SetParametersResult(successful=True)
 
-    def _make_encoder(self) -> messages.SceneEncoder:
-        m = self.sim.model
-        return messages.SceneEncoder(
-            m.tri_indices, m.edge_indices, m.edge_rest_length, m.particle_body,
-            tool_rounded_box=self.sim.tool.rounded_box() if self.sim.tool is not None else None,
-            strain_color_max=self._values["strain_color_max"], wire_width=self._values["wire_width"],
-            wireframe=self._values["markers_wireframe"])
+    def _make_encoder(self) -> messages.StepEncoder:
+        return messages.StepEncoder(
+            self.sim.model, self.sim.tool, strain_color_max=self._values["strain_color_max"],
+            wire_width=self._values["wire_width"], wireframe=self._values["markers_wireframe"])
+
+    def _output_publishers(self) -> dict[str, Any]:
+        """The publisher of each step output (messages.STEP_TOPICS); looked up per call, as recording wraps them."""
+        return {"tissue/energy": self.pub_energy,
+                **{f"tissue/energy/{k}": p for k, p in self.pub_energy_terms.items()},
+                "tissue/energy/bodies": self.pub_energy_bodies, "tool/wrench": self.pub_wrench,
+                "tissue/points": self.pub_points, "tissue/markers": self.pub_markers}
+
+    def _publish(self, out: messages.StepMessages) -> None:
+        for reason in out.withheld:
+            self._drop("unpublished_nonfinite", reason)
+        pubs = self._output_publishers()
+        for topic, data in out.messages.items():
+            pubs[topic].publish(data)
 
     @property
     def frame_id(self) -> str:
@@ -402,58 +410,27 @@ class TissueSimNode(Node):
         super().destroy_node()
 
     def _publish_step(self, stamp: tuple[int, int], report: StepReport) -> None:
-        q = self.sim.state.particle_q
-        frame = self.frame_id
-        if not np.isfinite(q).all():
-            # the Simulation restores the last good state, so this is a bug guard: never publish NaN
-            self._drop("unpublished_nonfinite", f"step {report.step} left non-finite positions; nothing published")
-            return
-        e = report.energy
-        if not report.diverged:
-            terms = np.stack([e.inertial, e.spring, e.area, e.total], axis=1)  # (B, 4)
-            if np.isfinite(terms).all():
-                self.pub_energy.publish(messages.encode_float64(float(terms[:, 3].sum())))
-                for i, term in enumerate(ENERGY_TERMS[:3]):
-                    self.pub_energy_terms[term].publish(messages.encode_float64(float(terms[:, i].sum())))
-                self.pub_energy_bodies.publish(messages.encode_float64_multiarray(
-                    terms, ["body", "term:" + ",".join(ENERGY_TERMS)]))
-            else:
-                self._drop("unpublished_nonfinite", f"step {report.step}: non-finite energy not published")
-        f, tz = report.reaction_force, report.reaction_torque
-        if np.isfinite(f).all() and math.isfinite(tz):
-            self.pub_wrench.publish(messages.encode_wrench_stamped(stamp, frame, (float(f[0]), float(f[1]), 0.0),
-                                                                   (0.0, 0.0, float(tz))))
         self._steps_since_points += 1
         self._steps_since_markers += 1
         publish_points = self._steps_since_points >= self._every(self._values["points_rate"])
         publish_markers = self._steps_since_markers >= self._every(self._values["marker_rate"])
-        if not (publish_points or publish_markers):
-            return
-        strain = self._encoder.vertex_strain(q)
         if publish_points:
             self._steps_since_points = 0
-            self.pub_points.publish(self._encoder.point_cloud(stamp, frame, q, strain))
         if publish_markers:
             self._steps_since_markers = 0
-            pose = self.sim.tool_pose
-            self.pub_markers.publish(self._encoder.markers(
-                stamp, frame, q, strain,
-                tool_pose=None if pose is None else (pose.x, pose.y, pose.yaw),
-                tool_stamp=self.tool.pose_stamp if pose is not None else None,
-                contact_particles=report.contact_particles))
+        pose = self.sim.tool_pose
+        self._publish(self._encoder.encode(
+            stamp, self.frame_id, report, self.sim.state.particle_q, points=publish_points, markers=publish_markers,
+            tool_pose=None if pose is None else (pose.x, pose.y, pose.yaw),
+            tool_stamp=self.tool.pose_stamp if pose is not None else None))
 
     def _publish_rest_mesh(self) -> None:
-        m = self.sim.model
         self.pub_rest.publish(self._encoder.rest_markers(_stamp_of(self.get_clock().now()), self.frame_id,
-                                                         m.particle_q0, m.particle_pinned))
+                                                         self.sim.model))
 
     def _publish_state_now(self) -> None:
         """Points and markers of the current state, outside the step cadence (after a reset)."""
-        q = self.sim.state.particle_q
-        stamp = _stamp_of(self.get_clock().now())
-        strain = self._encoder.vertex_strain(q)
-        self.pub_points.publish(self._encoder.point_cloud(stamp, self.frame_id, q, strain))
-        self.pub_markers.publish(self._encoder.markers(stamp, self.frame_id, q, strain))
+        self._publish(self._encoder.state(_stamp_of(self.get_clock().now()), self.frame_id, self.sim.state.particle_q))
 
     # ------------------------------------------------------------------ services
 

@@ -41,7 +41,6 @@ from ..core.errors import InputError
 from ..core.rollout import Rollout, rollout
 from ..core.simulation import Simulation, StepReport
 from ..core.stamps import ns_from_seconds, stamp_from_ns
-from ..core.strain import VertexStrain
 from ..core.tool import ToolPose, ToolTwist
 from . import messages as msgs
 from .bags import BagWriter, ToolTrack, read_tool_track
@@ -50,18 +49,12 @@ HELP = "run the simulation offline on a bag's tool trajectory; write a bag, CSV,
 DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP
 
 MODES = ("per-message", "fixed-rate")
-TERMS = ("inertial", "spring", "area", "total")
 
-#: Output topics of the replay bag: the node's names and types (msg_docs/topics.md).
+#: Output topics of the replay bag: the tool pose used and the node's step outputs but the markers
+#: (msg_docs/topics.md), encoded by the node's own :class:`~.messages.StepEncoder`.
 OUTPUT_TOPICS: dict[str, str] = {
     "/tool/pose": "geometry_msgs/msg/PoseStamped",
-    "/tissue/energy": "std_msgs/msg/Float64",
-    "/tissue/energy/inertial": "std_msgs/msg/Float64",
-    "/tissue/energy/spring": "std_msgs/msg/Float64",
-    "/tissue/energy/area": "std_msgs/msg/Float64",
-    "/tissue/energy/bodies": "std_msgs/msg/Float64MultiArray",
-    "/tissue/points": "sensor_msgs/msg/PointCloud2",
-    "/tool/wrench": "geometry_msgs/msg/WrenchStamped",
+    **{f"/{topic}": msgtype for topic, msgtype in msgs.STEP_TOPICS.items() if topic != "tissue/markers"},
 }
 
 
@@ -164,33 +157,15 @@ class ReplayBagSink:
         self._n = 0
         for name, msgtype in OUTPUT_TOPICS.items():
             writer.add_topic(name, msgtype)
-        model = sim.model
-        self._points = np.zeros(model.n_particles, dtype=msgs.POINT_DTYPE)
-        self._points["body"] = model.particle_body
-        self._strain = VertexStrain.of(model)  # signed, as the node publishes it (msg_docs/topics.md)
+        self.encoder = msgs.StepEncoder(sim.model, sim.tool)
 
     def __call__(self, report: StepReport, t_ns: int, pose: ToolPose) -> None:
-        stamp, e = stamp_from_ns(t_ns), report.energy
-        # the node's layout: (B, 4) rows of inertial, spring, area, total
-        table = np.column_stack([e.inertial, e.spring, e.area, e.total])
-        f = report.reaction_force
-        items = [
-            ("/tool/pose", msgs.encode_pose_stamped(stamp, self.frame_id, pose.x, pose.y, pose.yaw), t_ns),
-            ("/tissue/energy", msgs.encode_float64(e.scene_total), t_ns),
-            ("/tissue/energy/inertial", msgs.encode_float64(float(e.inertial.sum())), t_ns),
-            ("/tissue/energy/spring", msgs.encode_float64(float(e.spring.sum())), t_ns),
-            ("/tissue/energy/area", msgs.encode_float64(float(e.area.sum())), t_ns),
-            ("/tissue/energy/bodies", msgs.encode_float64_multiarray(table, ["body", "term:" + ",".join(TERMS)]), t_ns),
-            ("/tool/wrench", msgs.encode_wrench_stamped(stamp, self.frame_id, (float(f[0]), float(f[1]), 0.0),
-                                                        (0.0, 0.0, float(report.reaction_torque))), t_ns),
-        ]
+        stamp = stamp_from_ns(t_ns)
         self._n += 1
-        if self._n % self.points_every == 0:
-            x = self.sim.state.particle_q
-            self._points["x"] = x[:, 0]
-            self._points["y"] = x[:, 1]
-            self._points["strain"] = self._strain(x)
-            items.append(("/tissue/points", msgs.encode_point_cloud(stamp, self.frame_id, self._points), t_ns))
+        out = self.encoder.encode(stamp, self.frame_id, report, self.sim.state.particle_q,
+                                  points=self._n % self.points_every == 0)
+        items = [("/tool/pose", msgs.encode_pose_stamped(stamp, self.frame_id, pose.x, pose.y, pose.yaw), t_ns)]
+        items += [(f"/{topic}", data, t_ns) for topic, data in out.messages.items()]
         self.writer.write_many(items)
 
 
