@@ -23,3 +23,27 @@ def test_importing_every_core_module_loads_no_ros():
             + f"print(sorted(m for m in sys.modules if m.split('.')[0] in {ROS_MODULES!r}))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+PACKAGE = CORE.parent
+
+
+def test_imports_run_down_the_layers():
+    """The CLI layer calls the library, never the reverse: core, ros and bench import no CLI module.
+
+    A CLI module is ``tissue_sim_ros/cli*.py`` or ``experiments/cli.py``; bench commands build their
+    configuration from core.config rather than the experiments' command line.
+    """
+    cli = re.compile(r"^\s*(from|import)\s+(\.\.|tissue_sim_ros\.)(cli\w*|experiments\.cli|experiments import cli)\b",
+                     re.MULTILINE)
+    offenders = [str(p.relative_to(PACKAGE)) for layer in ("core", "ros", "bench") for p in (PACKAGE / layer).glob("*.py")
+                 if cli.search(p.read_text())]
+    assert not offenders, f"library modules importing the command line: {offenders}"
+
+
+def test_every_command_module_is_in_the_cli_layer():
+    from tissue_sim_ros.cli import COMMANDS
+
+    modules = [m for entry in COMMANDS.values() for m, _ in (entry.values() if isinstance(entry, dict) else [entry])]
+    in_ros = [m for m in modules if m.startswith("tissue_sim_ros.ros.") or m.startswith("tissue_sim_ros.core.")]
+    assert not in_ros, f"commands whose argparse lives in the library layers: {in_ros}"

@@ -27,9 +27,9 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
     "experiment": ("tissue_sim_ros.experiments.cli", "run the paper's experiment a or b offline and write its figures"),
     "plan": ("tissue_sim_ros.experiments.plan", "rank insertion angles/speeds toward a target by implicit Euler energy"),
     "demo": ("tissue_sim_ros.experiments.demo", "the main job: node + tool driver on a private ROS domain, experiment a, recorded to a bag"),
-    "record": ("tissue_sim_ros.ros.record", "record the node's topics to a rosbag2 bag (MCAP or sqlite3)"),
-    "replay": ("tissue_sim_ros.ros.replay", "run the simulation offline on a bag's tool trajectory; write a bag, CSV, plots, frames"),
-    "play": ("tissue_sim_ros.ros.play", "publish a bag's tool topics into a live ROS graph with the recorded timing"),
+    "record": ("tissue_sim_ros.cli_record", "record the node's topics to a rosbag2 bag (MCAP or sqlite3)"),
+    "replay": ("tissue_sim_ros.cli_replay", "run the simulation offline on a bag's tool trajectory; write a bag, CSV, plots, frames"),
+    "play": ("tissue_sim_ros.cli_play", "publish a bag's tool topics into a live ROS graph with the recorded timing"),
     "tune": ("tissue_sim_ros.bench.tune", "pick the cheapest mesh spacing/method/iterations meeting an error tolerance"),
     "bench": {
         "solver": ("tissue_sim_ros.bench.solver", "ms per step, ns per projection and ratio to NumPy, per method and mesh size"),

@@ -1,4 +1,4 @@
-"""``tissue-sim play``: publish a bag's tool topics into a live ROS graph with the recorded timing.
+"""Publishing a bag's tool topics into a live ROS graph with the recorded timing: the library behind ``tissue-sim play``.
 
 The bytes stored in the bag are published as they are (rclpy's
 ``Publisher.publish`` accepts serialized messages), so nothing is decoded or
@@ -17,47 +17,16 @@ topic (and ``/clock``) to have a subscriber, so the first messages are not lost.
 """
 from __future__ import annotations
 
-import argparse
 import signal
-import sys
 import threading
 import time
+from pathlib import Path
 from typing import Any
 
 from ..core.errors import InputError
 from ..core.stamps import stamp_from_ns
 from .bags import POSE_TYPES, TWIST_TYPES, Bag
 from .record import message_class
-
-HELP = "publish a bag's tool topics into a live ROS graph with the recorded timing"
-DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("bag", help="a rosbag2 directory, or a .mcap/.db3 file")
-    parser.add_argument("--topics", nargs="+", default=None, help="bag topics to play (default: its tool topics)")
-    parser.add_argument("--remap", nargs="+", default=[], metavar="FROM:=TO", help="publish bag topic FROM as TO")
-    parser.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
-    parser.add_argument("--loop", action="store_true", help="play again from the start at the end")
-    parser.add_argument("--clock", action="store_true", help="publish /clock with the bag time")
-    parser.add_argument("--clock-rate", type=float, default=100.0, help="/clock messages per second (default 100)")
-    parser.add_argument("--wait", type=float, default=5.0,
-                        help="seconds to wait for subscribers on the played topics before starting (default 5)")
-    parser.add_argument("--min-subscribers", type=int, default=1,
-                        help="subscribers each played topic needs before starting, e.g. 2 for the node and a "
-                             "recorder (default 1)")
-
-
-def _parse_remaps(items: list[str]) -> dict[str, str]:
-    out = {}
-    for item in items:
-        if ":=" not in item:
-            raise InputError(f"--remap {item!r}: expected FROM:=TO")
-        src, dst = item.split(":=", 1)
-        if not src or not dst:
-            raise InputError(f"--remap {item!r}: expected FROM:=TO with both names")
-        out[src] = dst
-    return out
 
 
 def load_messages(bag: Bag, topics: list[str]) -> list[tuple[str, int, bytes]]:
@@ -80,32 +49,42 @@ def choose_topics(bag: Bag, requested: list[str] | None) -> list[str]:
     return chosen
 
 
-def run(args: argparse.Namespace) -> int:
-    if not args.rate > 0:
-        raise InputError(f"--rate {args.rate}: expected a speed factor > 0")
-    if args.min_subscribers < 0:
-        raise InputError(f"--min-subscribers {args.min_subscribers}: expected a count >= 0")
-    if not args.clock_rate > 0:
-        raise InputError(f"--clock-rate {args.clock_rate}: expected > 0 Hz")
-    remaps = _parse_remaps(args.remap)
-    with Bag(args.bag) as bag:
-        topics = choose_topics(bag, args.topics)
+def play(bag_path: str | Path, *, topics: list[str] | None = None, remaps: dict[str, str] | None = None,
+         rate: float = 1.0, loop: bool = False, clock: bool = False, clock_rate: float = 100.0, wait: float = 5.0,
+         min_subscribers: int = 1) -> int:
+    """Publish a bag's tool topics (or ``topics``) with the recorded timing; returns the messages published.
+
+    ``remaps`` publishes a bag topic under another name; ``rate`` scales the
+    speed; ``loop`` repeats; ``clock`` publishes ``/clock`` at ``clock_rate`` Hz;
+    waits up to ``wait`` s for ``min_subscribers`` on every played topic first.
+    SIGINT/SIGTERM stop it cleanly.
+    """
+    if not rate > 0:
+        raise InputError(f"rate {rate}: expected a speed factor > 0")
+    if min_subscribers < 0:
+        raise InputError(f"min_subscribers {min_subscribers}: expected a count >= 0")
+    if not clock_rate > 0:
+        raise InputError(f"clock_rate {clock_rate}: expected > 0 Hz")
+    remaps = dict(remaps or {})
+    with Bag(bag_path) as bag:
+        requested = topics
+        topics = choose_topics(bag, requested)
         types = {t: bag.topics[t] for t in topics}
         classes = {}
         for t in topics:
             try:
                 classes[t] = message_class(types[t])
             except InputError as exc:
-                if args.topics:  # asked for by name: an error
+                if requested:  # asked for by name: an error
                     raise
                 print(f"play: skipping {t}: {exc}", flush=True)
         topics = [t for t in topics if t in classes]
         if not topics:
-            raise InputError(f"bag {args.bag!r}: none of its tool topics can be published here "
+            raise InputError(f"bag {str(bag_path)!r}: none of its tool topics can be published here "
                              "(their message packages are missing; see above)")
         messages = load_messages(bag, topics)
     if not messages:
-        raise InputError(f"bag {args.bag!r}: topics {', '.join(topics)} hold no messages")
+        raise InputError(f"bag {str(bag_path)!r}: topics {', '.join(topics)} hold no messages")
 
     import rclpy  # noqa: PLC0415
     from rclpy.duration import Duration  # noqa: PLC0415
@@ -127,27 +106,27 @@ def run(args: argparse.Namespace) -> int:
                          durability=DurabilityPolicy.VOLATILE)
         pubs = {t: node.create_publisher(classes[t], remaps.get(t, t), qos) for t in topics}
         clock_pub = None
-        if args.clock:
+        if clock:
             from rosgraph_msgs.msg import Clock  # noqa: PLC0415
 
             clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10))
         watched = dict(pubs) if clock_pub is None else {**pubs, "/clock": clock_pub}
-        need = args.min_subscribers
-        deadline = time.monotonic() + max(0.0, args.wait)
+        need = min_subscribers
+        deadline = time.monotonic() + max(0.0, wait)
         while not stop.is_set() and time.monotonic() < deadline:
             if all(p.get_subscription_count() >= need for p in watched.values()):
                 break
             stop.wait(0.02)  # polling the graph; a signal ends the wait at once
         waiting = [remaps.get(t, t) for t, p in watched.items() if p.get_subscription_count() < need]
-        if waiting and args.wait > 0:
-            print(f"play: fewer than {need} subscribers on {', '.join(waiting)} after {args.wait} s; playing anyway",
+        if waiting and wait > 0:
+            print(f"play: fewer than {need} subscribers on {', '.join(waiting)} after {wait} s; playing anyway",
                   flush=True)
-        print(f"playing {len(messages)} messages on {', '.join(remaps.get(t, t) for t in topics)} at {args.rate}x"
-              + (" with /clock" if clock_pub else "") + (", looping" if args.loop else ""), flush=True)
+        print(f"playing {len(messages)} messages on {', '.join(remaps.get(t, t) for t in topics)} at {rate}x"
+              + (" with /clock" if clock_pub else "") + (", looping" if loop else ""), flush=True)
 
         t0 = messages[0][1]
         span = messages[-1][1] - t0
-        period_ns = int(1e9 / args.clock_rate)
+        period_ns = int(1e9 / clock_rate)
         loop_offset = 0  # bag-time offset of the current loop, so /clock keeps increasing
         while not stop.is_set():
             start = time.monotonic()
@@ -155,17 +134,17 @@ def run(args: argparse.Namespace) -> int:
             for topic, t_ns, raw in messages:
                 # /clock ticks up to this message's time, each at its own wall time
                 while clock_pub is not None and next_clock <= t_ns and not stop.is_set():
-                    _sleep_until(start + (next_clock - t0) * 1e-9 / args.rate, stop)
+                    _sleep_until(start + (next_clock - t0) * 1e-9 / rate, stop)
                     _publish_clock(clock_pub, next_clock + loop_offset)
                     next_clock += period_ns
-                _sleep_until(start + (t_ns - t0) * 1e-9 / args.rate, stop)
+                _sleep_until(start + (t_ns - t0) * 1e-9 / rate, stop)
                 if stop.is_set():
                     break
                 if clock_pub is not None:
                     _publish_clock(clock_pub, t_ns + loop_offset)
                 pubs[topic].publish(raw)
                 sent += 1
-            if not args.loop:
+            if not loop:
                 break
             loop_offset += span + period_ns
         # let the middleware hand the last reliable messages (and /clock) over before the node goes
@@ -181,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
         for s, h in old_handlers.items():
             signal.signal(s, h)
     print(f"play: published {sent} messages", flush=True)
-    return 0
+    return sent
 
 
 def _sleep_until(when: float, stop: threading.Event) -> None:
@@ -196,13 +175,3 @@ def _publish_clock(pub: Any, t_ns: int) -> None:
 
     sec, nanosec = stamp_from_ns(t_ns)
     pub.publish(Clock(clock=Time(sec=sec, nanosec=nanosec)))
-
-
-def main() -> int:  # pragma: no cover
-    from ..cli import main as cli_main  # noqa: PLC0415
-
-    return cli_main(["play", *sys.argv[1:]])
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())

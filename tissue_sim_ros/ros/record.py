@@ -1,18 +1,18 @@
-"""``tissue-sim record``: record the node's topics to a rosbag2 bag (MCAP, or sqlite3 on request).
+"""Recording the node's topics to a rosbag2 bag (MCAP, or sqlite3 on request): the library behind ``tissue-sim record``.
 
 Subscribes with ``raw=True`` and writes the serialized bytes as they arrive
 (no decoding, no re-encoding), with the type names read from the live graph
 and the Jazzy message definitions, so the bag opens in ``ros2 bag``, Foxglove
 and PlotJuggler. Topics: the node's tool input and outputs (:data:`DEFAULT_TOPICS`,
 resolved in ``--namespace``) plus anything else under ``tissue/`` and
-``tool/`` there; ``--topics`` names them explicitly, ``--all`` takes every
+``tool/`` there; ``topics`` names them explicitly, ``all_topics`` takes every
 topic in the graph. The tool inputs are subscribed at once (their types are
 known), the rest as their publishers show up (a node started after the
 recorder is picked up then).
 
 SIGINT (Ctrl-C) and SIGTERM end the recording and close the bag properly;
-``--duration`` stops after that many seconds. The bag is flushed to disk every
-second, so even a killed recorder leaves what it wrote; ``--recover BROKEN -o NEW``
+``duration`` stops after that many seconds. The bag is flushed to disk every
+second, so even a killed recorder leaves what it wrote; ``recover=BROKEN``
 turns that into a closed bag (sqlite3 also reads as it is).
 
 Each subscription's QoS follows its publishers (as ``ros2 bag record`` does):
@@ -21,19 +21,14 @@ when every publisher is (a latched rest mesh is then recorded too).
 """
 from __future__ import annotations
 
-import argparse
 import signal
-import sys
 import threading
 import time
 from pathlib import Path
 from typing import Any
 
 from ..core.errors import InputError
-from .bags import STORAGES, BagWriter, typestore
-
-HELP = "record the node's topics to a rosbag2 bag (MCAP or sqlite3)"
-DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP
+from .bags import BagWriter, recover_bag, typestore
 
 #: The node's topics (relative to its namespace): tool input, then outputs (msg_docs/).
 DEFAULT_TOPICS = (
@@ -177,37 +172,25 @@ class Recorder:
         self.writer.write(topic, data, self.node.get_clock().now().nanoseconds)
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--output", "-o", default=None,
-                        help="bag directory to create (default: tissue_sim_YYYYmmdd_HHMMSS)")
-    parser.add_argument("--storage", choices=STORAGES, default="mcap",
-                        help="storage plugin (default mcap, as ros2 bag in Jazzy)")
-    parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
-    parser.add_argument("--namespace", default="", help="namespace of the node whose topics to record")
-    parser.add_argument("--topics", nargs="+", default=None,
-                        help="topics to record (relative names resolve in --namespace); default: the node's topics")
-    parser.add_argument("--all", action="store_true", help="record every topic in the graph")
-    parser.add_argument("--flush-period", type=float, default=1.0, help="seconds between flushes to disk")
-    parser.add_argument("--quiet", action="store_true", help="no per-second status line")
-    parser.add_argument("--use-sim-time", action="store_true",
-                        help="stamp messages with /clock time (as nodes with use_sim_time) instead of wall time")
-    parser.add_argument("--recover", metavar="BROKEN_BAG", default=None,
-                        help="instead of recording: rewrite what a killed recording left (MCAP without footer, "
-                             "sqlite3 without metadata.yaml) as a closed bag at --output")
+def record(output: str | Path | None = None, storage: str = "mcap", *, duration: float | None = None,
+           namespace: str = "", topics: list[str] | None = None, all_topics: bool = False, flush_period: float = 1.0,
+           quiet: bool = False, use_sim_time: bool = False, recover: str | Path | None = None) -> dict[str, int]:
+    """Record until SIGINT/SIGTERM or ``duration`` [s]; returns the message count per topic.
 
-
-def run(args: argparse.Namespace) -> int:
-    if args.duration is not None and not args.duration > 0:
-        raise InputError(f"--duration {args.duration}: expected seconds > 0")
-    output = Path(args.output or time.strftime("tissue_sim_%Y%m%d_%H%M%S"))
-    if args.recover:
-        from .bags import recover_bag  # noqa: PLC0415
-
-        counts = recover_bag(args.recover, output, args.storage)
-        print(f"recovered {sum(counts.values())} messages from {args.recover} into {output}: "
+    ``output`` defaults to ``tissue_sim_YYYYmmdd_HHMMSS``; ``topics`` (relative
+    names resolve in ``namespace``) or ``all_topics`` choose what to record,
+    else the node's topics. ``recover``: instead of recording, rewrite what a
+    killed recording left as a closed bag at ``output``.
+    """
+    if duration is not None and not duration > 0:
+        raise InputError(f"duration {duration}: expected seconds > 0")
+    output = Path(output or time.strftime("tissue_sim_%Y%m%d_%H%M%S"))
+    if recover:
+        counts = recover_bag(recover, output, storage)
+        print(f"recovered {sum(counts.values())} messages from {recover} into {output}: "
               + (", ".join(f"{t} {n}" for t, n in sorted(counts.items())) or "no topics"))
-        return 0
-    writer = BagWriter(output, args.storage, flush_period=args.flush_period)
+        return counts
+    writer = BagWriter(output, storage, flush_period=flush_period)
 
     import rclpy  # noqa: PLC0415
     from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
@@ -228,36 +211,36 @@ def run(args: argparse.Namespace) -> int:
         from rclpy.parameter import Parameter  # noqa: PLC0415
 
         node = rclpy.create_node("tissue_sim_recorder", namespace="/", parameter_overrides=[
-            Parameter("use_sim_time", Parameter.Type.BOOL, bool(args.use_sim_time))])
-        if args.all:
+            Parameter("use_sim_time", Parameter.Type.BOOL, bool(use_sim_time))])
+        if all_topics:
             wanted, prefixes = None, ()
-        elif args.topics:
-            wanted, prefixes = {resolve(t, args.namespace) for t in args.topics}, ()
+        elif topics:
+            wanted, prefixes = {resolve(t, namespace) for t in topics}, ()
         else:
-            wanted = {resolve(t, args.namespace) for t in DEFAULT_TOPICS}
-            prefixes = tuple(resolve(p, args.namespace) for p in _PREFIXES)
+            wanted = {resolve(t, namespace) for t in DEFAULT_TOPICS}
+            prefixes = tuple(resolve(p, namespace) for p in _PREFIXES)
         recorder = Recorder(node, writer, wanted, prefixes)
         for name, msgtype in KNOWN_INPUTS.items():
-            topic = resolve(name, args.namespace)
+            topic = resolve(name, namespace)
             if wanted is not None and topic in wanted:
                 recorder.presubscribe(topic, msgtype)
                 print(f"  + {topic} ({msgtype})", flush=True)
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        print(f"recording to {output} ({args.storage}); Ctrl-C to stop", flush=True)
+        print(f"recording to {output} ({storage}); Ctrl-C to stop", flush=True)
         start = time.monotonic()
         next_discovery = 0.0
         next_status = start + 1.0
         while not stop.is_set():
             now = time.monotonic()
-            if args.duration is not None and now - start >= args.duration:
+            if duration is not None and now - start >= duration:
                 break
             if now >= next_discovery:
                 for topic in recorder.discover():
                     print(f"  + {topic} ({writer.topics[topic]})", flush=True)
                 next_discovery = now + 0.2
             executor.spin_once(timeout_sec=0.05)
-            if not args.quiet and now >= next_status:
+            if not quiet and now >= next_status:
                 next_status = now + 1.0
                 print(f"  {now - start:6.1f} s  {sum(writer.counts.values())} messages", flush=True)
     finally:
@@ -271,14 +254,4 @@ def run(args: argparse.Namespace) -> int:
     counts = writer.counts
     print(f"closed {output}{why}: {sum(counts.values())} messages; "
           + (", ".join(f"{t} {n}" for t, n in sorted(counts.items())) or "no topics found"), flush=True)
-    return 0
-
-
-def main() -> int:  # pragma: no cover
-    from ..cli import main as cli_main  # noqa: PLC0415
-
-    return cli_main(["record", *sys.argv[1:]])
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())
+    return dict(counts)

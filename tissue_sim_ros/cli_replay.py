@@ -1,0 +1,166 @@
+"""``tissue-sim replay``: run the simulation offline on a bag's tool trajectory.
+
+Reads the tool trajectory from a bag (:func:`~tissue_sim_ros.ros.bags.read_tool_track`),
+steps :class:`~tissue_sim_ros.core.simulation.Simulation` as fast as the
+machine allows, and writes into ``--out``:
+
+* ``replay_bag/``: a rosbag2 bag (MCAP) with what the node would publish
+  (energy total and terms, points, wrench, the tool pose used), stamped with
+  the input's times, so it lines up with the input bag in Foxglove/PlotJuggler;
+* ``energy.csv``: the energy series (full float64 precision);
+* ``energy.png``: the energy plot; ``frames/frame_NNNNN.png`` every k steps;
+* ``replay.mp4`` (or ``.gif``) with ``--video`` (needs the ``video`` extra).
+
+Two modes, chosen with ``--mode``:
+
+``per-message`` (default)
+    one step of dt per tool message, with that message's pose: exactly what
+    the node does in lock-step, so the two give the same energy series;
+``fixed-rate``
+    steps at the simulation rate 1/dt over the bag's time span, the pose
+    linearly interpolated (yaw the short way round) at each step's time.
+
+Messages with repeated or out-of-order times, non-finite poses or invalid
+quaternions are skipped, counted and reported (``--strict``: an error).
+No ROS graph and no rclpy: this runs anywhere the core runs.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .cli_config import add_config_arguments, config_from_args
+from .core.errors import InputError
+from .core.simulation import Simulation
+from .core.stamps import ns_from_seconds
+from .core.tool import ToolPose
+from .ros.bags import BagWriter, ToolTrack, read_tool_track
+from .ros.replay import MODES, ReplayBagSink, ReplayResult, replay, write_outputs
+
+HELP = "run the simulation offline on a bag's tool trajectory; write a bag, CSV, plots, frames"
+DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("bag", help="input bag: a rosbag2 directory, or a .mcap/.db3 file")
+    parser.add_argument("--out", required=True, help="output directory (created; must not hold a replay already)")
+    parser.add_argument("--tool-topic", default=None,
+                        help="topic of the tool pose (PoseStamped, Pose, TransformStamped, TFMessage, "
+                             "PoseWithCovarianceStamped, Odometry); default: the one pose topic in the bag")
+    parser.add_argument("--frame", default=None, help="TF child frame of the tool (for tf2_msgs/TFMessage topics)")
+    parser.add_argument("--twist-topic", default=None,
+                        help="TwistStamped/Twist topic of the tool velocity (default: derived from poses)")
+    add_config_arguments(parser)
+    parser.add_argument("--mode", choices=MODES, default="per-message",
+                        help="one step per tool message (default, = node lock-step), or steps at 1/dt with "
+                             "the pose interpolated")
+    parser.add_argument("--time-source", choices=("header", "bag"), default="header",
+                        help="sample times from header stamps (default) or bag receive times")
+    parser.add_argument("--strict", action="store_true",
+                        help="repeated or out-of-order sample times are an error instead of counted skips")
+    parser.add_argument("--frame-every", type=int, default=0,
+                        help="write a PNG frame every K steps (default: about 40 frames in all; -1: none)")
+    parser.add_argument("--video", action="store_true", help="also write replay.mp4 (needs the video extra)")
+    parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="storage of the output bag")
+    parser.add_argument("--points-every", type=int, default=1,
+                        help="write tissue/points every K steps (default 1, as the node at its default points_rate)")
+    parser.add_argument("--no-bag", action="store_true", help="do not write the output bag (fastest)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _check_video_support() -> None:
+    try:
+        import imageio.v2  # noqa: F401, PLC0415
+    except ImportError:
+        raise InputError("--video needs imageio and imageio-ffmpeg: pip install 'tissue_sim_ros[video]' "
+                         "(or leave out --video; the PNG frames are written either way)") from None
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.video:
+        _check_video_support()
+    if args.points_every < 1:
+        raise InputError(f"--points-every {args.points_every}: expected K >= 1")
+    if args.frame_every < -1:
+        raise InputError(f"--frame-every {args.frame_every}: expected K >= 1, 0 (automatic) or -1 (none)")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {str(out)!r} exists and is not a directory")
+    bag_out = out / "replay_bag"
+    if bag_out.exists():
+        raise InputError(f"{str(bag_out)!r} exists already: choose another --out (nothing is overwritten)")
+
+    track = read_tool_track(args.bag, topic=args.tool_topic, frame=args.frame, twist_topic=args.twist_topic,
+                            time_source=args.time_source, on_bad_time="error" if args.strict else "skip")
+    print(track.summary())
+    if sum(track.skipped.values()):
+        print(f"note: {sum(track.skipped.values())} of {track.n_messages} tool samples skipped "
+              f"({', '.join(f'{k}: {v}' for k, v in track.skipped.items() if v)}); --strict makes this an error")
+    cfg = config_from_args(args)
+    sim = Simulation.from_config(cfg)
+    # Load the compiled kernels (numba cache, python-fcl) on a throwaway copy of the scene, so the
+    # replay's speed is the stepping speed; the replayed simulation itself starts untouched.
+    t_warm = time.perf_counter()
+    warm = Simulation.from_config(cfg, mesh=sim.model.mesh)
+    warm.step(ToolPose(*map(float, track.pose[0])))
+    print(f"warm-up (kernel load) {time.perf_counter() - t_warm:.2f} s, not counted in the replay speed")
+    n_steps = track.n if args.mode == "per-message" else int(
+        (track.t_ns[-1] - track.t_ns[0]) // ns_from_seconds(sim.params.dt))
+    if args.frame_every > 0:
+        frame_every = args.frame_every
+    else:  # -1: none; 0: about 40 frames
+        frame_every = 0 if args.frame_every < 0 else max(1, -(-n_steps // 40))
+
+    out.mkdir(parents=True, exist_ok=True)
+    writer = None if args.no_bag else BagWriter(bag_out, args.storage)
+    if writer is not None:
+        import json  # noqa: PLC0415
+
+        # what made this bag, so it can be reproduced from the bag alone
+        writer.set_custom_data("tissue_sim.source_bag", str(args.bag))
+        writer.set_custom_data("tissue_sim.mode", args.mode)
+        writer.set_custom_data("tissue_sim.tool_topic", track.topic + (f" frame {track.child_frame}"
+                                                                        if track.child_frame else ""))
+        writer.set_custom_data("tissue_sim.params", json.dumps(cfg.flat(), default=str))
+    try:
+        sink = ReplayBagSink(writer, sim, points_every=args.points_every) if writer is not None else None
+        result = replay(sim, track, args.mode, sink=sink, snapshot_every=frame_every, progress=not args.no_progress)
+    except BaseException:
+        if writer is not None:
+            writer.close()
+        raise
+    if writer is not None:
+        writer.close()
+    print(result.speed_line())
+    write_outputs(out, sim, result, video=args.video, title=f"replay of {Path(args.bag).name} ({args.mode})")
+    _write_summary(out / "replay.json", args, track, sim, result)
+    print(f"wrote {out}/energy.csv, energy.png, replay.json, frames/ ({len(result.rollout.snapshots)} PNG)"
+          + (", replay_bag/" if writer is not None else "") + (", replay.mp4" if args.video else ""))
+    return 0
+
+
+def _write_summary(path: Path, args: argparse.Namespace, track: ToolTrack, sim: Simulation,
+                   result: ReplayResult) -> None:
+    """What was replayed, how, and how fast, as JSON (for scripts and reports)."""
+    import json  # noqa: PLC0415
+
+    ro = result.rollout
+    summary = {
+        "bag": str(args.bag), "mode": args.mode, "params": args.params,
+        "tool_topic": track.topic, "tool_type": track.msgtype, "child_frame": track.child_frame,
+        "twist_topic": track.twist_topic, "time_source": track.time_source,
+        "samples": track.n, "samples_read": track.n_messages, "skipped": track.skipped,
+        "track_duration_s": track.duration,
+        "particles": sim.model.n_particles, "triangles": sim.model.n_triangles, "dt": sim.params.dt,
+        "steps": result.n_steps, "simulated_s": result.sim_time, "wall_s": result.wall_time,
+        "steps_per_s": result.steps_per_second, "real_time_factor": result.real_time_factor,
+        "real_time_factor_median_step": result.median_real_time_factor,
+        "real_time_factor_cpu": result.cpu_real_time_factor, "cpu_s": result.cpu_time,
+        "median_step_ms": 1e3 * float(np.median(result.loop_times)) if result.loop_times.size else None,
+        "energy_final": float(ro.scene_total[-1]) if ro.steps.size else None,
+        "steps_in_contact": int(ro.in_contact.any(axis=1).sum()), "diverged_steps": int(ro.diverged.sum()),
+    }
+    path.write_text(json.dumps(summary, indent=2) + "\n")
