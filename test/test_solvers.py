@@ -450,3 +450,14 @@ def test_step_rejects_bad_states() -> None:
 def test_invalid_params_raise_value_error_naming_the_parameter(name: str, value) -> None:
     with pytest.raises(ValueError, match=name):
         SimParams(**{name: value})
+
+
+def test_serial_by_default_at_every_size() -> None:
+    """The two-thread path is an explicit option: measured 0.71-1.30x serial idle, 5-30x slower at load."""
+    from tissue_sim_ros.core.solvers import PARALLEL_MIN_PARTICLES
+
+    model = Model.from_mesh(mesh_rectangle(1.0, 0.5, 0.0099), SimParams(method="xpbd"))
+    assert model.n_particles >= PARALLEL_MIN_PARTICLES
+    assert Solver(model).parallel is False and Solver(model, parallel=None).parallel is False
+    assert Solver(model, parallel=True).parallel is True
+    assert Solver(model, parallel=True).parallel_mode == "partition"

@@ -576,9 +576,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="override a parameter of config/tissue_sim.yaml for every scene (repeatable), e.g. "
                              "--set mass_per_area=0.0506 so that refined and graded meshes are the same tissue")
     parser.add_argument("--parallel", action="store_true",
-                        help="let the solver use its default threading (coloured Gauss-Seidel on all threads from "
-                             "4000 particles); default: one thread, so times compare across methods and do not "
-                             "collapse when other work shares the cores")
+                        help="Gauss-Seidel on all threads (Solver(parallel=True)); default: one thread, as the "
+                             "solver's own default, so times compare across methods and do not collapse when "
+                             "other work shares the cores")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -648,7 +648,7 @@ def run(args: argparse.Namespace) -> int:
                 # step from its state takes Newton minutes: there only its accumulated error is measured
                 skip = fine_scene.get(id(scene), True) and setting.method.startswith("pbd")
                 row = measure_setting(scene, setting, ref_runs[id(scene)], 0 if skip else every, bar.update,
-                                      solver_options=None if args.parallel else {"parallel": False})
+                                      solver_options={"parallel": bool(args.parallel)})
                 # the exact solve's time on the same scene: the accuracy end of the front
                 row["newton_ms"] = newton_ms[id(scene)]
                 rows.append(row)

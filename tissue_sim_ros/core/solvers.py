@@ -17,8 +17,8 @@ One step (the paper's Algorithm 1, with Macklin's multipliers for XPBD)::
 
 Orders. Serial Gauss-Seidel gives the result of sweeping the constraints in
 mesh order, as the paper does (executed in a wavefront schedule that changes
-no bit of it, see :func:`wavefront_order`). The parallel path (default from
-:data:`PARALLEL_MIN_PARTICLES` particles) cuts the mesh into one part per
+no bit of it, see :func:`wavefront_order`). The parallel path (``parallel=True``;
+off by default, see :data:`PARALLEL_MIN_PARTICLES`) cuts the mesh into one part per
 thread (:func:`partition_particles`): each thread sweeps its part's
 constraints in mesh order, then the constraints across parts are swept. Optionally (``parallel_mode="colour"``)
 constraints are sorted by greedy colour (no two constraints of one colour
@@ -41,15 +41,17 @@ from .collision import Contacts
 from .errors import InputError
 from .model import Model, State
 
-#: Particle count from which Gauss-Seidel runs on all threads by default.
-#: Measured on the 2-core VM (``tissue-sim bench solver``, partitioned), speed-up
-#: over serial: 0.7-1.0x at 500 particles, 1.0-1.75x at 1k-4k, 1.1-1.9x at
-#: 8k-20k between runs (median of runs ~1.45x; the serial path is steady at
-#: 7-8 ns per projection, the two-thread one is not on this shared host). On a machine busy
-#: with other work (more runnable threads than cores) the parallel path can be
-#: several times slower than the serial one: a thread waits at every sweep's
-#: barrier for a descheduled partner. Set NUMBA_NUM_THREADS=1 there (the
-#: default then stays serial) or pass ``parallel=False``.
+#: Smallest mesh for which ``parallel=True`` is worth trying: below it the
+#: fork-join per sweep costs more than the sweep (``tissue-sim bench solver``,
+#: row ``xpbd_gs_parallel``: 0.7-1.0x serial at 500 particles). The parallel path
+#: is NOT the default at any size: measured on the 2-core VM it is 0.71-1.30x
+#: the serial path with the machine otherwise idle, and 5-30x slower at load 5
+#: (a thread waits at every sweep's barrier for a descheduled partner), while
+#: the serial path is steady at 5-8 ns per projection. It pays only on a machine
+#: whose cores are free for this process, from several thousand particles:
+#: run ``tissue-sim bench solver`` there and compare ``xpbd_gs_parallel`` with
+#: ``xpbd_gs`` before passing ``parallel=True``. To use both cores for many
+#: rollouts, run scenes side by side instead (one serial solver per core).
 PARALLEL_MIN_PARTICLES = 4000
 
 ORDERS = ("mesh", "colour", "stored")
@@ -182,9 +184,10 @@ class Solver:
     model : Model
         Topology and parameters (``model.params``: method, scheme, iterations, substeps, ...).
     parallel : bool, optional
-        Gauss-Seidel on all threads. Default: on from
-        :data:`PARALLEL_MIN_PARTICLES` particles when numba has two or more
-        threads (Jacobi is always serial).
+        Gauss-Seidel on all numba threads. Default (None or False): serial, at
+        every mesh size; True is an explicit choice for a machine with free
+        cores and a mesh of at least :data:`PARALLEL_MIN_PARTICLES` particles,
+        where ``tissue-sim bench solver`` shows it pays (Jacobi is always serial).
     parallel_mode : {"partition", "colour"}
         How Gauss-Seidel runs in parallel. ``partition`` (default): the mesh
         is cut into one part per thread (:func:`partition_particles`); each
@@ -227,8 +230,7 @@ class Solver:
         self.params = p
         n = model.n_particles
         self.jacobi = p.scheme == "jacobi"
-        if parallel is None:
-            parallel = (not self.jacobi and n >= PARALLEL_MIN_PARTICLES and numba.get_num_threads() >= 2)
+        # serial unless asked: the two-thread path loses to it on a shared machine (PARALLEL_MIN_PARTICLES)
         self.parallel = bool(parallel) and not self.jacobi
         self.parallel_mode = parallel_mode if self.parallel else None
         if self.parallel:
