@@ -51,10 +51,6 @@ class NumpyJacobiSolver:
         active_t = (p.k_area if p.method == "pbd" else p.stiffness_area) > 0
         return (len(self.e) * active_e + len(self.t) * active_t) * p.iterations * p.substeps
 
-    def _scatter(self, idx: np.ndarray, d: np.ndarray, n: int) -> np.ndarray:
-        """Sum rows of d (M, 2) into particles idx (M,), shape (n, 2)."""
-        return np.stack([np.bincount(idx, d[:, 0], minlength=n), np.bincount(idx, d[:, 1], minlength=n)], axis=1)
-
     def _edge_terms(self, x: np.ndarray, w: np.ndarray):
         i, j = self.e[:, 0], self.e[:, 1]
         d = x[i] - x[j]

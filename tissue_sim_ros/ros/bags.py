@@ -817,54 +817,5 @@ def _read_twist(bag: Bag, topic: str, t_pose: np.ndarray, time_source: str) -> t
     return out, times
 
 
-def pose_stamped_cdr(t_ns: int, x: float, y: float, yaw: float, frame_id: str = "world") -> bytes:
-    """A geometry_msgs/msg/PoseStamped in CDR (for bags, ``play`` and tests), without rclpy."""
-    store = typestore()
-    Header = store.types["std_msgs/msg/Header"]
-    Time = store.types["builtin_interfaces/msg/Time"]
-    Pose = store.types["geometry_msgs/msg/Pose"]
-    Point = store.types["geometry_msgs/msg/Point"]
-    Quat = store.types["geometry_msgs/msg/Quaternion"]
-    PoseStamped = store.types["geometry_msgs/msg/PoseStamped"]
-    msg = PoseStamped(
-        header=Header(stamp=Time(sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000)), frame_id=frame_id),
-        pose=Pose(position=Point(x=float(x), y=float(y), z=0.0),
-                  orientation=Quat(x=0.0, y=0.0, z=math.sin(0.5 * yaw), w=math.cos(0.5 * yaw))),
-    )
-    return bytes(store.serialize_cdr(msg, "geometry_msgs/msg/PoseStamped"))
-
-
-def write_tool_bag(path: str | Path, t_ns: np.ndarray, poses: np.ndarray, twists: np.ndarray | None = None, *,
-                   storage: str = "mcap", pose_topic: str = "/tool/pose", twist_topic: str = "/tool/twist",
-                   frame_id: str = "world") -> Path:
-    """Write a tool trajectory as a bag of PoseStamped (and TwistStamped) messages, stamped and received at ``t_ns``.
-
-    Parameters
-    ----------
-    t_ns : times [ns], shape (M,), strictly increasing int64.
-    poses : x [m], y [m], yaw [rad] per time, shape (M, 3).
-    twists : vx, vy [m/s], wz [rad/s] per time, shape (M, 3), optional.
-    """
-    from . import messages as msgs  # noqa: PLC0415
-
-    t_ns = np.asarray(t_ns, dtype=np.int64)
-    poses = np.asarray(poses, dtype=np.float64)
-    if poses.shape != (t_ns.shape[0], 3) or (twists is not None and np.shape(twists) != poses.shape):
-        raise InputError(f"poses {poses.shape} / twists {None if twists is None else np.shape(twists)}: expected "
-                         f"({t_ns.shape[0]}, 3) for {t_ns.shape[0]} times")
-    if t_ns.size and (np.diff(t_ns) <= 0).any():
-        raise InputError("t_ns: expected strictly increasing times")
-    with BagWriter(path, storage) as w:
-        w.add_topic(pose_topic, "geometry_msgs/msg/PoseStamped")
-        if twists is not None:
-            w.add_topic(twist_topic, "geometry_msgs/msg/TwistStamped")
-        for i, t in enumerate(t_ns.tolist()):
-            stamp = (t // 1_000_000_000, t % 1_000_000_000)
-            if twists is not None:  # the twist first: the node pairs a pose with the twist of the same stamp
-                w.write(twist_topic, msgs.encode_twist_stamped(stamp, frame_id, *map(float, twists[i])), t)
-            w.write(pose_topic, msgs.encode_pose_stamped(stamp, frame_id, *map(float, poses[i])), t)
-    return Path(path)
-
-
 __all__ = ["STORAGES", "POSE_TYPES", "TWIST_TYPES", "BagWriter", "Bag", "ToolTrack", "read_tool_track",
-           "tool_candidates", "recover_mcap", "recover_bag", "typestore", "pose_stamped_cdr", "write_tool_bag"]
+           "tool_candidates", "recover_mcap", "recover_bag", "typestore"]

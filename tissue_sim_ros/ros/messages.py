@@ -436,10 +436,6 @@ def _read_marker(r: CdrReader) -> DecodedMarker:
                                 "texture_resource": texture_resource, "mesh_resource": mesh_resource})
 
 
-def decode_marker(data: bytes) -> DecodedMarker:
-    return _read_marker(CdrReader(data))
-
-
 def decode_marker_array(data: bytes) -> list[DecodedMarker]:
     r = CdrReader(data)
     return [_read_marker(r) for _ in range(r.u32())]
@@ -548,7 +544,6 @@ class SceneEncoder:
         self.edges = np.ascontiguousarray(edge_indices, dtype=np.int64)
         self.strain = VertexStrain(edge_indices, edge_rest_length, particle_body.shape[0])
         n = particle_body.shape[0]
-        self.n = n
         self.strain_color_max = strain_color_max
         self.wire_width = wire_width
         self.wireframe = wireframe
