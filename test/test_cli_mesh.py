@@ -99,6 +99,11 @@ def bad_inputs(tmp_path: Path, disc_png: Path) -> list[tuple[list, str]]:
         ([disc_png, "--color", "0,255,0"], "disc.png' has no tissue"),
         ([tmp_path / "thin.png"], "thinner than the spacing"),
         ([disc_png, "--spacing", 0], "--spacing 0.0: expected a number > 0"),
+        # refused from the estimate, before any meshing (was a ValueError traceback / minutes of meshing)
+        ([disc_png, "--spacing", 1e-300], "would have over 1e308 particles, over the limit max_particles=300000"),
+        ([disc_png, "--spacing", 1e-5], "particles, over the limit max_particles=300000"),
+        ([disc_png, "--max-particles", 10], "particles, over the limit max_particles=10"),
+        ([disc_png, "--max-particles", 0], "max_particles=0: expected a whole number >= 1"),
         ([disc_png, "--scale", -0.001], "--scale -0.001: expected a number > 0"),
         ([disc_png, "--color", "red"], "--color 'red': expected B,G,R"),
         ([disc_png, "--threshold", 300], "threshold 300.0: expected a grey level in [0, 255]"),

@@ -101,6 +101,10 @@ def test_experiment_cli_bad_input_exits_2(tmp_path, capsys):
     assert main(["experiment", "a", "--out", str(tmp_path), "--set", "dt=-1", "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "dt=-1" in err and "Traceback" not in err
+    # was a 35.9 GiB MemoryError traceback: refused from the estimate before meshing
+    assert main(["experiment", "a", "--out", str(tmp_path), "--set", "spacing=0.0001", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "about 7.3e+07 particles, over the limit max_particles=300000" in err[0], err
 
 
 def _mcap_messages(bag_dir: Path) -> dict[str, list[bytes]]:

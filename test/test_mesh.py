@@ -17,6 +17,7 @@ from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import (
     Grading,
     TissueMesh,
+    estimate_vertices,
     load_mesh,
     mesh_from_image,
     mesh_quality,
@@ -473,3 +474,44 @@ def test_hole_smaller_than_the_spacing_is_filled():
     assert mesh_quality(mesh)["n_min_angle_lt_10"] == 0
     cv2.circle(img, (100, 100), 12, (255, 255, 255), -1)  # rim ~ 75 px: kept
     assert holes(mesh_from_image(img, spacing=SPACING, scale=SCALE)) == 1
+
+
+def test_mesh_size_estimate_is_close_to_the_mesh() -> None:
+    """estimate_vertices: a hex lattice has 2 A / (sqrt(3) h^2) vertices; the boundary adds a few percent."""
+    img = str(config_path(DEFAULT_IMAGE))
+    area = float(tissue_mask(img).sum()) * 0.002 ** 2
+    for h in (0.05, 0.02):
+        n = len(mesh_from_image(img, spacing=h).vertices)
+        assert 0.85 * n <= estimate_vertices(area, h) <= n, (h, n, estimate_vertices(area, h))
+    assert estimate_vertices(1.0, 1e-300) == float("inf")
+
+
+def test_a_mesh_over_max_particles_is_refused_before_meshing() -> None:
+    img = str(config_path(DEFAULT_IMAGE))
+    with pytest.raises(InputError, match=r"spacing 0.0001 m \(0.632 m\^2 of tissue\) would have about 7.3e\+07 "
+                                         r"particles, over the limit max_particles=300000"):
+        mesh_from_image(img, spacing=1e-4)
+    with pytest.raises(InputError, match="over 1e308 particles"):
+        mesh_from_image(img, spacing=1e-300)
+    # the limit is a parameter: the 0.05 m mesh (~320 vertices) is refused under 100, made under 400
+    with pytest.raises(InputError, match="about 292 particles, over the limit max_particles=100"):
+        mesh_from_image(img, spacing=0.05, max_particles=100)
+    assert len(mesh_from_image(img, spacing=0.05, max_particles=400).vertices) == 320
+    with pytest.raises(InputError, match="graded to 0.0002 m"):  # a graded mesh counts its fine region
+        mesh_from_image(img, spacing=0.05, grading=(0.5, 0.62, 0.3, 0.0002))
+    with pytest.raises(InputError, match="max_particles=0: expected a whole number >= 1"):
+        mesh_from_image(img, max_particles=0)
+    with pytest.raises(InputError, match="strip at spacing 0.0001 m would have about 5e\\+07 particles"):
+        mesh_rectangle(1.0, 0.5, 1e-4)
+    assert mesh_rectangle(0.1, 0.1, 0.05, max_particles=None).vertices.shape == (9, 2)
+
+
+def test_max_particles_is_a_scene_parameter() -> None:
+    from tissue_sim_ros.core.scene import build_simulation
+
+    with pytest.raises(InputError, match="over the limit max_particles=300000"):
+        build_simulation({"spacing": 1e-4})
+    with pytest.raises(InputError, match="over the limit max_particles=100"):
+        build_simulation({"max_particles": 100})
+    with pytest.raises(InputError, match="max_particles"):
+        build_simulation({"max_particles": 0})

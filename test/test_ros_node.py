@@ -431,6 +431,15 @@ def test_bad_parameter_file_exits_2_naming_the_parameter(start_process: Any, tmp
     assert name in out and "Traceback" not in out
 
 
+def test_too_fine_spacing_exits_2_before_meshing(start_process: Any, tmp_path: Path) -> None:
+    """spacing 1e-4 m on the shipped image (~7e7 particles) is refused from the estimate, in one line."""
+    path = write_params(tmp_path / "fine.yaml", {"spacing": 0.0001})
+    proc = start_process(["tissue_sim_node", "--ros-args", "--params-file", str(path)], name="fine")
+    assert proc.wait(timeout=60) == 2
+    lines = [line for line in proc.output().splitlines() if line.strip()]
+    assert len(lines) == 1 and "over the limit max_particles=300000" in lines[0], proc.output()
+
+
 def test_malformed_parameter_file_exits_2(start_process: Any, tmp_path: Path) -> None:
     path = tmp_path / "broken.yaml"
     path.write_text("/**:\n  ros__parameters:\n    dt: [0.01,\n")

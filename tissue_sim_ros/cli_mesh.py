@@ -9,6 +9,7 @@ import numpy as np
 
 from .core.errors import InputError
 from .core.mesh import (
+    MAX_PARTICLES,
     MESH_SUFFIXES,
     Grading,
     TissueMesh,
@@ -60,6 +61,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tolerance", type=float, default=40.0, help="colour tolerance per channel (default 40)")
     parser.add_argument("--grade", type=float, nargs=4, default=None, metavar=("X", "Y", "R", "FINE"),
                         help="finer spacing FINE [m] within R [m] of (X, Y), growing smoothly to --spacing")
+    parser.add_argument("--max-particles", type=int, default=MAX_PARTICLES, metavar="N",
+                        help=f"refuse a mesh estimated (tissue area, spacing) to have more vertices (default "
+                             f"{MAX_PARTICLES}; the max_particles parameter)")
     parser.add_argument("--out", type=Path, default=None, metavar="MESH.npz", help="write the mesh (.npz)")
     parser.add_argument("--png", type=Path, default=None, metavar="MESH.png",
                         help="write a picture of the mesh over the image")
@@ -98,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
         mask = tissue_mask(image, threshold=args.threshold, tissue_color=color, color_tolerance=args.tolerance,
                            name=name)
         mesh = mesh_from_mask(mask, spacing=args.spacing, scale=args.scale, origin=tuple(args.origin),
-                              grading=grading, name=name)
+                              grading=grading, name=name, max_particles=args.max_particles)
         pixel_area = float(mask.sum()) * args.scale ** 2
         what = (f"image {source} ({image.shape[1]} x {image.shape[0]} px at {args.scale:g} m/px, "
                 f"spacing {args.spacing:g} m{', graded' if grading else ''})")

@@ -40,7 +40,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import yaml
 
 from .errors import InputError
-from .mesh import TissueMesh, load_mesh
+from .mesh import MAX_PARTICLES, TissueMesh, load_mesh
 from .model import AREA_MODES, CONTACT_MODELS, CONTACT_SURFACES, METHODS, SCHEMES, SimParams
 from .tool import TOOL_SHAPES, ToolShape
 
@@ -100,12 +100,17 @@ class SceneConfig:
     """World y of the image's bottom edge [m]."""
     threshold: float = -1.0
     """Grey threshold separating tissue from background; < 0 = automatic (Otsu)."""
+    max_particles: int = MAX_PARTICLES
+    """Largest mesh meshing an image may make; a larger estimate (area and spacing) is refused before meshing."""
 
     def __post_init__(self) -> None:
         for k in ("spacing", "scale"):
             v = getattr(self, k)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                 raise InputError(f"parameter {k}={v!r}: expected a number > 0")
+        v = self.max_particles
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise InputError(f"parameter max_particles={v!r}: expected a whole number >= 1")
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> "SceneConfig":
@@ -127,7 +132,8 @@ class SceneConfig:
         image = self.image or str(config_path(DEFAULT_IMAGE))
         return mesh_from_image(image, spacing=self.spacing, scale=self.scale,
                                origin=(self.origin_x, self.origin_y),
-                               threshold=None if self.threshold < 0 else self.threshold)
+                               threshold=None if self.threshold < 0 else self.threshold,
+                               max_particles=self.max_particles)
 
 
 @dataclass(frozen=True)
@@ -163,6 +169,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("origin_x", float, _SCENE.origin_x, "m", "World x of the image's left edge.", True, "scene"),
     ParamSpec("origin_y", float, _SCENE.origin_y, "m", "World y of the image's bottom edge.", True, "scene"),
     ParamSpec("threshold", float, _SCENE.threshold, "grey level", "Grey threshold separating tissue from background; < 0 = automatic (Otsu).", True, "scene"),
+    ParamSpec("max_particles", int, _SCENE.max_particles, "", "Largest mesh an image may be meshed into: a spacing whose estimated vertex count (2 A / (sqrt(3) spacing^2) over the tissue area A) exceeds it is refused before meshing.", True, "scene"),
     ParamSpec("boundary_y_top", float, _SIM.boundary_y_top, "m", "Particles at or above this y are pinned (the paper's upper line); NaN = none.", True, "scene"),
     ParamSpec("boundary_y_bottom", float, _SIM.boundary_y_bottom, "m", "Particles at or below this y are pinned (the paper's lower line); NaN = none.", True, "scene"),
     # physics (Table I)

@@ -18,6 +18,11 @@ import numpy as np
 
 from .errors import InputError
 
+#: Meshes estimated to have more vertices than this are refused before meshing (the ``max_particles``
+#: parameter): meshing takes ~1 min per 100k vertices and a step ~10 ms per 20k particles, so a spacing
+#: typed one digit off (1e-4 m for 1e-2 m) would otherwise run for hours or exhaust memory.
+MAX_PARTICLES = 300_000
+
 
 @dataclass(frozen=True, eq=False)
 class TissueMesh:
@@ -116,15 +121,19 @@ def mesh_from_arrays(vertices: np.ndarray, triangles: np.ndarray, body: np.ndarr
 
 
 def mesh_rectangle(width: float = 1.0, height: float = 0.5, spacing: float = 0.05,
-                   origin: tuple[float, float] = (0.0, 0.0)) -> TissueMesh:
+                   origin: tuple[float, float] = (0.0, 0.0), max_particles: int | None = MAX_PARTICLES) -> TissueMesh:
     """A structured strip [x0, x0+width] x [y0, y0+height] of right triangles with alternating diagonals.
 
     Used by tests and benchmarks: its area, vertex count and rows are known exactly.
+    More than ``max_particles`` vertices are refused before anything is built (None: no limit).
     """
-    if spacing <= 0 or width <= 0 or height <= 0:
-        raise InputError(f"mesh_rectangle needs width, height, spacing > 0; got {width}, {height}, {spacing}")
-    nx = max(1, int(round(width / spacing)))
-    ny = max(1, int(round(height / spacing)))
+    if not (np.isfinite([width, height, spacing]).all() and spacing > 0 and width > 0 and height > 0):
+        raise InputError(f"mesh_rectangle needs finite width, height, spacing > 0; got {width}, {height}, {spacing}")
+    with np.errstate(over="ignore"):
+        nx_f, ny_f = (max(1.0, float(np.rint(np.float64(side) / spacing))) for side in (width, height))
+    check_mesh_size((nx_f + 1.0) * (ny_f + 1.0), _max_particles(max_particles),
+                    f"a {width:g} m x {height:g} m strip at spacing {spacing:.4g} m")
+    nx, ny = int(nx_f), int(ny_f)
     xs = origin[0] + np.linspace(0.0, width, nx + 1)
     ys = origin[1] + np.linspace(0.0, height, ny + 1)
     gx, gy = np.meshgrid(xs, ys)
@@ -556,7 +565,7 @@ def mesh_from_image(image: str | Path | np.ndarray, *, spacing: float = 0.05, sc
                     origin: tuple[float, float] = (0.0, 0.0), threshold: float | None = None,
                     tissue_color: tuple[int, int, int] | None = None, color_tolerance: float = 40.0,
                     grading: Grading | tuple[float, float, float, float] | None = None,
-                    max_pixels: int = MAX_PIXELS) -> TissueMesh:
+                    max_pixels: int = MAX_PIXELS, max_particles: int | None = MAX_PARTICLES) -> TissueMesh:
     """Triangle mesh of the tissue in an image (the paper's "Mesh Generation").
 
     Parameters
@@ -575,6 +584,10 @@ def mesh_from_image(image: str | Path | np.ndarray, *, spacing: float = 0.05, sc
         Finer spacing near a world point; see :class:`Grading`.
     max_pixels : int
         Larger images are refused.
+    max_particles : int or None
+        A mesh estimated (from the tissue's area and the spacing, see
+        :func:`estimate_vertices`) to have more vertices is refused before any
+        meshing is done; None: no limit.
 
     Returns
     -------
@@ -602,6 +615,7 @@ def mesh_from_image(image: str | Path | np.ndarray, *, spacing: float = 0.05, sc
     interior points to equalise edges. The boundary points never move.
     """
     spacing, scale = _positive("spacing", spacing), _positive("scale", scale)
+    max_particles = _max_particles(max_particles)
     ox, oy = (float(v) for v in origin)
     if not (np.isfinite(ox) and np.isfinite(oy)):
         raise InputError(f"origin {origin!r}: expected two finite numbers [m]")
@@ -609,7 +623,39 @@ def mesh_from_image(image: str | Path | np.ndarray, *, spacing: float = 0.05, sc
     name = f"image {str(image)!r}" if not isinstance(image, np.ndarray) else "image array"
     mask = tissue_mask(image, threshold=threshold, tissue_color=tissue_color, color_tolerance=color_tolerance,
                        max_pixels=max_pixels, name=name)
-    return mesh_from_mask(mask, spacing=spacing, scale=scale, origin=(ox, oy), grading=g, name=name)
+    return mesh_from_mask(mask, spacing=spacing, scale=scale, origin=(ox, oy), grading=g, name=name,
+                          max_particles=max_particles)
+
+
+def estimate_vertices(area: float, spacing: float) -> float:
+    """Vertices of a mesh of ``area`` [m^2] at edge length ``spacing`` [m]: 2 A / (sqrt(3) h^2).
+
+    A hexagonal lattice of spacing h has one vertex per sqrt(3) h^2 / 2 of area
+    (two equilateral triangles of area sqrt(3) h^2 / 4 per vertex); the boundary
+    adds about perimeter / h more, small for any mesh worth refusing. Returns
+    inf rather than overflowing for absurd spacings.
+    """
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        n = 2.0 * float(area) / (np.sqrt(3.0) * float(spacing) ** 2)
+    return float(n) if np.isfinite(n) else float("inf")
+
+
+def check_mesh_size(n_estimate: float, max_particles: int | None, what: str) -> None:
+    """InputError when a mesh's estimated vertex count exceeds ``max_particles`` (None: no limit)."""
+    if max_particles is None:
+        return
+    if not n_estimate <= max_particles:
+        about = f"about {n_estimate:.3g}" if np.isfinite(n_estimate) else "over 1e308"
+        raise InputError(f"{what} would have {about} particles, over the limit max_particles={max_particles}: "
+                         "expected a larger spacing (or a larger max_particles if you mean it)")
+
+
+def _max_particles(value: int | None) -> int | None:
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise InputError(f"max_particles={value!r}: expected a whole number >= 1 (or None: no limit)")
+    return int(value)
 
 
 def _positive(name: str, value: float) -> float:
@@ -624,11 +670,12 @@ def _positive(name: str, value: float) -> float:
 
 def mesh_from_mask(mask: np.ndarray, *, spacing: float = 0.05, scale: float = 0.002,
                    origin: tuple[float, float] = (0.0, 0.0), grading: Grading | tuple | None = None,
-                   name: str = "mask") -> TissueMesh:
-    """Mesh a boolean tissue mask (H, W); see :func:`mesh_from_image` for the method and world frame."""
+                   name: str = "mask", max_particles: int | None = MAX_PARTICLES) -> TissueMesh:
+    """Mesh a boolean tissue mask (H, W); see :func:`mesh_from_image` for the method, world frame and limits."""
     import cv2  # noqa: PLC0415
 
     spacing, scale = _positive("spacing", spacing), _positive("scale", scale)
+    max_particles = _max_particles(max_particles)
     g = _as_grading(grading, spacing)
     mask = np.ascontiguousarray(mask, dtype=bool)
     H = mask.shape[0]
@@ -636,6 +683,10 @@ def mesh_from_mask(mask: np.ndarray, *, spacing: float = 0.05, scale: float = 0.
     h_px = spacing / scale
     size = _SizeField(h_px, None if g is None else
                       ((g.x - ox) / scale, H - (g.y - oy) / scale, g.radius / scale, g.fine_spacing / scale))
+    # refuse a mesh too large to be meant before any work that grows with it
+    check_mesh_size(_estimate_mask_vertices(mask, size), max_particles,
+                    f"{name} meshed at spacing {spacing:.4g} m ({mask.sum() * scale * scale:.4g} m^2 of tissue"
+                    + (f", graded to {g.fine_spacing:.4g} m" if g is not None else "") + ")")
 
     contours, hierarchy = cv2.findContours(mask.astype(np.uint8), cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
     if not contours:
@@ -713,6 +764,25 @@ class _SizeField:
     def h_min_near(self, rows: np.ndarray, cols: np.ndarray) -> float:
         step = max(1, len(rows) // 20000)
         return float(self(np.stack([cols[::step] + 0.5, rows[::step] + 0.5], axis=1)).min())
+
+
+def _estimate_mask_vertices(mask: np.ndarray, size: _SizeField) -> float:
+    """Estimated vertex count of meshing ``mask`` with ``size``: the integral of 2 / (sqrt(3) h^2) over the tissue.
+
+    Uniform: :func:`estimate_vertices` of the tissue's pixel area. Graded: summed
+    over tissue pixels (a subsample of at most ~1M, each standing for the pixels it skips).
+    """
+    n_px = int(np.count_nonzero(mask))
+    if size.grade is None:
+        return estimate_vertices(n_px, size.h)
+    step = max(1, int(np.ceil(np.sqrt(mask.size / 1e6))))
+    rows, cols = np.nonzero(mask[::step, ::step])
+    if len(rows) == 0:
+        return 0.0
+    h = size(np.stack([cols * step + 0.5, rows * step + 0.5], axis=1))
+    with np.errstate(over="ignore", divide="ignore"):
+        n = float(np.sum(2.0 / (np.sqrt(3.0) * h * h))) * n_px / len(rows)
+    return n if np.isfinite(n) else float("inf")
 
 
 def _boundary_loop(contour: np.ndarray, size: _SizeField, outer: bool) -> np.ndarray:
