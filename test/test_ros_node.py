@@ -233,10 +233,15 @@ def test_pause_stops_stepping_and_reset_restores_rest_mesh(node: Node, scene_fil
     deformed = node.latest_points()
     q0 = scene_files["mesh"].vertices
     assert np.abs(deformed - q0).max() > 0.01
+    assert float(node.fresh_diag()["sim_time_s"]) > 0
     node.points.clear()
     node.reset()
     node.client.spin_until(lambda: node.points.messages, TIMEOUT, node.proc, "points after reset")
     np.testing.assert_allclose(node.latest_points(), q0, atol=1e-6)  # float32 on the wire
+    # as msg_docs/services.md says: the simulation restarts at step 0, t = 0; the node's counters are kept
+    diag = node.fresh_diag()
+    assert float(diag["sim_time_s"]) == 0.0 and int(diag["steps"]) == steps, diag
+    assert node.diagnostics[-1].header.frame_id == "world"  # the node's frame_id, not empty
     assert node.pause(False).success
     node.client.spin_until(lambda: len(node.energy.messages) > count + 5, TIMEOUT, node.proc, "steps after unpause")
 

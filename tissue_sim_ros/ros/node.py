@@ -498,6 +498,7 @@ class TissueSimNode(Node):
                                                    if isinstance(v, bool) else str(v)) for k, v in values.items()])
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
+        array.header.frame_id = self.frame_id  # the frame of everything this node publishes (msg_docs/topics.md)
         self.pub_diagnostics.publish(array)
         s.window_steps, s.window_step_time_sum, s.window_step_time_max, s.window_start = 0, 0.0, 0.0, now
         s.window_sim_time_sum = 0.0
