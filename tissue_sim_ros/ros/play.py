@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.errors import InputError
-from ..core.stamps import stamp_from_ns
+from ..core.stamps import ns_from_seconds, stamp_from_ns
 from .bags import POSE_TYPES, TWIST_TYPES, Bag
 from .record import message_class
 
@@ -152,7 +152,7 @@ def play(bag_path: str | Path, *, topics: list[str] | None = None, remaps: dict[
         for p in watched.values():
             left = end - time.monotonic()
             if left > 0 and p.get_subscription_count() > 0 and not stop.is_set():
-                p.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
+                p.wait_for_all_acked(Duration(nanoseconds=ns_from_seconds(left)))
     finally:
         if node is not None:
             node.destroy_node()
