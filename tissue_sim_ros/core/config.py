@@ -40,7 +40,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import yaml
 
 from .errors import InputError
-from .mesh import TissueMesh, load_mesh
+from .mesh import TissueMesh, load_meshes
 from .model import AREA_MODES, CONTACT_MODELS, CONTACT_SURFACES, METHODS, SCHEMES, SimParams
 from .tool import TOOL_SHAPES, ToolShape
 
@@ -82,14 +82,24 @@ def _frame(v: Any) -> str | None:
     return None if _FRAME_RE.match(v) and not v.startswith("/") else "a frame name like 'world' (letters, digits, _, /; no leading /)"
 
 
+def mesh_file_value(value: Any) -> str | tuple[str, ...]:
+    """``mesh_file`` as given: one path (str), or several (a list or tuple of paths) as a tuple."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, (list, tuple)) and value and all(isinstance(v, str) and v for v in value):
+        return value[0] if len(value) == 1 else tuple(value)
+    raise InputError(f"parameter mesh_file={value!r}: expected a mesh file path or a list of paths")
+
+
 @dataclass(frozen=True)
 class SceneConfig:
     """Where the mesh comes from and how image pixels map to metres (the ``scene`` group)."""
 
     image: str = ""
     """Tissue image (PNG/JPEG/BMP); empty = the shipped default image."""
-    mesh_file: str = ""
-    """A mesh file (.npz, Triangle .node, Gmsh .msh); overrides ``image`` when set."""
+    mesh_file: str | tuple[str, ...] = ""
+    """A mesh file (.npz, Triangle .node, Gmsh .msh), or a list of them combined into one scene (each body
+    named after its file, :func:`~tissue_sim_ros.core.mesh.load_meshes`); overrides ``image`` when set."""
     spacing: float = 0.05
     """Target edge length of the mesh [m]."""
     scale: float = 0.002
@@ -102,6 +112,7 @@ class SceneConfig:
     """Grey threshold separating tissue from background; < 0 = automatic (Otsu)."""
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "mesh_file", mesh_file_value(self.mesh_file))
         for k in ("spacing", "scale"):
             v = getattr(self, k)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
@@ -120,7 +131,7 @@ class SceneConfig:
     def build_mesh(self) -> TissueMesh:
         """Load the mesh file, or mesh the image (the default image when none is given)."""
         if self.mesh_file:
-            return load_mesh(self.mesh_file)
+            return load_meshes(self.mesh_file)
         from ..resources import DEFAULT_IMAGE, config_path  # noqa: PLC0415
         from .mesh import mesh_from_image  # noqa: PLC0415
 
@@ -333,6 +344,8 @@ def _type_name(kind: type) -> str:
 def coerce(spec: ParamSpec, value: Any) -> Any:
     """The value as the parameter's type (an int for a float is accepted) and its range check, or InputError."""
     kind = spec.kind
+    if spec.name == "mesh_file" and isinstance(value, (list, tuple)):
+        return mesh_file_value(value)  # several mesh files: one scene
     ok = (isinstance(value, bool) if kind is bool else
           isinstance(value, int) and not isinstance(value, bool) if kind is int else
           isinstance(value, (int, float)) and not isinstance(value, bool) if kind is float else
@@ -438,6 +451,7 @@ class Config:
 
 def _yaml_scalar(value: Any) -> str:
     """One value as YAML that reads back to the same value and type (floats keep their dot, NaN is .nan)."""
+    value = list(value) if isinstance(value, tuple) else value
     return yaml.safe_dump([value], default_flow_style=True, width=1 << 16).strip()[1:-1]
 
 

@@ -243,6 +243,13 @@ class Model:
         return int(self.particle_q0.shape[0])
 
     @property
+    def body_names(self) -> tuple[str, ...]:
+        """Name of each body (from the mesh: its file or its region), B strings."""
+        if self.mesh is not None and self.mesh.n_bodies == self.n_bodies:
+            return self.mesh.names
+        return tuple(f"body {b}" for b in range(self.n_bodies))
+
+    @property
     def n_edges(self) -> int:
         return int(self.edge_indices.shape[0])
 
