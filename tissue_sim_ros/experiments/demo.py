@@ -342,7 +342,7 @@ def run(args: argparse.Namespace) -> int:
                        title=f"Demo (through ROS): experiment a, the tool pushes the bottom tissue ({args.contact_model} contact)"),
         plot_energy(out / "demo_energy.png", run_["steps"],
                     {"inertial": run_["inertial"], "spring": run_["spring"], "area": run_["area"]},
-                    body_names=("upper tissue", "lower tissue")[: run_["inertial"].shape[1]],
+                    body_names=model.body_names,
                     markers=[s for s in tr.A_SNAPSHOTS if s > 0],
                     contact=run_["contact"],
                     title="Demo: implicit Euler energy per tissue, recorded through ROS"),
@@ -360,7 +360,7 @@ def run(args: argparse.Namespace) -> int:
           f"keeps every message); the node's own step, simulation and messages, took {node_ms or float('nan'):.2f} ms "
           f"on average ({node_rtf}). Driver, node and recorder ran as separate processes on ROS domain {domain}. "
           f"Peak implicit Euler energy "
-          + ", ".join(f"{n} {v:.3g}" for n, v in zip(("upper", "lower"), peak_b))
+          + ", ".join(f"{n} {v:.3g}" for n, v in zip(model.body_names, peak_b))
           + f" at steps {', '.join(str(int(run_['steps'][i])) for i in total.argmax(axis=0))}; the tool touched "
           f"the tissue in {int(touched.sum())} steps (first at step "
           f"{int(np.argmax(touched)) + 1 if touched.any() else '-'}). "

@@ -25,8 +25,6 @@ from ..core.simulation import Simulation
 from ..core.tool import ToolPose, Trajectory
 from . import trajectories as tr
 
-BODY_NAMES = ("upper tissue", "lower tissue")
-
 
 @dataclass
 class ExperimentResult:
@@ -86,18 +84,22 @@ def _pose_at_step(run: Rollout, step: int) -> ToolPose | None:
     return ToolPose(float(x), float(y), float(yaw)) if np.isfinite(x) else None
 
 
-def summarise(run: Rollout, wall: float, dt: float) -> dict[str, Any]:
-    """Steps, real-time factor, peak energy per body, contact steps, first contact."""
+def summarise(run: Rollout, wall: float, dt: float, body_names: Sequence[str] | None = None) -> dict[str, Any]:
+    """Steps, real-time factor, peak energy per body (by name), contact steps, first contact."""
     contact_any = run.in_contact.any(axis=1)
     first = int(run.steps[np.argmax(contact_any)]) if contact_any.any() else None
     total = run.total
+    nb = run.inertial.shape[1] if run.inertial.ndim == 2 else 0
+    names = list(body_names) if body_names is not None else [f"body {b}" for b in range(nb)]
     return {
         "steps": int(len(run.steps)),
         "wall time [s]": round(wall, 3),
         "real-time factor": round(len(run.steps) * dt / wall, 1) if wall > 0 else float("inf"),
         "median step [ms]": round(float(np.median(run.step_time)) * 1e3, 3) if len(run.step_time) else None,
-        "peak energy per body": [float(f"{v:.4g}") for v in total.max(axis=0)] if len(total) else [],
-        "peak energy step per body": [int(run.steps[i]) for i in total.argmax(axis=0)] if len(total) else [],
+        "bodies": list(names),
+        "peak energy per body": {n: float(f"{v:.4g}") for n, v in zip(names, total.max(axis=0))} if len(total) else {},
+        "peak energy step per body": ({n: int(run.steps[i]) for n, i in zip(names, total.argmax(axis=0))}
+                                      if len(total) else {}),
         "contact steps": int(contact_any.sum()),
         "first contact step": first,
         "diverged steps": int(run.diverged.sum()),
@@ -118,7 +120,7 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None =
     snaps = [s for s in snapshot_steps if s <= steps]
     run, wall = run_trajectory(sim, traj, snapshot_steps=snaps, progress="experiment a" if progress else False)
     res = ExperimentResult("a", rollouts={"a": run})
-    res.summary = summarise(run, wall, sim.params.dt)
+    res.summary = summarise(run, wall, sim.params.dt, sim.model.body_names)
     res.summary["contact model"] = sim.params.contact_model
     res.summary["method"] = f"{sim.params.method} ({sim.params.scheme}, {sim.params.iterations} iterations)"
     res.summary["particles"] = sim.model.n_particles
@@ -128,7 +130,7 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None =
                                           f"({sim.params.contact_model} contact)"))
     res.files.append(plot_energy(out / f"{prefix}_energy.png", run.steps,
                                  {"inertial": run.inertial, "spring": run.spring, "area": run.area},
-                                 body_names=BODY_NAMES[: sim.model.n_bodies], markers=[s for s in snaps if s > 0],
+                                 body_names=sim.model.body_names, markers=[s for s in snaps if s > 0],
                                  contact=run.in_contact, title="Experiment a: implicit Euler energy"))
     csv = out / f"{prefix}_energy.csv"
     run.write_csv(csv)

@@ -665,3 +665,11 @@ class SceneEncoder:
             specs.append(MarkerSpec("pinned", 0, MARKER_SPHERE_LIST, stamp, frame_id, position=(0.0, 0.0, -0.001),
                                     scale=(d, d, d), color=(0.2, 0.2, 0.2, 0.8), points=q0[pinned]))
         return encode_marker_array(specs)
+
+
+def body_label(names) -> str:
+    """``layout.dim[0].label`` of ``tissue/energy/bodies``: ``body:`` and the body names, comma-separated.
+
+    A comma inside a name becomes a space, so the label splits back into one name per body.
+    """
+    return "body:" + ",".join(str(n).replace(",", " ") for n in names)

@@ -146,6 +146,7 @@ class TissueSimNode(Node):
 
         self._publish_rest_mesh()
         m = self.sim.model
+        self._body_label = messages.body_label(m.body_names)
         self.get_logger().info(
             f"{m.n_particles} particles, {m.n_triangles} triangles, {m.n_bodies} bodies; method "
             f"{self.sim.params.method}/{self.sim.params.scheme}, {self.sim.params.iterations} iterations, contact "
@@ -416,7 +417,7 @@ class TissueSimNode(Node):
                 for i, term in enumerate(ENERGY_TERMS[:3]):
                     self.pub_energy_terms[term].publish(messages.encode_float64(float(terms[:, i].sum())))
                 self.pub_energy_bodies.publish(messages.encode_float64_multiarray(
-                    terms, ["body", "term:" + ",".join(ENERGY_TERMS)]))
+                    terms, [self._body_label, "term:" + ",".join(ENERGY_TERMS)]))
             else:
                 self._drop("unpublished_nonfinite", f"step {report.step}: non-finite energy not published")
         f, tz = report.reaction_force, report.reaction_torque

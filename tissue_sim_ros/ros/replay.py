@@ -199,6 +199,7 @@ class ReplayBagSink:
         self._points = np.zeros(model.n_particles, dtype=msgs.POINT_DTYPE)
         self._points["body"] = model.particle_body
         self._strain = VertexStrain(model)
+        self._body_label = msgs.body_label(model.body_names)
 
     def __call__(self, report: StepReport, t_ns: int, pose: ToolPose) -> None:
         stamp, e = _stamp(t_ns), report.energy
@@ -211,7 +212,7 @@ class ReplayBagSink:
             ("/tissue/energy/inertial", msgs.encode_float64(float(e.inertial.sum())), t_ns),
             ("/tissue/energy/spring", msgs.encode_float64(float(e.spring.sum())), t_ns),
             ("/tissue/energy/area", msgs.encode_float64(float(e.area.sum())), t_ns),
-            ("/tissue/energy/bodies", msgs.encode_float64_multiarray(table, ["body", "term:" + ",".join(TERMS)]), t_ns),
+            ("/tissue/energy/bodies", msgs.encode_float64_multiarray(table, [self._body_label, "term:" + ",".join(TERMS)]), t_ns),
             ("/tool/wrench", msgs.encode_wrench_stamped(stamp, self.frame_id, (float(f[0]), float(f[1]), 0.0),
                                                         (0.0, 0.0, float(report.reaction_torque))), t_ns),
         ]
@@ -403,7 +404,7 @@ def _write_summary(path: Path, args: argparse.Namespace, track: ToolTrack, sim: 
         "twist_topic": track.twist_topic, "time_source": track.time_source,
         "samples": track.n, "samples_read": track.n_messages, "skipped": track.skipped,
         "track_duration_s": track.duration,
-        "particles": sim.model.n_particles, "triangles": sim.model.n_triangles, "dt": sim.params.dt,
+        "bodies": list(sim.model.body_names), "particles": sim.model.n_particles, "triangles": sim.model.n_triangles, "dt": sim.params.dt,
         "steps": result.n_steps, "simulated_s": result.sim_time, "wall_s": result.wall_time,
         "steps_per_s": result.steps_per_second, "real_time_factor": result.real_time_factor,
         "real_time_factor_median_step": result.median_real_time_factor,
@@ -423,7 +424,7 @@ def write_outputs(out: Path, sim: Simulation, result: ReplayResult, *, video: bo
     ro.write_csv(out / "energy.csv")
     if ro.steps.size:
         render.plot_energy(out / "energy.png", ro.steps, {"inertial": ro.inertial, "spring": ro.spring, "area": ro.area},
-                           contact=ro.in_contact, title=title)
+                           body_names=sim.model.body_names, contact=ro.in_contact, title=title)
     frames_dir = out / "frames"
     if frames_dir.exists():
         shutil.rmtree(frames_dir)
