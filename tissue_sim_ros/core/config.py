@@ -41,7 +41,16 @@ import yaml
 
 from .errors import InputError
 from .mesh import TissueMesh, load_meshes
-from .model import AREA_MODES, CONTACT_MODELS, CONTACT_SURFACES, METHODS, SCHEMES, SimParams
+from .model import (
+    AREA_MODES,
+    CONTACT_MODELS,
+    CONTACT_SURFACES,
+    DAMPING_MODES,
+    JACOBI_AVERAGINGS,
+    METHODS,
+    SCHEMES,
+    SimParams,
+)
 from .tool import TOOL_SHAPES, ToolShape
 
 #: The section of a ROS 2 parameter file that holds the node's parameters.
@@ -168,7 +177,7 @@ _TOOL = ToolShape()
 PARAMETERS: tuple[ParamSpec, ...] = (
     # scene: where the mesh comes from (read-only: a new mesh is a new scene)
     ParamSpec("image", str, _SCENE.image, "path", "Tissue image (PNG/JPEG/BMP) meshed at start; empty = the shipped config/tissue.png.", True, "scene"),
-    ParamSpec("mesh_file", str, _SCENE.mesh_file, "path", "Mesh file (.npz from `tissue-sim mesh`); overrides image when set.", True, "scene"),
+    ParamSpec("mesh_file", str, _SCENE.mesh_file, "path", "Mesh file (.npz from `tissue-sim mesh`, Triangle .node/.ele, Gmsh .msh), or a list of them made one scene (each body named after its file); overrides image when set.", True, "scene"),
     ParamSpec("spacing", float, _SCENE.spacing, "m", "Target edge length when meshing the image.", True, "scene"),
     ParamSpec("scale", float, _SCENE.scale, "m/px", "Image scale: metres per pixel.", True, "scene"),
     ParamSpec("origin_x", float, _SCENE.origin_x, "m", "World x of the image's left edge.", True, "scene"),
@@ -176,18 +185,26 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("threshold", float, _SCENE.threshold, "grey level", "Grey threshold separating tissue from background; < 0 = automatic (Otsu).", True, "scene"),
     ParamSpec("boundary_y_top", float, _SIM.boundary_y_top, "m", "Particles at or above this y are pinned (the paper's upper line); NaN = none.", True, "scene"),
     ParamSpec("boundary_y_bottom", float, _SIM.boundary_y_bottom, "m", "Particles at or below this y are pinned (the paper's lower line); NaN = none.", True, "scene"),
+    ParamSpec("pin_y_top", float, _SIM.pin_y_top, "m", "Particles whose rest y is at or above this are pinned (no wall); NaN = none.", True, "scene"),
+    ParamSpec("pin_y_bottom", float, _SIM.pin_y_bottom, "m", "Particles whose rest y is at or below this are pinned (no wall); NaN = none.", True, "scene"),
+    ParamSpec("wall_y_top", float, _SIM.wall_y_top, "m", "Wall: every particle (pinned too) above this y is put on it after the prediction and after every solver iteration (the authors' 0.9768); NaN = none.", True, "scene"),
+    ParamSpec("wall_y_bottom", float, _SIM.wall_y_bottom, "m", "Wall: every particle below this y is put on it, as wall_y_top (the authors' 0.0232); NaN = none.", True, "scene"),
     # physics (Table I)
     ParamSpec("mass", float, _SIM.mass, "kg", "Mass of each particle (Table I: 1e-4).", True, "physics"),
     ParamSpec("mass_per_area", float, _SIM.mass_per_area, "kg/m^2", "Areal density: > 0 lumps a third of each triangle's area times it on its corners (refined or graded meshes keep the same tissue); 0 = every particle has mass (the paper).", True, "physics"),
     ParamSpec("gravity", float, _SIM.gravity, "m/s^2", "Gravity along world y (Table I: -9.8).", False, "physics"),
     ParamSpec("dt", float, _SIM.dt, "s", "Time step; the node steps at 1/dt of its clock (Table I: 0.01).", True, "physics"),
-    ParamSpec("damping", float, _SIM.damping, "1/s", "Velocity damping rate; 0 = off (paper).", False, "physics"),
+    ParamSpec("damping", float, _SIM.damping, "1/s", "Velocity damping rate c, applied before each prediction (damping_mode); 0 = off (paper; the authors' code: 8).", False, "physics"),
+    ParamSpec("damping_mode", str, _SIM.damping_mode, "", f"Damping per (sub)step h: linear v *= max(0, 1 - c h), or exponential v *= exp(-c h) (the authors'); one of {', '.join(DAMPING_MODES)}.", False, "physics"),
     # solver
     ParamSpec("method", str, _SIM.method, "", f"Solver: {', '.join(METHODS)} or an alias ({', '.join(METHOD_ALIASES)}).", False, "solver"),
     ParamSpec("scheme", str, _SIM.scheme, "", f"Constraint order: {', '.join(SCHEMES)}.", False, "solver"),
     ParamSpec("iterations", int, _SIM.iterations, "", "Solver iterations per (sub)step (Table I: 30).", False, "solver"),
     ParamSpec("substeps", int, _SIM.substeps, "", "Substeps per step.", False, "solver"),
     ParamSpec("relaxation", float, _SIM.relaxation, "", "Jacobi relaxation factor in (0, 1].", False, "solver"),
+    ParamSpec("jacobi_averaging", str, _SIM.jacobi_averaging, "", f"PBD Jacobi: violated (the authors': spring and area corrections each averaged over the particle's violated constraints of that type, then added) or all (divided by all its constraints); one of {', '.join(JACOBI_AVERAGINGS)}.", False, "solver"),
+    ParamSpec("jacobi_spring_tolerance", float, _SIM.jacobi_spring_tolerance, "m", "PBD Jacobi violated: a spring counts when ||x_i - x_j| - d0| >= this (the authors' 1e-4).", False, "solver"),
+    ParamSpec("jacobi_area_tolerance", float, _SIM.jacobi_area_tolerance, "m^2", "PBD Jacobi violated: a triangle counts when its area error exceeds this (the authors' 1e-11).", False, "solver"),
     ParamSpec("k_spring", float, _SIM.k_spring, "", "PBD distance stiffness coefficient in [0, 1] (Table I: 0.15).", False, "solver"),
     ParamSpec("k_area", float, _SIM.k_area, "", "PBD area stiffness coefficient in [0, 1] (Table I: 1).", False, "solver"),
     ParamSpec("stiffness_spring", float, _SIM.stiffness_spring, "N/m", "XPBD distance stiffness (method xpbd).", False, "solver"),
