@@ -107,8 +107,10 @@ def straight_motion(start: tuple[float, float, float], direction_deg: float, spe
     if not (math.isfinite(dt) and dt > 0):
         raise InputError(f"dt={dt!r}: expected a time step > 0 s")
     a = math.radians(direction_deg)
+    # an axis direction is exact (cos(-90 deg) is 6e-17 in floating point, which would move x)
+    c, s = (0.0 if abs(v) < 1e-15 else v for v in (math.cos(a), math.sin(a)))
     travel = speed * int(steps)
-    end = (x + travel * math.cos(a), y + travel * math.sin(a), yaw)
+    end = (x + travel * c, y + travel * s, yaw)
     return WaypointTrajectory(np.array([0.0, int(steps) * dt]), np.array([(x, y, yaw), end]))
 
 
