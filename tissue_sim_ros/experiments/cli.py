@@ -17,6 +17,12 @@ DESCRIPTION = """Run one of the paper's experiments on the default scene (Table 
   b  insertions from two angles toward one target (Fig. 3): the final
      deformation for each angle, the energy curves, and which angle costs less.
 
+--trajectory PRESET|FILE replaces the tool's path: a preset (experiment_a,
+experiment_b_shallow, experiment_b_steep, authors: the paper authors' saved run)
+or a trajectory file (CSV time,x,y,yaw; YAML waypoints or a straight motion);
+for b it is repeatable, one run per trajectory. Bodies are labelled by their
+names (a mesh file's body by its file).
+
 Figures (PNG) and the energy series (CSV) are written to --out."""
 
 
