@@ -342,6 +342,27 @@ def test_experiment_a_runs_a_trajectory_file(tmp_path, capsys):
     assert back.n_steps(0.01) == 12 and math.isclose(back.pose_at(back.start_time + back.duration).y, 0.188)
 
 
+def test_experiment_a_settles_under_gravity_first(tmp_path):
+    from tissue_sim_ros.experiments import paper
+
+    a, b = _two_files(tmp_path)
+    values = {"mesh_file": [str(a), str(b)], "contact_model": "none", **AUTHORS, "pin_y_bottom": 0.021,
+              "pin_y_top": 0.399}
+    res = paper.experiment_a(tmp_path / "s", params=values, steps=3, settle=6, progress=False, trajectory="authors")
+    run = res.rollouts["a"]
+    assert res.summary["settled under gravity first [steps]"] == 6 and list(run.steps) == [1, 2, 3]
+    # the run starts where six steps of gravity left the tissue: the same as stepping it nine times
+    sim = build_simulation(values)
+    for _ in range(9):
+        sim.step()
+    x_end = sim.state.particle_q
+    ref = paper.experiment_a(tmp_path / "r", params=values, steps=9, progress=False, trajectory="authors")
+    np.testing.assert_allclose(run.scene_total, ref.rollouts["a"].scene_total[6:], rtol=1e-12, atol=0)
+    assert np.abs(x_end - sim.model.particle_q0).max() > 1e-4
+    with pytest.raises(InputError, match="settle"):
+        paper.experiment_a(tmp_path / "x", params=values, steps=1, settle=-1, progress=False)
+
+
 def test_replay_of_a_trajectory_equals_the_offline_rollout(tmp_path):
     from tissue_sim_ros.core.rollout import rollout
     from tissue_sim_ros.ros.replay import replay, track_from_trajectory

@@ -36,6 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"tool trajectory: a preset ({', '.join(tr.PRESETS)}) or a file (.csv: time,x,y,yaw; "
                              ".yaml: waypoints or start, direction_deg, speed, steps). Experiment a: one (default "
                              "experiment_a); b: repeatable, replacing --angles")
+    parser.add_argument("--settle", type=int, default=0, metavar="N",
+                        help="experiment a: N steps under gravity alone before the run, not recorded (the authors' "
+                             "saved run started after 29)")
     parser.add_argument("--angles", type=float, nargs="+", default=list(tr.B_ANGLES_DEG),
                         help="experiment b: insertion angles in degrees (default: %(default)s)")
     parser.add_argument("--contact", nargs="+", choices=["paper", "projection"], default=None,
@@ -61,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
         if args.which == "a":
             result = paper.experiment_a(args.out, params=values, steps=args.steps, progress=not args.no_progress,
                                         prefix=f"experiment_a{tag}",
-                                        trajectory=args.trajectory[0] if args.trajectory else "experiment_a")
+                                        trajectory=args.trajectory[0] if args.trajectory else "experiment_a",
+                                        settle=args.settle)
         else:
             result = paper.experiment_b(args.out, params=values, angles_deg=args.angles,
                                         progress=not args.no_progress, prefix=f"experiment_b{tag}",

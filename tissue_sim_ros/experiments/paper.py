@@ -21,6 +21,7 @@ from tqdm import tqdm
 
 from ..core import trajectories as tr
 from ..core.config import Config, resolve_config
+from ..core.errors import InputError
 from ..core.rollout import Rollout, rollout
 from ..core.scene import build_simulation
 from ..core.simulation import Simulation
@@ -111,18 +112,30 @@ def summarise(run: Rollout, wall: float, dt: float, body_names: Sequence[str] | 
 
 def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None = None, steps: int | None = None,
                  snapshot_steps: Sequence[int] = tr.A_SNAPSHOTS, progress: bool = True,
-                 prefix: str = "experiment_a", trajectory: str = "experiment_a") -> ExperimentResult:
+                 prefix: str = "experiment_a", trajectory: str = "experiment_a",
+                 settle: int = 0) -> ExperimentResult:
     """Run experiment a and write ``{prefix}_snapshots.png``, ``{prefix}_energy.png``, ``{prefix}_energy.csv``.
 
     ``trajectory``: a preset or a trajectory file (:func:`~tissue_sim_ros.core.trajectories.resolve_trajectory`);
     ``steps``: experiment a's insertion of that many steps (default 300), or the first ``steps`` of another
     trajectory (default: all of it). ``{prefix}_trajectory.csv`` records the poses run.
+    ``settle``: steps under gravity alone (no tool) before the run, not recorded: the run starts from the
+    settled state (velocities kept) at step 0, as the authors' recording started after their tissue had
+    hung for a while (29 steps: README "Reproducing the authors' run").
     """
     from ..render import plot_energy, save_snapshots  # noqa: PLC0415  (matplotlib only when drawing)
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     sim = build_simulation(params)
+    if isinstance(settle, bool) or not isinstance(settle, int) or settle < 0:
+        raise InputError(f"--settle {settle!r}: expected a number of steps >= 0")
+    if settle:
+        for _ in range(settle):
+            sim.step()
+        settled = sim.state.copy()
+        sim.reset()
+        sim.set_state(settled)
     if trajectory == "experiment_a":
         traj = tr.experiment_a(sim.tool, sim.params.dt, steps=tr.A_STEPS if steps is None else steps)
     else:
@@ -137,6 +150,8 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None =
     res.summary["method"] = f"{sim.params.method} ({sim.params.scheme}, {sim.params.iterations} iterations)"
     res.summary["particles"] = sim.model.n_particles
     res.summary["trajectory"] = trajectory
+    if settle:
+        res.summary["settled under gravity first [steps]"] = settle
     shots = [(s, run.snapshots[s], _pose_at_step(run, s)) for s in snaps if s in run.snapshots]
     what = ("the tool approaches the bottom tissue" if trajectory == "experiment_a"
             else f"trajectory {Path(trajectory).name}")
