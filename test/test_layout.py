@@ -23,3 +23,11 @@ def test_importing_every_core_module_loads_no_ros():
             + f"print(sorted(m for m in sys.modules if m.split('.')[0] in {ROS_MODULES!r}))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_ros_layer_imports_no_experiments():
+    # the tool driver and replay read trajectories from the core (core/trajectories.py), never the experiments
+    ros = CORE.parent / "ros"
+    pattern = re.compile(r"^\s*(import|from)\s+(tissue_sim_ros\.experiments|\.\.experiments)\b", re.MULTILINE)
+    offenders = [p.name for p in ros.glob("*.py") if pattern.search(p.read_text())]
+    assert not offenders, f"ros modules importing the experiments: {offenders}"
