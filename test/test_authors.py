@@ -379,3 +379,16 @@ def test_replay_of_a_trajectory_equals_the_offline_rollout(tmp_path):
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(pytest.main([__file__, "-q"]))
+
+
+def test_tool_driver_trajectory_parameter(tmp_path):
+    pytest.importorskip("rclpy")
+    from tissue_sim_ros.ros.tool_driver import DRIVER_PARAMETERS, _trajectory
+
+    values = {name: default for name, (default, _) in DRIVER_PARAMETERS.items()}
+    assert _trajectory({**values, "trajectory": "authors"}).n_steps(values["dt"]) == 276
+    path = tr.write_trajectory_csv(tmp_path / "t.csv", tr.preset("experiment_b_steep", ToolShape(), 0.01), 0.01)
+    assert _trajectory({**values, "trajectory": str(path)}).n_steps(0.01) == \
+        tr.preset("experiment_b_steep", ToolShape(), 0.01).n_steps(0.01)
+    with pytest.raises(InputError, match="parameter trajectory: trajectory 'nope'"):
+        _trajectory({**values, "trajectory": "nope"})
