@@ -13,6 +13,7 @@ One step (the paper's Algorithm 1, with Macklin's multipliers for XPBD)::
         (held particles: the fraction (s+1)/substeps of their way from x_t to x*)
         `iterations` sweeps: edges, triangles, tool (projection contact), walls
         v = (x - x_start) / h; boundary lines clamp and stop particles
+    residual = RMS(C / rest size)
 
 damp = max(0, 1 - c h) (``damping_mode: linear``) or exp(-c h) (``exponential``,
 the authors' v *= exp(-8 dt)), c = ``damping``. Walls (``wall_y_bottom/top``)
@@ -20,7 +21,6 @@ put every particle that crossed them back on them (:func:`~tissue_sim_ros.core.v
 PBD Jacobi averages each particle's corrections over its violated constraints
 per type (``jacobi_averaging: violated``, the authors' code,
 :mod:`~tissue_sim_ros.core.violated_jacobi`) or over all of them (``all``).
-    residual = RMS(C / rest size)
 
 Orders. Serial Gauss-Seidel gives the result of sweeping the constraints in
 mesh order, as the paper does (executed in a wavefront schedule that changes
