@@ -567,3 +567,118 @@ def gather_surface_edges(edges, sel, inv_mass, cand):
             if inv_mass[p] > 0 and p not in out:
                 out.append(p)
     return edges[sel], np.array(out, dtype=np.int64)
+
+
+# ----------------------------------------------------------------------------- the paper authors' forward()
+#
+# Written from y8han/2DPBD_Interface, Surgical_spring_IROS_workshop.py (commit a0ff238), function by
+# function (old_posi, substep, Position_update, collision_check, star_posi, find_constraint,
+# find_area_constraint, stretch_constraint, area_constraint, apply_position_deltas,
+# updata_velosity), in float64 instead of their float32, for the twin tests of
+# tissue_sim_ros.core.violated_jacobi and the solver's walls, pins and exponential damping.
+
+#: Their mass of a pinned ("actuation type -1") particle [kg] (and of every other: 1e-4 kg).
+AUTHORS_PINNED_MASS = 1e8
+
+
+def apply_walls(x, y_bottom, y_top):
+    """Their collision_check on positions: y < bottom -> bottom, y > top -> top (NaN = no wall), every particle."""
+    x = x.copy()
+    for i in range(len(x)):
+        if not math.isnan(y_bottom) and x[i, 1] < y_bottom:
+            x[i, 1] = y_bottom
+        if not math.isnan(y_top) and x[i, 1] > y_top:
+            x[i, 1] = y_top
+    return x
+
+
+def authors_setup(vertices, triangles, pinned, mass=1e-4):
+    """What their main() builds: the rest-length matrix (every triangle's 3 pairs), |rest area| per triangle,
+    masses (pinned: 1e8) and actuation types (1 free, -1 pinned)."""
+    n = len(vertices)
+    rest_length = np.zeros((n, n))
+    for tri in triangles:
+        for a in range(3):
+            for b in range(a + 1, 3):
+                i, j = int(tri[a]), int(tri[b])
+                d = float(np.linalg.norm(vertices[i] - vertices[j]))
+                rest_length[i, j] = d
+                rest_length[j, i] = d
+    rest_area = []
+    for p1, p2, p3 in (vertices[list(t)] for t in triangles):
+        rest_area.append(0.5 * abs((p1[0] - p2[0]) * (p1[1] - p3[1]) - (p1[1] - p2[1]) * (p1[0] - p3[0])))
+    masses = np.where(pinned, AUTHORS_PINNED_MASS, mass)
+    actuation = np.where(pinned, -1, 1)
+    return rest_length, np.array(rest_area), masses, actuation
+
+
+def authors_forward(x, v, rest_length, triangles, rest_area, masses, actuation, *, stiffness, damping, dt,
+                    gravity, iterations, wall_bottom, wall_top, epsilon=1e-4, area_epsilon=1e-11, delta=None):
+    """One call of their forward(n, number_triangles); returns (x, v, star_x) as new arrays."""
+    n = len(x)
+    x = np.array(x, dtype=np.float64)
+    v = np.array(v, dtype=np.float64)
+    delta = np.zeros((n, 2)) if delta is None else delta
+    old_x = x.copy()                                                    # old_posi
+    for i in range(n):                                                  # substep
+        if actuation[i] == 1:
+            v[i] *= math.exp(-dt * damping)
+            v[i] += dt * np.array([0.0, gravity])
+        if actuation[i] == 2:
+            x[i] += delta[i]
+    for i in range(n):                                                  # Position_update
+        if actuation[i] == 1:
+            x[i] += v[i] * dt
+    x = apply_walls(x, wall_bottom, wall_top)                           # collision_check
+    star_x = x.copy()                                                   # star_posi
+    neighbours_all = [[j for j in range(n) if rest_length[i, j] != 0] for i in range(n)]
+    for _ in range(iterations):
+        # find_constraint: the springs of i that are off by at least epsilon
+        neighbours = [[j for j in neighbours_all[i]
+                       if abs(np.linalg.norm(x[i] - x[j]) - rest_length[i, j]) >= epsilon] for i in range(n)]
+        # find_area_constraint: violated triangles keep their signed area, and count at their corners
+        count = np.zeros(n, dtype=np.int64)
+        violated = np.zeros(len(triangles))
+        for t, (i1, i2, i3) in enumerate(triangles):
+            p1, p2, p3 = x[i1], x[i2], x[i3]
+            area = 0.5 * ((p1[0] - p2[0]) * (p1[1] - p3[1]) - (p1[1] - p2[1]) * (p1[0] - p3[0]))
+            if abs(abs(area) - rest_area[t]) > area_epsilon:
+                violated[t] = area
+                count[i1] += 1
+                count[i2] += 1
+                count[i3] += 1
+        # stretch_constraint: the average over i's violated springs
+        delta_tmp = np.zeros((n, 2))
+        for i in range(n):
+            posi = np.zeros(2)
+            wi = 1.0 / masses[i]
+            for j in neighbours[i]:
+                x_ij = x[i] - x[j]
+                dist_diff = np.linalg.norm(x_ij) - rest_length[i, j]
+                grad = x_ij / np.linalg.norm(x_ij)
+                wj = 1.0 / masses[j]
+                posi += -stiffness * wi * (1.0 / (wi + wj)) * dist_diff * grad / len(neighbours[i])
+            delta_tmp[i] = posi
+        # area_constraint: grad |A| (the sign branch of their code), full correction over the corner's count
+        for t, (i1, i2, i3) in enumerate(triangles):
+            if violated[t] == 0.0:
+                continue
+            diff = abs(violated[t]) - rest_area[t]
+            (p10, p11), (p20, p21), (p30, p31) = x[i1], x[i2], x[i3]
+            if violated[t] < 0:
+                g = [np.array([p31 / 2 - p21 / 2, p20 / 2 - p30 / 2]), np.array([p11 / 2 - p31 / 2, p30 / 2 - p10 / 2]),
+                     np.array([p21 / 2 - p11 / 2, p10 / 2 - p20 / 2])]
+            else:
+                g = [np.array([p21 / 2 - p31 / 2, p30 / 2 - p20 / 2]), np.array([p31 / 2 - p11 / 2, p10 / 2 - p30 / 2]),
+                     np.array([p11 / 2 - p21 / 2, p20 / 2 - p10 / 2])]
+            idx = (i1, i2, i3)
+            w = [1.0 / masses[p] for p in idx]
+            lam = diff / sum(w[k] * float(g[k] @ g[k]) for k in range(3))
+            for k in range(3):
+                delta_tmp[idx[k]] += -lam * w[k] * g[k] / count[idx[k]]
+        for i in range(n):                                              # apply_position_deltas
+            if actuation[i] == 1:
+                x[i] += delta_tmp[i]
+        x = apply_walls(x, wall_bottom, wall_top)                       # collision_check
+    v = (x - old_x) / dt                                                # updata_velosity
+    return x, v, star_x

@@ -14,7 +14,8 @@ from tissue_sim_ros.core.model import Model, SimParams, State
 from tissue_sim_ros.core.solvers import Solver
 
 
-@pytest.mark.parametrize("params", [dict(method="pbd", scheme="jacobi"), dict(method="xpbd", scheme="jacobi"),
+@pytest.mark.parametrize("params", [dict(method="pbd", scheme="jacobi", jacobi_averaging="all"),
+                                    dict(method="xpbd", scheme="jacobi"),
                                     dict(method="xpbd", scheme="jacobi", area_mode="abs", substeps=3, iterations=5,
                                          damping=2.0, boundary_y_bottom=0.02, boundary_y_top=0.18)])
 def test_numpy_baseline_matches_the_numba_jacobi_solver(params: dict) -> None:

@@ -47,3 +47,11 @@ def test_every_command_module_is_in_the_cli_layer():
     modules = [m for entry in COMMANDS.values() for m, _ in (entry.values() if isinstance(entry, dict) else [entry])]
     in_ros = [m for m in modules if m.startswith("tissue_sim_ros.ros.") or m.startswith("tissue_sim_ros.core.")]
     assert not in_ros, f"commands whose argparse lives in the library layers: {in_ros}"
+
+
+def test_ros_layer_imports_no_experiments():
+    # the tool driver and replay read trajectories from the core (core/trajectories.py), never the experiments
+    ros = CORE.parent / "ros"
+    pattern = re.compile(r"^\s*(import|from)\s+(tissue_sim_ros\.experiments|\.\.experiments)\b", re.MULTILINE)
+    offenders = [p.name for p in ros.glob("*.py") if pattern.search(p.read_text())]
+    assert not offenders, f"ros modules importing the experiments: {offenders}"

@@ -47,6 +47,7 @@ def test_wheel_carries_config_and_entry_points(tmp_path):
         entry_points = zf.read(next(n for n in names if n.endswith("entry_points.txt"))).decode()
     assert "tissue_sim_ros/config/tissue_sim.yaml" in names
     assert "tissue_sim_ros/config/tissue.png" in names
+    assert "tissue_sim_ros/config/scenes/authors.yaml" in names
     assert any(n.endswith("share/tissue_sim_ros/package.xml") for n in names)
     for script in ("tissue-sim", "tissue_sim_node", "tool_driver"):
         assert script in entry_points

@@ -307,7 +307,7 @@ def test_tool_already_deep_inside_is_not_snapped_out():
 def test_experiment_a_projection_pushes_the_lower_tissue():
     """The paper's experiment a with projection contact: the tip indents the lower tissue and never enters it."""
     from tissue_sim_ros.core.scene import build_simulation
-    from tissue_sim_ros.experiments.trajectories import experiment_a
+    from tissue_sim_ros.core.trajectories import experiment_a
 
     sim = build_simulation({"contact_model": "projection"})
     assert sim.params.contact_surface == "edges"

@@ -13,7 +13,7 @@ from .core.mesh import (
     MESH_SUFFIXES,
     Grading,
     TissueMesh,
-    load_mesh,
+    load_meshes,
     mesh_from_mask,
     mesh_quality,
     read_image,
@@ -29,7 +29,11 @@ Prints minimum/mean angle, the share of triangles with all angles >= 20 degrees,
 area and its error against the tissue's pixel area, per body and in total.
 
 IMAGE may also be a mesh file (.npz, Triangle .node/.ele/.poly, Gmsh .msh 2.2/4.1):
-it is loaded and reported. Without IMAGE the shipped default image is meshed.
+it is loaded and reported. Several mesh files make one scene: their vertices
+and triangles in the order given, each body named after its file (Bottom.1.node
+-> "Bottom"; a file of several bodies -> "name[0]", "name[1]", ...); the names
+are saved in the .npz and label every plot and summary. Without IMAGE the
+shipped default image is meshed (its regions named by position).
 
 World frame: the image's bottom-left corner is at --origin; x = ox + col*scale,
 y = oy + (H - row)*scale (rows point down, world y up).
@@ -38,6 +42,7 @@ examples:
   tissue-sim mesh --out mesh.npz --png mesh.png
   tissue-sim mesh tissue.jpg --spacing 0.02 --scale 0.001 --color 150,135,225
   tissue-sim mesh --grade 0.5 0.62 0.05 0.015 --png graded.png
+  tissue-sim mesh Bottom.1.node Upper.1.node --out scene.npz --png scene.png
 """
 
 #: quality targets of the issue: >= 99 % of triangles with min angle >= 20 deg, none below 10, area within 2 %
@@ -47,8 +52,9 @@ TARGET_AREA_ERROR = 0.02
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("image", nargs="?", default=None,
-                        help="tissue image (PNG/JPEG/BMP) or mesh file; default: the shipped tissue.png")
+    parser.add_argument("image", nargs="*", default=[],
+                        help="tissue image (PNG/JPEG/BMP), or one or more mesh files combined into one scene; "
+                             "default: the shipped tissue.png")
     parser.add_argument("--spacing", type=float, default=0.05, metavar="M", help="target edge length [m] (default 0.05)")
     parser.add_argument("--scale", type=float, default=0.002, metavar="M_PER_PX",
                         help="metres per pixel (default 0.002: a 500 px image is 1 m)")
@@ -84,7 +90,13 @@ def _parse_color(text: str | None) -> tuple[int, int, int] | None:
 def run(args: argparse.Namespace) -> int:
     from .resources import DEFAULT_IMAGE, config_path  # noqa: PLC0415
 
-    source = Path(args.image) if args.image else config_path(DEFAULT_IMAGE)
+    sources = [Path(p) for p in args.image] if args.image else [config_path(DEFAULT_IMAGE)]
+    source = sources[0]
+    if len(sources) > 1:
+        not_mesh = [str(p) for p in sources if p.suffix.lower() not in MESH_SUFFIXES]
+        if not_mesh:
+            raise InputError(f"{not_mesh[0]!r}: several inputs must all be mesh files "
+                             f"({', '.join(MESH_SUFFIXES)}); mesh an image on its own")
     for name in ("spacing", "scale"):
         v = getattr(args, name)
         if not np.isfinite(v) or v <= 0:
@@ -92,8 +104,8 @@ def run(args: argparse.Namespace) -> int:
     image, pixel_area, grading = None, None, None
     t0 = time.perf_counter()
     if source.suffix.lower() in MESH_SUFFIXES:
-        mesh = load_mesh(source)
-        what = f"mesh file {source}"
+        mesh = load_meshes(sources)
+        what = f"mesh file{'s' if len(sources) > 1 else ''} {', '.join(str(p) for p in sources)}"
     else:
         color = _parse_color(args.color)
         grading = Grading(*args.grade) if args.grade is not None else None
@@ -142,6 +154,8 @@ def format_quality(q: dict) -> str:
 
     rows += [row(str(b["body"]), b, float("nan")) for b in q["bodies"]]
     rows.append(row("all", q, q["area_error"]))
+    if any("name" in b for b in q["bodies"]):
+        rows.append("bodies: " + ", ".join(f"{b['body']} = {b['name']}" for b in q["bodies"] if "name" in b))
     return "\n".join(rows)
 
 
@@ -164,6 +178,8 @@ def draw_mesh(mesh: TissueMesh, path: Path, *, image: np.ndarray | None = None, 
     tb = mesh.tri_body
     face = [colours[b % len(colours)] for b in tb]
     ax.add_collection(PolyCollection(mesh.vertices[mesh.triangles], facecolors=face, alpha=0.18, zorder=1))
+    for b, name in enumerate(mesh.names):
+        ax.fill([], [], color=colours[b % len(colours)], alpha=0.35, label=f"body {b}: {name}")
     ax.add_collection(PolyCollection(mesh.vertices[mesh.triangles], facecolors="none", edgecolors="#263238",
                                      linewidths=0.45, zorder=1))
     bv = mesh.vertices[mesh.boundary]

@@ -1,4 +1,4 @@
-"""``tissue-sim replay``: run the simulation offline on a bag's tool trajectory.
+"""``tissue-sim replay``: run the simulation offline on a bag's tool trajectory (or a trajectory as data).
 
 Reads the tool trajectory from a bag (:func:`~tissue_sim_ros.ros.bags.read_tool_track`),
 steps :class:`~tissue_sim_ros.core.simulation.Simulation` as fast as the
@@ -20,6 +20,11 @@ Two modes, chosen with ``--mode``:
     steps at the simulation rate 1/dt over the bag's time span, the pose
     linearly interpolated (yaw the short way round) at each step's time.
 
+Instead of a bag, ``--trajectory PRESET|FILE`` replays a trajectory given as
+data (:mod:`tissue_sim_ros.core.trajectories`: a preset such as ``authors``, or
+a CSV of time,x,y,yaw or a YAML file): its per-step poses and twists are the
+samples, one step each, at t = k dt.
+
 Messages with repeated or out-of-order times, non-finite poses or invalid
 quaternions are skipped, counted and reported (``--strict``: an error).
 No ROS graph and no rclpy: this runs anywhere the core runs.
@@ -37,15 +42,19 @@ from .core.errors import InputError
 from .core.simulation import Simulation
 from .core.stamps import ns_from_seconds
 from .core.tool import ToolPose
+from .core.trajectories import resolve_trajectory
 from .ros.bags import BagWriter, ToolTrack, read_tool_track
-from .ros.replay import MODES, ReplayBagSink, ReplayResult, replay, write_outputs
+from .ros.replay import MODES, ReplayBagSink, ReplayResult, replay, track_from_trajectory, write_outputs
 
 HELP = "run the simulation offline on a bag's tool trajectory; write a bag, CSV, plots, frames"
 DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("bag", help="input bag: a rosbag2 directory, or a .mcap/.db3 file")
+    parser.add_argument("bag", nargs="?", default=None, help="input bag: a rosbag2 directory, or a .mcap/.db3 file")
+    parser.add_argument("--trajectory", default=None, metavar="PRESET|FILE",
+                        help="replay a trajectory instead of a bag: a preset (experiment_a, experiment_b_shallow, "
+                             "experiment_b_steep, authors) or a .csv (time,x,y,yaw) / .yaml trajectory file")
     parser.add_argument("--out", required=True, help="output directory (created; must not hold a replay already)")
     parser.add_argument("--tool-topic", default=None,
                         help="topic of the tool pose (PoseStamped, Pose, TransformStamped, TFMessage, "
@@ -93,13 +102,20 @@ def run(args: argparse.Namespace) -> int:
     if bag_out.exists():
         raise InputError(f"{str(bag_out)!r} exists already: choose another --out (nothing is overwritten)")
 
-    track = read_tool_track(args.bag, topic=args.tool_topic, frame=args.frame, twist_topic=args.twist_topic,
-                            time_source=args.time_source, on_bad_time="error" if args.strict else "skip")
-    print(track.summary())
-    if sum(track.skipped.values()):
-        print(f"note: {sum(track.skipped.values())} of {track.n_messages} tool samples skipped "
-              f"({', '.join(f'{k}: {v}' for k, v in track.skipped.items() if v)}); --strict makes this an error")
+    if (args.bag is None) == (args.trajectory is None):
+        raise InputError("replay needs a bag or --trajectory PRESET|FILE: expected exactly one of them")
     cfg = config_from_args(args)
+    if args.trajectory is not None:
+        dt = cfg.sim.dt
+        track = track_from_trajectory(resolve_trajectory(args.trajectory, cfg.tool, dt), dt, args.trajectory)
+        print(f"trajectory {args.trajectory}: {track.n} steps of {dt} s")
+    else:
+        track = read_tool_track(args.bag, topic=args.tool_topic, frame=args.frame, twist_topic=args.twist_topic,
+                                time_source=args.time_source, on_bad_time="error" if args.strict else "skip")
+        print(track.summary())
+        if sum(track.skipped.values()):
+            print(f"note: {sum(track.skipped.values())} of {track.n_messages} tool samples skipped "
+                  f"({', '.join(f'{k}: {v}' for k, v in track.skipped.items() if v)}); --strict makes this an error")
     sim = Simulation.from_config(cfg)
     # Load the compiled kernels (numba cache, python-fcl) on a throwaway copy of the scene, so the
     # replay's speed is the stepping speed; the replayed simulation itself starts untouched.
@@ -120,7 +136,9 @@ def run(args: argparse.Namespace) -> int:
         import json  # noqa: PLC0415
 
         # what made this bag, so it can be reproduced from the bag alone
-        writer.set_custom_data("tissue_sim.source_bag", str(args.bag))
+        writer.set_custom_data("tissue_sim.source_bag", str(args.bag) if args.bag else "")
+        if args.trajectory:
+            writer.set_custom_data("tissue_sim.trajectory", str(args.trajectory))
         writer.set_custom_data("tissue_sim.mode", args.mode)
         writer.set_custom_data("tissue_sim.tool_topic", track.topic + (f" frame {track.child_frame}"
                                                                         if track.child_frame else ""))
@@ -135,7 +153,8 @@ def run(args: argparse.Namespace) -> int:
     if writer is not None:
         writer.close()
     print(result.speed_line())
-    write_outputs(out, sim, result, video=args.video, title=f"replay of {Path(args.bag).name} ({args.mode})")
+    source = Path(args.bag).name if args.bag else f"trajectory {Path(args.trajectory).name}"
+    write_outputs(out, sim, result, video=args.video, title=f"replay of {source} ({args.mode})")
     _write_summary(out / "replay.json", args, track, sim, result)
     print(f"wrote {out}/energy.csv, energy.png, replay.json, frames/ ({len(result.rollout.snapshots)} PNG)"
           + (", replay_bag/" if writer is not None else "") + (", replay.mp4" if args.video else ""))
@@ -149,12 +168,13 @@ def _write_summary(path: Path, args: argparse.Namespace, track: ToolTrack, sim: 
 
     ro = result.rollout
     summary = {
-        "bag": str(args.bag), "mode": args.mode, "params": args.params,
+        "bag": str(args.bag) if args.bag else None, "trajectory": args.trajectory, "mode": args.mode,
+        "params": args.params,
         "tool_topic": track.topic, "tool_type": track.msgtype, "child_frame": track.child_frame,
         "twist_topic": track.twist_topic, "time_source": track.time_source,
         "samples": track.n, "samples_read": track.n_messages, "skipped": track.skipped,
         "track_duration_s": track.duration,
-        "particles": sim.model.n_particles, "triangles": sim.model.n_triangles, "dt": sim.params.dt,
+        "bodies": list(sim.model.body_names), "particles": sim.model.n_particles, "triangles": sim.model.n_triangles, "dt": sim.params.dt,
         "steps": result.n_steps, "simulated_s": result.sim_time, "wall_s": result.wall_time,
         "steps_per_s": result.steps_per_second, "real_time_factor": result.real_time_factor,
         "real_time_factor_median_step": result.median_real_time_factor,

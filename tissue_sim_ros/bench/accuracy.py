@@ -142,13 +142,13 @@ EXPERIMENT_A_FIRST_STEP = 175
 
 def experiment_a_poses(tool: ToolShape, dt: float, n_steps: int, first_step: int = EXPERIMENT_A_FIRST_STEP,
                        dt_ref: float = 0.01) -> tuple[list[ToolPose], tuple[float, float]]:
-    """Experiment a's tool poses (:func:`~tissue_sim_ros.experiments.trajectories.experiment_a`) over a window.
+    """Experiment a's tool poses (:func:`~tissue_sim_ros.core.trajectories.experiment_a`) over a window.
 
     The trajectory is defined at ``dt_ref`` (0.001 m per step); at another dt the same motion in time
     is used (speed per step and step indices scaled by dt / dt_ref). Returns n_steps + 1 poses (the pose
     before the window's first step, then one per step) and the tool tip at the end [m].
     """
-    from ..experiments.trajectories import A_SPEED, A_STEPS, experiment_a  # noqa: PLC0415
+    from ..core.trajectories import A_SPEED, A_STEPS, experiment_a  # noqa: PLC0415
 
     scale = dt / dt_ref
     traj = experiment_a(tool, dt, speed=A_SPEED * scale, steps=int(round(A_STEPS / scale)))

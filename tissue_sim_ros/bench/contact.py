@@ -50,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _scenes(kind: str, quick: bool = False) -> list[tuple[str, Simulation, StraightInsertion]]:
     from ..core.scene import build_simulation  # noqa: PLC0415
-    from ..experiments.trajectories import experiment_a  # noqa: PLC0415
+    from ..core.trajectories import experiment_a  # noqa: PLC0415
 
     sim = build_simulation({"contact_model": kind})
     scenes = [("paper scene", sim, experiment_a(sim.tool, sim.params.dt))]

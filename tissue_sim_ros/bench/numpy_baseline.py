@@ -5,7 +5,9 @@ The same step as :class:`~tissue_sim_ros.core.solvers.Solver` with
 velocity update, boundary lines), written the way one would in plain NumPy:
 every sweep gathers all constraints' particles, computes all corrections at
 once and scatters them with ``np.bincount``. PBD averages each particle's
-summed correction by its constraint count; XPBD relaxes each constraint by the
+summed correction by its constraint count (``jacobi_averaging: all``; the
+authors' averaging over violated constraints, walls and exponential damping
+are not written here and are refused); XPBD relaxes each constraint by the
 same stiffness-aware omega as the numba solver. It agrees with the numba
 Jacobi solver to round-off (``test/test_bench_solver.py``), so the ratio of
 their times is a like-for-like speed-up. Projection contact is not supported.
@@ -36,6 +38,12 @@ class NumpyJacobiSolver:
     def __init__(self, model: Model) -> None:
         self.model = model
         self.params = p = model.params
+        if p.method == "pbd" and p.jacobi_averaging != "all":
+            raise InputError("the NumPy Jacobi baseline averages PBD over all constraints: expected "
+                             f"jacobi_averaging all, got {p.jacobi_averaging!r}")
+        if p.damping_mode != "linear" or not (math.isnan(p.wall_y_bottom) and math.isnan(p.wall_y_top)):
+            raise InputError("the NumPy Jacobi baseline has linear damping and no walls: expected damping_mode "
+                             "linear and wall_y_bottom/top NaN")
         n = model.n_particles
         self.e = np.asarray(model.edge_indices, dtype=np.int64)
         self.t = np.asarray(model.tri_indices, dtype=np.int64)

@@ -129,7 +129,7 @@ def _threads(solver: Any) -> int:
 
 def paper_scene_rows(methods: list[Method], iterations: int, steps: int, progress) -> list[dict[str, Any]]:
     """Experiment a on the default scene: solve and contact cost over the steps in contact."""
-    from ..experiments.trajectories import experiment_a  # noqa: PLC0415
+    from ..core.trajectories import experiment_a  # noqa: PLC0415
 
     rows = []
     for method in methods:

@@ -40,8 +40,17 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import yaml
 
 from .errors import InputError
-from .mesh import MAX_PARTICLES, TissueMesh, load_mesh
-from .model import AREA_MODES, CONTACT_MODELS, CONTACT_SURFACES, METHODS, SCHEMES, SimParams
+from .mesh import MAX_PARTICLES, TissueMesh, load_meshes
+from .model import (
+    AREA_MODES,
+    CONTACT_MODELS,
+    CONTACT_SURFACES,
+    DAMPING_MODES,
+    JACOBI_AVERAGINGS,
+    METHODS,
+    SCHEMES,
+    SimParams,
+)
 from .tool import TOOL_SHAPES, ToolShape
 
 #: The section of a ROS 2 parameter file that holds the node's parameters.
@@ -82,14 +91,24 @@ def _frame(v: Any) -> str | None:
     return None if _FRAME_RE.match(v) and not v.startswith("/") else "a frame name like 'world' (letters, digits, _, /; no leading /)"
 
 
+def mesh_file_value(value: Any) -> str | tuple[str, ...]:
+    """``mesh_file`` as given: one path (str), or several (a list or tuple of paths) as a tuple."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, (list, tuple)) and value and all(isinstance(v, str) and v for v in value):
+        return value[0] if len(value) == 1 else tuple(value)
+    raise InputError(f"parameter mesh_file={value!r}: expected a mesh file path or a list of paths")
+
+
 @dataclass(frozen=True)
 class SceneConfig:
     """Where the mesh comes from and how image pixels map to metres (the ``scene`` group)."""
 
     image: str = ""
     """Tissue image (PNG/JPEG/BMP); empty = the shipped default image."""
-    mesh_file: str = ""
-    """A mesh file (.npz, Triangle .node, Gmsh .msh); overrides ``image`` when set."""
+    mesh_file: str | tuple[str, ...] = ""
+    """A mesh file (.npz, Triangle .node, Gmsh .msh), or a list of them combined into one scene (each body
+    named after its file, :func:`~tissue_sim_ros.core.mesh.load_meshes`); overrides ``image`` when set."""
     spacing: float = 0.05
     """Target edge length of the mesh [m]."""
     scale: float = 0.002
@@ -104,6 +123,7 @@ class SceneConfig:
     """Largest mesh meshing an image may make; a larger estimate (area and spacing) is refused before meshing."""
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "mesh_file", mesh_file_value(self.mesh_file))
         for k in ("spacing", "scale"):
             v = getattr(self, k)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
@@ -125,7 +145,7 @@ class SceneConfig:
     def build_mesh(self) -> TissueMesh:
         """Load the mesh file, or mesh the image (the default image when none is given)."""
         if self.mesh_file:
-            return load_mesh(self.mesh_file)
+            return load_meshes(self.mesh_file)
         from ..resources import DEFAULT_IMAGE, config_path  # noqa: PLC0415
         from .mesh import mesh_from_image  # noqa: PLC0415
 
@@ -163,7 +183,7 @@ _TOOL = ToolShape()
 PARAMETERS: tuple[ParamSpec, ...] = (
     # scene: where the mesh comes from (read-only: a new mesh is a new scene)
     ParamSpec("image", str, _SCENE.image, "path", "Tissue image (PNG/JPEG/BMP) meshed at start; empty = the shipped config/tissue.png.", True, "scene"),
-    ParamSpec("mesh_file", str, _SCENE.mesh_file, "path", "Mesh file (.npz from `tissue-sim mesh`); overrides image when set.", True, "scene"),
+    ParamSpec("mesh_file", str, _SCENE.mesh_file, "path", "Mesh file (.npz from `tissue-sim mesh`, Triangle .node/.ele, Gmsh .msh), or a list of them made one scene (each body named after its file); overrides image when set.", True, "scene"),
     ParamSpec("spacing", float, _SCENE.spacing, "m", "Target edge length when meshing the image.", True, "scene"),
     ParamSpec("scale", float, _SCENE.scale, "m/px", "Image scale: metres per pixel.", True, "scene"),
     ParamSpec("origin_x", float, _SCENE.origin_x, "m", "World x of the image's left edge.", True, "scene"),
@@ -172,18 +192,26 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("max_particles", int, _SCENE.max_particles, "", "Largest mesh an image may be meshed into: a spacing whose estimated vertex count (2 A / (sqrt(3) spacing^2) over the tissue area A) exceeds it is refused before meshing.", True, "scene"),
     ParamSpec("boundary_y_top", float, _SIM.boundary_y_top, "m", "Particles at or above this y are pinned (the paper's upper line); NaN = none.", True, "scene"),
     ParamSpec("boundary_y_bottom", float, _SIM.boundary_y_bottom, "m", "Particles at or below this y are pinned (the paper's lower line); NaN = none.", True, "scene"),
+    ParamSpec("pin_y_top", float, _SIM.pin_y_top, "m", "Particles whose rest y is at or above this are pinned (no wall); NaN = none.", True, "scene"),
+    ParamSpec("pin_y_bottom", float, _SIM.pin_y_bottom, "m", "Particles whose rest y is at or below this are pinned (no wall); NaN = none.", True, "scene"),
+    ParamSpec("wall_y_top", float, _SIM.wall_y_top, "m", "Wall: every particle (pinned too) above this y is put on it after the prediction and after every solver iteration (the authors' 0.9768); NaN = none.", True, "scene"),
+    ParamSpec("wall_y_bottom", float, _SIM.wall_y_bottom, "m", "Wall: every particle below this y is put on it, as wall_y_top (the authors' 0.0232); NaN = none.", True, "scene"),
     # physics (Table I)
     ParamSpec("mass", float, _SIM.mass, "kg", "Mass of each particle (Table I: 1e-4).", True, "physics"),
     ParamSpec("mass_per_area", float, _SIM.mass_per_area, "kg/m^2", "Areal density: > 0 lumps a third of each triangle's area times it on its corners (refined or graded meshes keep the same tissue); 0 = every particle has mass (the paper).", True, "physics"),
     ParamSpec("gravity", float, _SIM.gravity, "m/s^2", "Gravity along world y (Table I: -9.8).", False, "physics"),
     ParamSpec("dt", float, _SIM.dt, "s", "Time step; the node steps at 1/dt of its clock (Table I: 0.01).", True, "physics"),
-    ParamSpec("damping", float, _SIM.damping, "1/s", "Velocity damping rate; 0 = off (paper).", False, "physics"),
+    ParamSpec("damping", float, _SIM.damping, "1/s", "Velocity damping rate c, applied before each prediction (damping_mode); 0 = off (paper; the authors' code: 8).", False, "physics"),
+    ParamSpec("damping_mode", str, _SIM.damping_mode, "", f"Damping per (sub)step h: linear v *= max(0, 1 - c h), or exponential v *= exp(-c h) (the authors'); one of {', '.join(DAMPING_MODES)}.", False, "physics"),
     # solver
     ParamSpec("method", str, _SIM.method, "", f"Solver: {', '.join(METHODS)} or an alias ({', '.join(METHOD_ALIASES)}).", False, "solver"),
     ParamSpec("scheme", str, _SIM.scheme, "", f"Constraint order: {', '.join(SCHEMES)}.", False, "solver"),
     ParamSpec("iterations", int, _SIM.iterations, "", "Solver iterations per (sub)step (Table I: 30).", False, "solver"),
     ParamSpec("substeps", int, _SIM.substeps, "", "Substeps per step.", False, "solver"),
     ParamSpec("relaxation", float, _SIM.relaxation, "", "Jacobi relaxation factor in (0, 1].", False, "solver"),
+    ParamSpec("jacobi_averaging", str, _SIM.jacobi_averaging, "", f"PBD Jacobi: violated (the authors': spring and area corrections each averaged over the particle's violated constraints of that type, then added) or all (divided by all its constraints); one of {', '.join(JACOBI_AVERAGINGS)}.", False, "solver"),
+    ParamSpec("jacobi_spring_tolerance", float, _SIM.jacobi_spring_tolerance, "m", "PBD Jacobi violated: a spring counts when ||x_i - x_j| - d0| >= this (the authors' 1e-4).", False, "solver"),
+    ParamSpec("jacobi_area_tolerance", float, _SIM.jacobi_area_tolerance, "m^2", "PBD Jacobi violated: a triangle counts when its area error exceeds this (the authors' 1e-11).", False, "solver"),
     ParamSpec("k_spring", float, _SIM.k_spring, "", "PBD distance stiffness coefficient in [0, 1] (Table I: 0.15).", False, "solver"),
     ParamSpec("k_area", float, _SIM.k_area, "", "PBD area stiffness coefficient in [0, 1] (Table I: 1).", False, "solver"),
     ParamSpec("stiffness_spring", float, _SIM.stiffness_spring, "N/m", "XPBD distance stiffness (method xpbd).", False, "solver"),
@@ -340,6 +368,8 @@ def _type_name(kind: type) -> str:
 def coerce(spec: ParamSpec, value: Any) -> Any:
     """The value as the parameter's type (an int for a float is accepted) and its range check, or InputError."""
     kind = spec.kind
+    if spec.name == "mesh_file" and isinstance(value, (list, tuple)):
+        return mesh_file_value(value)  # several mesh files: one scene
     ok = (isinstance(value, bool) if kind is bool else
           isinstance(value, int) and not isinstance(value, bool) if kind is int else
           isinstance(value, (int, float)) and not isinstance(value, bool) if kind is float else
@@ -445,6 +475,7 @@ class Config:
 
 def _yaml_scalar(value: Any) -> str:
     """One value as YAML that reads back to the same value and type (floats keep their dot, NaN is .nan)."""
+    value = list(value) if isinstance(value, tuple) else value
     return yaml.safe_dump([value], default_flow_style=True, width=1 << 16).strip()[1:-1]
 
 

@@ -7,10 +7,12 @@ one body (a connected tissue region).
 * :func:`mesh_from_image` (the paper's "Mesh Generation"): tissue image -> TissueMesh;
 * :func:`mesh_quality`: angles, area error, per-body counts (``tissue-sim mesh`` prints them);
 * :func:`load_mesh`: .npz, Triangle .node/.ele/.poly, Gmsh .msh 2.2/4.1;
+  :func:`load_meshes` / :func:`combine_meshes`: several files as one scene, each body named after its file;
   :func:`write_triangle`, :func:`write_gmsh` for exchange and round trips.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,10 +40,23 @@ class TissueMesh:
     """True for vertices on a tissue boundary (outer contour or hole), shape (N,), bool."""
     body: np.ndarray
     """Body index of each vertex, shape (N,), int32, bodies numbered 0..B-1."""
+    body_names: tuple[str, ...] = ()
+    """Name of each body (its file, or its region of the image), B strings; empty: :attr:`names` derives them."""
+
+    def __post_init__(self) -> None:
+        names = tuple(str(n) for n in self.body_names)
+        object.__setattr__(self, "body_names", names)
+        if names and len(names) != self.n_bodies:
+            raise InputError(f"mesh has {self.n_bodies} bodies but {len(names)} body names: expected one name per body")
 
     @property
     def n_bodies(self) -> int:
         return int(self.body.max()) + 1 if len(self.body) else 0
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Name of each body: :attr:`body_names`, or names from the bodies' positions (:func:`region_names`)."""
+        return self.body_names if self.body_names else region_names(self.vertices, self.body)
 
     @property
     def tri_body(self) -> np.ndarray:
@@ -51,7 +66,113 @@ class TissueMesh:
     def save(self, path: str | Path) -> None:
         """Write the mesh as a compressed .npz."""
         np.savez_compressed(path, vertices=self.vertices, triangles=self.triangles,
-                            edges=self.edges, boundary=self.boundary, body=self.body)
+                            edges=self.edges, boundary=self.boundary, body=self.body,
+                            body_names=np.array(self.names, dtype=str))
+
+    def with_names(self, names: "tuple[str, ...] | list[str]") -> "TissueMesh":
+        """The same mesh with other body names (one per body)."""
+        return TissueMesh(vertices=self.vertices, triangles=self.triangles, edges=self.edges,
+                          boundary=self.boundary, body=self.body, body_names=tuple(names))
+
+
+def region_names(vertices: np.ndarray, body: np.ndarray) -> tuple[str, ...]:
+    """Names of bodies from where they lie (for meshes without file names, e.g. an image's regions).
+
+    One body: ``tissue``; two: ``upper tissue`` / ``lower tissue`` by centroid y
+    (whichever index each has); more: ``region k`` with k counted from the top
+    (descending centroid y, then ascending x).
+    """
+    nb = int(body.max()) + 1 if len(body) else 0
+    if nb == 0:
+        return ()
+    if nb == 1:
+        return ("tissue",)
+    cen = np.array([vertices[body == b].mean(axis=0) if np.any(body == b) else (0.0, 0.0) for b in range(nb)])
+    order = sorted(range(nb), key=lambda b: (-round(float(cen[b, 1]), 12), round(float(cen[b, 0]), 12)))
+    names = [""] * nb
+    if nb == 2:
+        names[order[0]], names[order[1]] = "upper tissue", "lower tissue"
+    else:
+        for rank, b in enumerate(order):
+            names[b] = f"region {rank}"
+    return tuple(names)
+
+
+def mesh_name(path: str | Path) -> str:
+    """A body name from a mesh file name: the name without its suffix and Triangle's refinement number.
+
+    ``Bottom.1.node`` -> ``Bottom``, ``upper.npz`` -> ``upper``, ``liver.msh`` -> ``liver``.
+    """
+    name = Path(path).name
+    for suffix in MESH_SUFFIXES:
+        if name.lower().endswith(suffix):
+            name = name[: -len(suffix)]
+            break
+    return re.sub(r"\.\d+$", "", name) or Path(path).name
+
+
+def combine_meshes(meshes: "list[TissueMesh] | tuple[TissueMesh, ...]",
+                   names: "list[list[str]] | None" = None) -> TissueMesh:
+    """Several meshes as one scene: vertices and triangles concatenated in order, bodies renumbered.
+
+    Mesh k's vertices follow those of meshes 0..k-1 (so its vertex i becomes
+    ``i + sum of the earlier vertex counts``), its bodies follow theirs, and
+    every vertex, triangle, edge and boundary flag is kept. ``names[k]`` names
+    mesh k's bodies (default: each mesh's own :attr:`TissueMesh.names`); a name
+    used twice gets `` (2)``, `` (3)``... so every body's name is its own.
+    """
+    if not meshes:
+        raise InputError("no meshes to combine: expected at least one mesh file")
+    verts, tris, edges, bnd, body, all_names = [], [], [], [], [], []
+    n_off = 0
+    b_off = 0
+    for k, m in enumerate(meshes):
+        verts.append(m.vertices)
+        tris.append(m.triangles.astype(np.int64) + n_off)
+        edges.append(m.edges.astype(np.int64) + n_off)
+        bnd.append(m.boundary)
+        body.append(m.body.astype(np.int64) + b_off)
+        mine = list(names[k]) if names is not None else list(m.names)
+        if len(mine) != m.n_bodies:
+            raise InputError(f"mesh {k} has {m.n_bodies} bodies but {len(mine)} names: expected one name per body")
+        all_names += mine
+        n_off += len(m.vertices)
+        b_off += m.n_bodies
+    seen: dict[str, int] = {}
+    unique = []
+    for n in all_names:
+        seen[n] = seen.get(n, 0) + 1
+        unique.append(n if seen[n] == 1 else f"{n} ({seen[n]})")
+    return TissueMesh(vertices=np.ascontiguousarray(np.concatenate(verts), dtype=np.float64),
+                      triangles=np.ascontiguousarray(np.concatenate(tris), dtype=np.int32),
+                      edges=np.ascontiguousarray(np.concatenate(edges), dtype=np.int32),
+                      boundary=np.concatenate(bnd).astype(bool),
+                      body=np.ascontiguousarray(np.concatenate(body), dtype=np.int32), body_names=tuple(unique))
+
+
+def load_meshes(paths: "str | Path | list[str | Path] | tuple[str | Path, ...]") -> TissueMesh:
+    """Load one or several mesh files as one scene (:func:`combine_meshes`), each body named after its file.
+
+    A file holding one body names it after the file (:func:`mesh_name`); a file
+    holding several names them ``stem[0]``, ``stem[1]``, ... in its own body order
+    (descending centroid y); an .npz written with body names keeps them. A
+    missing or unreadable file is an InputError naming it.
+    """
+    if isinstance(paths, (str, Path)):
+        paths = [paths]
+    paths = list(paths)
+    if not paths:
+        raise InputError("mesh_file: expected at least one mesh file")
+    meshes, names = [], []
+    for p in paths:
+        m = load_mesh(p)
+        meshes.append(m)
+        if m.body_names:
+            names.append(list(m.body_names))
+        else:
+            stem = mesh_name(p)
+            names.append([stem] if m.n_bodies == 1 else [f"{stem}[{b}]" for b in range(m.n_bodies)])
+    return combine_meshes(meshes, names)
 
 
 def edges_from_triangles(triangles: np.ndarray) -> np.ndarray:
@@ -175,10 +296,11 @@ def load_mesh(path: str | Path) -> TissueMesh:
     if suffix == ".npz":
         try:
             with np.load(path) as data:
+                names = tuple(str(n) for n in data["body_names"]) if "body_names" in data.files else ()
                 return TissueMesh(vertices=data["vertices"].astype(np.float64),
                                   triangles=data["triangles"].astype(np.int32),
                                   edges=data["edges"].astype(np.int32), boundary=data["boundary"].astype(bool),
-                                  body=data["body"].astype(np.int32))
+                                  body=data["body"].astype(np.int32), body_names=names)
         except (KeyError, ValueError, OSError) as exc:
             raise InputError(f"mesh file {str(path)!r}: expected an .npz written by TissueMesh.save "
                              f"(vertices, triangles, edges, boundary, body): {exc}") from None
@@ -1155,8 +1277,9 @@ def mesh_quality(mesh: TissueMesh, tissue_pixel_area: float | None = None) -> di
                        else (q["area"] - tissue_pixel_area) / tissue_pixel_area)
     tb = mesh.tri_body
     q["bodies"] = []
+    names = mesh.names
     for bi in range(mesh.n_bodies):
         s = stats(t[tb == bi])
-        q["bodies"].append({"body": bi, "n_vertices": int(np.sum(mesh.body == bi)), "n_triangles": int(np.sum(tb == bi)),
+        q["bodies"].append({"body": bi, "name": names[bi], "n_vertices": int(np.sum(mesh.body == bi)), "n_triangles": int(np.sum(tb == bi)),
                             "n_boundary": int(np.sum(mesh.boundary & (mesh.body == bi))), **s})
     return q

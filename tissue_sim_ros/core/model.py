@@ -21,6 +21,8 @@ SCHEMES = ("gauss_seidel", "jacobi")
 AREA_MODES = ("signed", "abs")
 CONTACT_MODELS = ("paper", "projection", "none")
 CONTACT_SURFACES = ("edges", "particles")
+DAMPING_MODES = ("linear", "exponential")
+JACOBI_AVERAGINGS = ("violated", "all")
 
 @dataclass(frozen=True)
 class SimParams:
@@ -47,7 +49,10 @@ class SimParams:
     dt: float = 0.01
     """Time step [s]."""
     damping: float = 0.0
-    """Velocity damping per second [1/s]; v *= max(0, 1 - damping*dt) before prediction. 0 = off (paper)."""
+    """Velocity damping rate c [1/s], applied to v before each prediction (see ``damping_mode``); 0 = off (paper)."""
+    damping_mode: str = "linear"
+    """How ``damping`` scales the velocity each (sub)step h: ``linear`` v *= max(0, 1 - c h) (first order);
+    ``exponential`` v *= exp(-c h), the exact decay of dv/dt = -c v (the authors' code: c = 8 1/s)."""
     # solver
     method: str = "pbd"
     """``pbd`` (paper, stiffness scales each projection) or ``xpbd`` (compliance, Lagrange multipliers)."""
@@ -65,8 +70,17 @@ class SimParams:
     get small omega, soft ones ~1); stable at every stiffness tried (13..1e6
     N/m). A uniform omega of 1 or 0.5 diverged within 6 and 11 steps on the
     1 m x 0.5 m strip at the default stiffnesses. PBD Jacobi averages by constraint
-    count instead (the paper authors' code) and ignores this value.
+    count instead (``jacobi_averaging``) and ignores this value.
     """
+    jacobi_averaging: str = "violated"
+    """PBD Jacobi: ``violated`` (the authors' forward()): each particle's spring corrections are averaged over
+    its violated springs and its area corrections over its violated triangles, the two averages added
+    (core/violated_jacobi.py); ``all``: the summed corrections divided by all constraints at the particle."""
+    jacobi_spring_tolerance: float = 1e-4
+    """PBD Jacobi ``violated``: a spring counts (and is corrected) when |C| = ||x_i - x_j| - d0| >= this [m]
+    (the authors' 1e-4 m)."""
+    jacobi_area_tolerance: float = 1e-11
+    """PBD Jacobi ``violated``: a triangle counts (and is corrected) when |C| > this [m^2] (the authors' 1e-11)."""
     k_spring: float = 0.15
     """PBD distance-constraint stiffness coefficient in [0, 1] (Table I)."""
     k_area: float = 1.0
@@ -94,6 +108,16 @@ class SimParams:
     """Particles at or above this world y are held (velocity zero) [m]; NaN = no upper line."""
     boundary_y_bottom: float = math.nan
     """Particles at or below this world y are held (velocity zero) [m]; NaN = no lower line."""
+    # pins and walls apart (the authors' code: a pinned band near each line, walls that clamp every particle)
+    pin_y_bottom: float = math.nan
+    """Particles whose rest y is at or below this are pinned (inverse mass 0) [m]; NaN = none."""
+    pin_y_top: float = math.nan
+    """Particles whose rest y is at or above this are pinned [m]; NaN = none."""
+    wall_y_bottom: float = math.nan
+    """Every particle (pinned ones too) with y below this is put on it, after the prediction and after every
+    solver iteration [m] (velocity from the clamped position); NaN = no wall."""
+    wall_y_top: float = math.nan
+    """Every particle with y above this is put on it, as ``wall_y_bottom`` [m]; NaN = no wall."""
     # contact (the paper's eq. 3 and the projection model)
     contact_model: str = "paper"
     """``paper`` (eq. 3), ``projection`` (non-penetration in the solver loop, swept), or ``none``."""
@@ -129,7 +153,8 @@ class SimParams:
 
         for name in ("mass", "mass_per_area", "gravity", "dt", "damping", "relaxation", "k_spring", "k_area",
                      "stiffness_spring", "stiffness_area", "contact_radius", "contact_threshold",
-                     "contact_margin", "sleep_speed", "sleep_wake_radius"):
+                     "contact_margin", "sleep_speed", "sleep_wake_radius", "jacobi_spring_tolerance",
+                     "jacobi_area_tolerance"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise bad(name, "a finite number")
@@ -159,6 +184,13 @@ class SimParams:
             raise bad("area_mode", f"one of {', '.join(AREA_MODES)}")
         if self.contact_model not in CONTACT_MODELS:
             raise bad("contact_model", f"one of {', '.join(CONTACT_MODELS)}")
+        if self.damping_mode not in DAMPING_MODES:
+            raise bad("damping_mode", f"one of {', '.join(DAMPING_MODES)}")
+        if self.jacobi_averaging not in JACOBI_AVERAGINGS:
+            raise bad("jacobi_averaging", f"one of {', '.join(JACOBI_AVERAGINGS)}")
+        for name in ("jacobi_spring_tolerance", "jacobi_area_tolerance"):
+            if getattr(self, name) < 0:
+                raise bad(name, "a tolerance >= 0")
         if self.contact_surface not in CONTACT_SURFACES:
             raise bad("contact_surface", f"one of {', '.join(CONTACT_SURFACES)}")
         for name in ("k_spring", "k_area"):
@@ -176,13 +208,16 @@ class SimParams:
             raise bad("contact_threshold", "a distance >= 0 m")
         if self.contact_margin < 0:
             raise bad("contact_margin", "a margin >= 0 m")
-        for name in ("boundary_y_top", "boundary_y_bottom"):
+        for name in ("boundary_y_top", "boundary_y_bottom", "pin_y_top", "pin_y_bottom", "wall_y_top",
+                     "wall_y_bottom"):
             value = getattr(self, name)
-            if not isinstance(value, (int, float)) or math.isinf(value):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isinf(value):
                 raise bad(name, "a finite y in metres, or NaN for no line")
-        if (math.isfinite(self.boundary_y_top) and math.isfinite(self.boundary_y_bottom)
-                and self.boundary_y_top <= self.boundary_y_bottom):
-            raise bad("boundary_y_top", f"a line above boundary_y_bottom={self.boundary_y_bottom}")
+        for top, bottom in (("boundary_y_top", "boundary_y_bottom"), ("pin_y_top", "pin_y_bottom"),
+                            ("wall_y_top", "wall_y_bottom")):
+            t, b = getattr(self, top), getattr(self, bottom)
+            if math.isfinite(t) and math.isfinite(b) and t <= b:
+                raise bad(top, f"a line above {bottom}={b}")
 
     def with_(self, **changes: Any) -> "SimParams":
         """A copy with some fields changed (validated)."""
@@ -243,6 +278,13 @@ class Model:
         return int(self.particle_q0.shape[0])
 
     @property
+    def body_names(self) -> tuple[str, ...]:
+        """Name of each body (from the mesh: its file or its region), B strings."""
+        if self.mesh is not None and self.mesh.n_bodies == self.n_bodies:
+            return self.mesh.names
+        return tuple(f"body {b}" for b in range(self.n_bodies))
+
+    @property
     def n_edges(self) -> int:
         return int(self.edge_indices.shape[0])
 
@@ -267,7 +309,7 @@ class Model:
             Defaults to Table I.
         pinned : array of int or bool, optional
             Extra particles to pin (indices, or a boolean mask of length N).
-            Particles on or past a boundary line at rest are pinned as well.
+            Particles on or past a boundary line or a pin line at rest are pinned as well.
         """
         params = params or SimParams()
         q0 = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
@@ -287,6 +329,10 @@ class Model:
             pin |= q0[:, 1] >= params.boundary_y_top
         if math.isfinite(params.boundary_y_bottom):
             pin |= q0[:, 1] <= params.boundary_y_bottom
+        if math.isfinite(params.pin_y_top):
+            pin |= q0[:, 1] >= params.pin_y_top
+        if math.isfinite(params.pin_y_bottom):
+            pin |= q0[:, 1] <= params.pin_y_bottom
         edges = np.ascontiguousarray(mesh.edges, dtype=np.int32)
         tris = np.ascontiguousarray(mesh.triangles, dtype=np.int32)
         d = q0[edges[:, 1]] - q0[edges[:, 0]]

@@ -7,13 +7,20 @@ kernel of :mod:`~tissue_sim_ros.core.kernels` on arrays allocated here.
 
 One step (the paper's Algorithm 1, with Macklin's multipliers for XPBD)::
 
-    x* = x_t + dt damp v_t + dt^2 (0, g)            free particles; + held_dx (paper contact)
+    x* = x_t + dt damp v_t + dt^2 (0, g)            free particles; + held_dx (paper contact); walls
     for each of `substeps` substeps of h = dt / substeps:
         predict from the substep's start (h), reset multipliers
         (held particles: the fraction (s+1)/substeps of their way from x_t to x*)
-        `iterations` sweeps: edges, triangles, tool (projection contact)
+        `iterations` sweeps: edges, triangles, tool (projection contact), walls
         v = (x - x_start) / h; boundary lines clamp and stop particles
     residual = RMS(C / rest size)
+
+damp = max(0, 1 - c h) (``damping_mode: linear``) or exp(-c h) (``exponential``,
+the authors' v *= exp(-8 dt)), c = ``damping``. Walls (``wall_y_bottom/top``)
+put every particle that crossed them back on them (:func:`~tissue_sim_ros.core.violated_jacobi.apply_walls`).
+PBD Jacobi averages each particle's corrections over its violated constraints
+per type (``jacobi_averaging: violated``, the authors' code,
+:mod:`~tissue_sim_ros.core.violated_jacobi`) or over all of them (``all``).
 
 Orders. Serial Gauss-Seidel gives the result of sweeping the constraints in
 mesh order, as the paper does (executed in a wavefront schedule that changes
@@ -40,6 +47,7 @@ from . import kernels
 from .collision import Contacts
 from .errors import InputError
 from .model import Model, State
+from .violated_jacobi import apply_walls, violated_jacobi_iterations
 
 #: Smallest mesh for which ``parallel=True`` is worth trying: below it the
 #: fork-join per sweep costs more than the sweep (``tissue-sim bench solver``,
@@ -293,7 +301,14 @@ class Solver:
         self.omega_e = np.ones(edges.shape[0])
         self.omega_t = np.ones(tris.shape[0])
         self.particle_scale = np.ones(n)
-        if self.jacobi and p.method == "pbd" and jacobi_average:
+        # the authors' averaging over violated constraints (core/violated_jacobi.py)
+        self.violated = self.jacobi and p.method == "pbd" and jacobi_average and p.jacobi_averaging == "violated"
+        self.walls = not (math.isnan(p.wall_y_bottom) and math.isnan(p.wall_y_top))
+        if self.violated:
+            self._dxa = np.zeros((n, 2))
+            self._ns = np.zeros(n)
+            self._na = np.zeros(n)
+        if self.jacobi and p.method == "pbd" and jacobi_average and not self.violated:
             count = np.bincount(model.edge_indices.ravel(), minlength=n) + np.bincount(model.tri_indices.ravel(),
                                                                                       minlength=n)
             self.particle_scale = 1.0 / np.maximum(count, 1).astype(np.float64)
@@ -310,6 +325,11 @@ class Solver:
         n_c = (self.edges.shape[0] if self._k_alpha(p.k_spring, p.stiffness_spring, 1.0)[2] else 0) \
             + (self.tris.shape[0] if self._k_alpha(p.k_area, p.stiffness_area, 1.0)[2] else 0)
         return n_c * p.iterations * p.substeps
+
+    def damp_factor(self, h: float) -> float:
+        """Velocity scale of one (sub)step h: max(0, 1 - c h) (linear) or exp(-c h) (exponential)."""
+        c = self.params.damping
+        return math.exp(-c * h) if self.params.damping_mode == "exponential" else max(0.0, 1.0 - c * h)
 
     def _k_alpha(self, k_pbd: float, stiffness: float, h: float) -> tuple[float, float, bool]:
         """(k, alpha, active) of one constraint type for a substep h."""
@@ -375,8 +395,10 @@ class Solver:
             s1 = np.ascontiguousarray(contacts.tool_shape1, dtype=np.float64)
 
         # the full-step prediction x* (the energy's reference), and the held set
-        kernels.predict(x0, v0, inv_mass, dt, p.gravity, max(0.0, 1.0 - p.damping * dt), self.x_pred)
+        kernels.predict(x0, v0, inv_mass, dt, p.gravity, self.damp_factor(dt), self.x_pred)
         kernels.hold_displaced(self.x_pred, inv_mass, held_idx, held_dx, 1.0, self.inv_mass_eff)
+        if self.walls:
+            apply_walls(self.x_pred, p.wall_y_bottom, p.wall_y_top)
         w = self.inv_mass_eff
 
         k_e, alpha_e, use_e = self._k_alpha(p.k_spring, p.stiffness_spring, h)
@@ -391,8 +413,10 @@ class Solver:
             if n_sub == 1:
                 np.copyto(x, self.x_pred)
             else:
-                kernels.predict(self.x_start, v, inv_mass, h, p.gravity, max(0.0, 1.0 - p.damping * h), x)
+                kernels.predict(self.x_start, v, inv_mass, h, p.gravity, self.damp_factor(h), x)
                 kernels.place_held(x, x0, self.x_pred, inv_mass, held_idx, (sub + 1) / n_sub)
+                if self.walls:
+                    apply_walls(x, p.wall_y_bottom, p.wall_y_top)
             self.lam_e.fill(0.0)
             self.lam_t.fill(0.0)
             if projection:
@@ -401,21 +425,35 @@ class Solver:
                 cand, surf = candidates, surface_edges
             else:
                 cand, surf = self._no_index, self._no_edges
-            if self.jacobi:
-                if p.method == "xpbd" and self.jacobi_relaxation == "stiffness":
+            if self.violated:
+                # the authors' Jacobi: weights from the model's inverse masses (held particles keep theirs), only
+                # particles free this step move; walls after every iteration (inside the kernel)
+                violated_jacobi_iterations(x, inv_mass, w, edges, rest, k_e, p.jacobi_spring_tolerance,
+                                           tris, area0, k_t, p.jacobi_area_tolerance, self.signed, p.iterations,
+                                           p.wall_y_bottom, p.wall_y_top, self._dx_acc, self._dxa, self._ns,
+                                           self._na, self.x_start, cand, self._shape0, self._shape1,
+                                           self.contact_dx, surf, float(contacts.edge_side_tol))
+            else:
+                # with walls: one iteration per kernel call, the walls after each (as the authors' loop)
+                sweeps = [1] * p.iterations if self.walls else [p.iterations]
+                if self.jacobi and p.method == "xpbd" and self.jacobi_relaxation == "stiffness":
                     kernels.jacobi_relaxation(x, w, edges, alpha_e, tris, alpha_t, self.signed, self.relaxation_scale,
                                               self._node_sum, self.omega_e, self.omega_t)
-                kernels.jacobi_iterations(x, w, edges, rest, k_e, alpha_e, self.lam_e, self.omega_e,
-                                          tris, area0, k_t, alpha_t, self.lam_t, self.omega_t,
-                                          self.signed, p.iterations, self.particle_scale, self._dx_acc,
-                                          self.x_start, cand, self._shape0, self._shape1, self.contact_dx,
-                                          surf, float(contacts.edge_side_tol))
-            else:
-                kernels.gauss_seidel_iterations(x, w, edges, rest, k_e, alpha_e, self.lam_e, self.edge_offsets,
-                                                tris, area0, k_t, alpha_t, self.lam_t, self.tri_offsets,
-                                                self.signed, p.iterations, self.gs_mode,
-                                                self.x_start, cand, self._shape0, self._shape1, self.contact_dx,
-                                                surf, float(contacts.edge_side_tol))
+                for iters in sweeps:
+                    if self.jacobi:
+                        kernels.jacobi_iterations(x, w, edges, rest, k_e, alpha_e, self.lam_e, self.omega_e,
+                                                  tris, area0, k_t, alpha_t, self.lam_t, self.omega_t,
+                                                  self.signed, iters, self.particle_scale, self._dx_acc,
+                                                  self.x_start, cand, self._shape0, self._shape1, self.contact_dx,
+                                                  surf, float(contacts.edge_side_tol))
+                    else:
+                        kernels.gauss_seidel_iterations(x, w, edges, rest, k_e, alpha_e, self.lam_e,
+                                                        self.edge_offsets, tris, area0, k_t, alpha_t, self.lam_t,
+                                                        self.tri_offsets, self.signed, iters, self.gs_mode,
+                                                        self.x_start, cand, self._shape0, self._shape1,
+                                                        self.contact_dx, surf, float(contacts.edge_side_tol))
+                    if self.walls:
+                        apply_walls(x, p.wall_y_bottom, p.wall_y_top)
             kernels.update_velocity(x, self.x_start, h, v)
             kernels.apply_boundary_lines(x, v, inv_mass, p.boundary_y_top, p.boundary_y_bottom)
 

@@ -4,9 +4,10 @@ from __future__ import annotations
 import argparse
 
 from ..cli_config import add_config_arguments, config_from_args
+from ..core import trajectories as tr
 from ..core.errors import InputError
+from ..core.tool import ToolShape
 from . import paper
-from . import trajectories as tr
 
 HELP = "run the paper's experiment a or b offline and write its figures"
 DESCRIPTION = """Run one of the paper's experiments on the default scene (Table I parameters), offline.
@@ -16,6 +17,12 @@ DESCRIPTION = """Run one of the paper's experiments on the default scene (Table 
   b  insertions from two angles toward one target (Fig. 3): the final
      deformation for each angle, the energy curves, and which angle costs less.
 
+--trajectory PRESET|FILE replaces the tool's path: a preset (experiment_a,
+experiment_b_shallow, experiment_b_steep, authors: the paper authors' saved run)
+or a trajectory file (CSV time,x,y,yaw; YAML waypoints or a straight motion);
+for b it is repeatable, one run per trajectory. Bodies are labelled by their
+names (a mesh file's body by its file).
+
 Figures (PNG) and the energy series (CSV) are written to --out."""
 
 
@@ -23,7 +30,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("which", choices=["a", "b"], help="experiment a (approach) or b (two insertion angles)")
     parser.add_argument("--out", default="out", help="output directory (default: out)")
     add_config_arguments(parser)
-    parser.add_argument("--steps", type=int, default=tr.A_STEPS, help=f"experiment a: steps (default {tr.A_STEPS})")
+    parser.add_argument("--steps", type=int, default=None,
+                        help=f"experiment a: steps (default {tr.A_STEPS}, or all of --trajectory)")
+    parser.add_argument("--trajectory", action="append", default=None, metavar="PRESET|FILE",
+                        help=f"tool trajectory: a preset ({', '.join(tr.PRESETS)}) or a file (.csv: time,x,y,yaw; "
+                             ".yaml: waypoints or start, direction_deg, speed, steps). Experiment a: one (default "
+                             "experiment_a); b: repeatable, replacing --angles")
+    parser.add_argument("--settle", type=int, default=0, metavar="N",
+                        help="experiment a: N steps under gravity alone before the run, not recorded (the authors' "
+                             "saved run started after 29)")
     parser.add_argument("--angles", type=float, nargs="+", default=list(tr.B_ANGLES_DEG),
                         help="experiment b: insertion angles in degrees (default: %(default)s)")
     parser.add_argument("--contact", nargs="+", choices=["paper", "projection"], default=None,
@@ -35,8 +50,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     cfg = config_from_args(args, defaults=paper.B_TOOL_VALUES if args.which == "b" else None)
-    if args.which == "a" and args.steps < 1:
+    if args.which == "a" and args.steps is not None and args.steps < 1:
         raise InputError(f"--steps {args.steps}: expected at least 1 step")
+    if args.which == "a" and args.trajectory and len(args.trajectory) > 1:
+        raise InputError(f"--trajectory given {len(args.trajectory)} times: experiment a runs one trajectory")
+    for spec in args.trajectory or []:  # a bad name or file fails before anything runs
+        tr.resolve_trajectory(spec, ToolShape(), 0.01)
     models = args.contact or (["paper", "projection"] if args.which == "a" else [None])
     finite = True
     for model in models:
@@ -44,10 +63,13 @@ def run(args: argparse.Namespace) -> int:
         tag = f"_{model}" if model else ""
         if args.which == "a":
             result = paper.experiment_a(args.out, params=values, steps=args.steps, progress=not args.no_progress,
-                                        prefix=f"experiment_a{tag}")
+                                        prefix=f"experiment_a{tag}",
+                                        trajectory=args.trajectory[0] if args.trajectory else "experiment_a",
+                                        settle=args.settle)
         else:
             result = paper.experiment_b(args.out, params=values, angles_deg=args.angles,
-                                        progress=not args.no_progress, prefix=f"experiment_b{tag}")
+                                        progress=not args.no_progress, prefix=f"experiment_b{tag}",
+                                        trajectories=args.trajectory)
         print(f"experiment {args.which}" + (f" ({model} contact)" if model else "") + ":")
         print(result.summary_text())
         print("wrote:")

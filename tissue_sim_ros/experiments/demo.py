@@ -40,6 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID to use (default: a free-looking one derived from the process id)")
     parser.add_argument("--timeout", type=float, default=120.0, help="give up after this many seconds (default 120)")
+    parser.add_argument("--trajectory", default="experiment_a", metavar="PRESET|FILE",
+                        help="the tool driver's trajectory: a preset (experiment_a, experiment_b_shallow, "
+                             "experiment_b_steep, authors) or a .csv/.yaml trajectory file (default experiment_a)")
     parser.add_argument("--contact-model", choices=["paper", "projection"], default="projection",
                         help="contact model of the node (default projection: the tissue is pushed; the paper's eq. (3) "
                              "lets the tool pass into the tissue once it touches)")
@@ -252,7 +255,10 @@ def run(args: argparse.Namespace) -> int:
     # the node resolves the same file and -p contact_model through the same front door
     cfg = resolve_config({"contact_model": args.contact_model}, params_file=params_file, source="--contact-model")
     params, tool = cfg.sim, cfg.tool
-    n_steps = tr.experiment_a(tool, params.dt).n_steps(params.dt)
+    spec = args.trajectory
+    if spec not in tr.PRESETS:
+        spec = str(Path(spec).resolve())  # the driver runs in another directory
+    n_steps = tr.resolve_trajectory(spec, tool, params.dt).n_steps(params.dt)
     domain = args.domain_id if args.domain_id is not None else 120 + os.getpid() % 100
     if not 0 <= domain <= 232:
         raise InputError(f"--domain-id {domain}: expected 0..232")
@@ -292,7 +298,7 @@ def run(args: argparse.Namespace) -> int:
         monitor.wait_for_subscribers({"/tissue/energy": 2, "/tissue/energy/bodies": 1, "/tissue/points": 1,
                                       "/tissue/markers": 1, "/tool/pose": 2, "/tool/twist": 2},
                                      timeout=args.timeout)
-        driver = _Process("tool_driver", [_script("tool_driver"), "--ros-args", "-p", "preset:=experiment_a",
+        driver = _Process("tool_driver", [_script("tool_driver"), "--ros-args", "-p", f"trajectory:={spec}",
                                           "-p", "lock_step:=true", "-p", "exit_when_done:=true",
                                           "-p", "min_subscribers:=2"], env,
                           out / "driver.log")
@@ -335,10 +341,10 @@ def run(args: argparse.Namespace) -> int:
         snaps.append((s, x, None if p is None else ToolPose(*map(float, p))))
     files = [
         save_snapshots(out / "demo_snapshots.png", model, snaps, tool=tool,
-                       title=f"Demo (through ROS): experiment a, the tool pushes the bottom tissue ({args.contact_model} contact)"),
+                       title=f"Demo (through ROS): trajectory {Path(args.trajectory).name} ({args.contact_model} contact)"),
         plot_energy(out / "demo_energy.png", run_["steps"],
                     {"inertial": run_["inertial"], "spring": run_["spring"], "area": run_["area"]},
-                    body_names=("upper tissue", "lower tissue")[: run_["inertial"].shape[1]],
+                    body_names=model.body_names,
                     markers=[s for s in tr.A_SNAPSHOTS if s > 0],
                     contact=run_["contact"],
                     title="Demo: implicit Euler energy per tissue, recorded through ROS"),
@@ -351,12 +357,12 @@ def run(args: argparse.Namespace) -> int:
     peak_b = total.max(axis=0)
     print()
     node_rtf = f"{params.dt * 1e3 / node_ms:.0f}x real time" if node_ms else "not reported"
-    print(f"Ran experiment a through ROS: {len(run_['steps'])} steps ({sim_time:.2f} s simulated) in {wall:.2f} s "
+    print(f"Ran trajectory {args.trajectory} through ROS: {len(run_['steps'])} steps ({sim_time:.2f} s simulated) in {wall:.2f} s "
           f"wall (real-time factor {sim_time / wall:.2f}: the driver paces the lock-step node at 1/dt so the recorder "
           f"keeps every message); the node's own step, simulation and messages, took {node_ms or float('nan'):.2f} ms "
           f"on average ({node_rtf}). Driver, node and recorder ran as separate processes on ROS domain {domain}. "
           f"Peak implicit Euler energy "
-          + ", ".join(f"{n} {v:.3g}" for n, v in zip(("upper", "lower"), peak_b))
+          + ", ".join(f"{n} {v:.3g}" for n, v in zip(model.body_names, peak_b))
           + f" at steps {', '.join(str(int(run_['steps'][i])) for i in total.argmax(axis=0))}; the tool touched "
           f"the tissue in {int(touched.sum())} steps (first at step "
           f"{int(np.argmax(touched)) + 1 if touched.any() else '-'}). "

@@ -10,6 +10,7 @@ angle costs less, and by how much.
 """
 from __future__ import annotations
 
+import itertools
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,14 +19,13 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from tqdm import tqdm
 
+from ..core import trajectories as tr
 from ..core.config import Config, resolve_config
+from ..core.errors import InputError
 from ..core.rollout import Rollout, rollout
 from ..core.scene import build_simulation
 from ..core.simulation import Simulation
 from ..core.tool import ToolPose, Trajectory
-from . import trajectories as tr
-
-BODY_NAMES = ("upper tissue", "lower tissue")
 
 
 @dataclass
@@ -66,14 +66,15 @@ def baseline_rollout(values: Mapping[str, Any] | Config, steps: int) -> Rollout:
 
 
 def run_trajectory(sim: Simulation, traj: Trajectory, *, snapshot_steps: Sequence[int] = (),
-                   progress: bool | str = False) -> tuple[Rollout, float]:
-    """Roll ``sim`` out along ``traj``; returns the rollout and the wall time [s]."""
+                   progress: bool | str = False, max_steps: int | None = None) -> tuple[Rollout, float]:
+    """Roll ``sim`` out along ``traj`` (its first ``max_steps`` steps when given); rollout and wall time [s]."""
     dt = sim.params.dt
-    n = traj.n_steps(dt)
+    n = traj.n_steps(dt) if max_steps is None else min(traj.n_steps(dt), max_steps)
     bar = tqdm(total=n, desc=progress if isinstance(progress, str) else "steps", unit="step",
                disable=not progress, leave=False)
     t0 = time.perf_counter()
-    run = rollout(sim, traj.steps(dt), snapshot_steps=snapshot_steps, on_step=lambda r: bar.update(1))
+    run = rollout(sim, itertools.islice(traj.steps(dt), n), snapshot_steps=snapshot_steps,
+                  on_step=lambda r: bar.update(1))
     wall = time.perf_counter() - t0
     bar.close()
     return run, wall
@@ -86,18 +87,22 @@ def _pose_at_step(run: Rollout, step: int) -> ToolPose | None:
     return ToolPose(float(x), float(y), float(yaw)) if np.isfinite(x) else None
 
 
-def summarise(run: Rollout, wall: float, dt: float) -> dict[str, Any]:
-    """Steps, real-time factor, peak energy per body, contact steps, first contact."""
+def summarise(run: Rollout, wall: float, dt: float, body_names: Sequence[str] | None = None) -> dict[str, Any]:
+    """Steps, real-time factor, peak energy per body (by name), contact steps, first contact."""
     contact_any = run.in_contact.any(axis=1)
     first = int(run.steps[np.argmax(contact_any)]) if contact_any.any() else None
     total = run.total
+    nb = run.inertial.shape[1] if run.inertial.ndim == 2 else 0
+    names = list(body_names) if body_names is not None else [f"body {b}" for b in range(nb)]
     return {
         "steps": int(len(run.steps)),
         "wall time [s]": round(wall, 3),
         "real-time factor": round(len(run.steps) * dt / wall, 1) if wall > 0 else float("inf"),
         "median step [ms]": round(float(np.median(run.step_time)) * 1e3, 3) if len(run.step_time) else None,
-        "peak energy per body": [float(f"{v:.4g}") for v in total.max(axis=0)] if len(total) else [],
-        "peak energy step per body": [int(run.steps[i]) for i in total.argmax(axis=0)] if len(total) else [],
+        "bodies": list(names),
+        "peak energy per body": {n: float(f"{v:.4g}") for n, v in zip(names, total.max(axis=0))} if len(total) else {},
+        "peak energy step per body": ({n: int(run.steps[i]) for n, i in zip(names, total.argmax(axis=0))}
+                                      if len(total) else {}),
         "contact steps": int(contact_any.sum()),
         "first contact step": first,
         "diverged steps": int(run.diverged.sum()),
@@ -105,42 +110,93 @@ def summarise(run: Rollout, wall: float, dt: float) -> dict[str, Any]:
     }
 
 
-def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None = None, steps: int = tr.A_STEPS,
+def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None = None, steps: int | None = None,
                  snapshot_steps: Sequence[int] = tr.A_SNAPSHOTS, progress: bool = True,
-                 prefix: str = "experiment_a") -> ExperimentResult:
-    """Run experiment a and write ``{prefix}_snapshots.png``, ``{prefix}_energy.png``, ``{prefix}_energy.csv``."""
+                 prefix: str = "experiment_a", trajectory: str = "experiment_a",
+                 settle: int = 0) -> ExperimentResult:
+    """Run experiment a and write ``{prefix}_snapshots.png``, ``{prefix}_energy.png``, ``{prefix}_energy.csv``.
+
+    ``trajectory``: a preset or a trajectory file (:func:`~tissue_sim_ros.core.trajectories.resolve_trajectory`);
+    ``steps``: experiment a's insertion of that many steps (default 300), or the first ``steps`` of another
+    trajectory (default: all of it). ``{prefix}_trajectory.csv`` records the poses run.
+    ``settle``: steps under gravity alone (no tool) before the run, not recorded: the run starts from the
+    settled state (velocities kept) at step 0, as the authors' recording started after their tissue had
+    hung for a while (29 steps: README "Reproducing the authors' run").
+    """
     from ..render import plot_energy, save_snapshots  # noqa: PLC0415  (matplotlib only when drawing)
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     sim = build_simulation(params)
-    traj = tr.experiment_a(sim.tool, sim.params.dt, steps=steps)
-    snaps = [s for s in snapshot_steps if s <= steps]
-    run, wall = run_trajectory(sim, traj, snapshot_steps=snaps, progress="experiment a" if progress else False)
+    if isinstance(settle, bool) or not isinstance(settle, int) or settle < 0:
+        raise InputError(f"--settle {settle!r}: expected a number of steps >= 0")
+    if settle:
+        for _ in range(settle):
+            sim.step()
+        settled = sim.state.copy()
+        sim.reset()
+        sim.set_state(settled)
+    if trajectory == "experiment_a":
+        traj = tr.experiment_a(sim.tool, sim.params.dt, steps=tr.A_STEPS if steps is None else steps)
+    else:
+        traj = tr.resolve_trajectory(trajectory, sim.tool, sim.params.dt)
+    n = traj.n_steps(sim.params.dt) if steps is None else min(steps, traj.n_steps(sim.params.dt))
+    snaps = [s for s in snapshot_steps if s <= n]
+    run, wall = run_trajectory(sim, traj, snapshot_steps=snaps, progress="experiment a" if progress else False,
+                               max_steps=n)
     res = ExperimentResult("a", rollouts={"a": run})
-    res.summary = summarise(run, wall, sim.params.dt)
+    res.summary = summarise(run, wall, sim.params.dt, sim.model.body_names)
     res.summary["contact model"] = sim.params.contact_model
     res.summary["method"] = f"{sim.params.method} ({sim.params.scheme}, {sim.params.iterations} iterations)"
     res.summary["particles"] = sim.model.n_particles
+    res.summary["trajectory"] = trajectory
+    if settle:
+        res.summary["settled under gravity first [steps]"] = settle
     shots = [(s, run.snapshots[s], _pose_at_step(run, s)) for s in snaps if s in run.snapshots]
+    what = ("the tool approaches the bottom tissue" if trajectory == "experiment_a"
+            else f"trajectory {Path(trajectory).name}")
     res.files.append(save_snapshots(out / f"{prefix}_snapshots.png", sim.model, shots, tool=sim.tool,
-                                    title=f"Experiment a: the tool approaches the bottom tissue "
-                                          f"({sim.params.contact_model} contact)"))
+                                    title=f"Experiment a: {what} ({sim.params.contact_model} contact)"))
     res.files.append(plot_energy(out / f"{prefix}_energy.png", run.steps,
                                  {"inertial": run.inertial, "spring": run.spring, "area": run.area},
-                                 body_names=BODY_NAMES[: sim.model.n_bodies], markers=[s for s in snaps if s > 0],
+                                 body_names=sim.model.body_names, markers=[s for s in snaps if s > 0],
                                  contact=run.in_contact, title="Experiment a: implicit Euler energy"))
     csv = out / f"{prefix}_energy.csv"
     run.write_csv(csv)
     res.files.append(csv)
+    res.files.append(tr.write_trajectory_csv(out / f"{prefix}_trajectory.csv", _Truncated(traj, n, sim.params.dt),
+                                             sim.params.dt))
     return res
+
+
+class _Truncated(Trajectory):
+    """The first ``n`` steps of a trajectory (what a run with ``max_steps`` went through)."""
+
+    def __init__(self, traj: Trajectory, n: int, dt: float) -> None:
+        self._traj = traj
+        self.start_time = traj.start_time
+        self._duration = min(traj.duration, n * dt)
+
+    @property
+    def duration(self) -> float:
+        return self._duration
+
+    def pose_at(self, t: float) -> ToolPose:
+        return self._traj.pose_at(min(t, self.start_time + self._duration))
+
+    def twist_at(self, t: float):
+        return self._traj.twist_at(t)
 
 
 def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None = None,
                  angles_deg: Sequence[float] = tr.B_ANGLES_DEG, target: tuple[float, float] = tr.B_TARGET,
                  speed: float = tr.B_SPEED, distance: float = tr.B_DISTANCE, progress: bool = True,
-                 prefix: str = "experiment_b") -> ExperimentResult:
-    """Run experiment b: the same target from each angle; figure of final states and energy curves."""
+                 prefix: str = "experiment_b", trajectories: Sequence[str] | None = None) -> ExperimentResult:
+    """Run experiment b: the same target from each angle; figure of final states and energy curves.
+
+    ``trajectories`` (presets or trajectory files) replace the angles: one run each, labelled by its name,
+    compared by the same cost.
+    """
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
     from ..render import TERM_STYLES, draw_scene  # noqa: PLC0415
@@ -149,27 +205,43 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None =
     out.mkdir(parents=True, exist_ok=True)
     values = params if isinstance(params, Config) else resolve_config(dict(params or {}), defaults=B_TOOL_VALUES)
     res = ExperimentResult("b")
-    runs: list[tuple[float, Rollout, Simulation, float]] = []
+    runs: list[tuple[Any, Rollout, Simulation, float]] = []
     baseline: Rollout | None = None
-    for angle in angles_deg:
+    if trajectories:
+        labels: list[Any] = [Path(s).stem if Path(s).suffix else s for s in trajectories]
+        specs: list[Any] = list(trajectories)
+    else:
+        labels, specs = [float(a) for a in angles_deg], [float(a) for a in angles_deg]
+
+    def tag(label: Any) -> str:
+        return f"{label:+.0f}deg" if isinstance(label, float) else str(label)
+
+    def shown(label: Any) -> str:
+        return f"{label:+.0f} deg" if isinstance(label, float) else str(label)
+
+    for label, spec in zip(labels, specs):
         sim = build_simulation(values)
-        traj = tr.experiment_b(sim.tool, sim.params.dt, angle, speed=speed, target=target, distance=distance)
-        run, wall = run_trajectory(sim, traj, progress=f"experiment b {angle:+.0f} deg" if progress else False)
+        if isinstance(spec, str):
+            traj = tr.resolve_trajectory(spec, sim.tool, sim.params.dt)
+        else:
+            traj = tr.experiment_b(sim.tool, sim.params.dt, spec, speed=speed, target=target, distance=distance)
+        run, wall = run_trajectory(sim, traj, progress=f"experiment b {shown(label)}" if progress else False)
         if baseline is None or len(baseline.steps) < len(run.steps):
             baseline = baseline_rollout(values, len(run.steps))
-        runs.append((angle, run, sim, wall))
-        res.rollouts[f"{angle:+.0f}deg"] = run
-        run.write_csv(out / f"{prefix}_{angle:+.0f}deg_energy.csv")
-        res.files.append(out / f"{prefix}_{angle:+.0f}deg_energy.csv")
+        runs.append((label, run, sim, wall))
+        res.rollouts[tag(label)] = run
+        run.write_csv(out / f"{prefix}_{tag(label)}_energy.csv")
+        res.files.append(out / f"{prefix}_{tag(label)}_energy.csv")
 
     n = len(runs)
     fig, axes = plt.subplots(2, n, figsize=(4.6 * n, 8.2), squeeze=False)
     ymax = max(float(r.scene_total.max()) for _, r, _, _ in runs) * 1.08 or 1.0
     for j, (angle, run, sim, _) in enumerate(runs):
         pose = _pose_at_step(run, len(run.steps))
-        draw_scene(axes[0, j], sim.model, sim.state.particle_q, tool=sim.tool, pose=pose, target=target,
-                   contact=None)
-        axes[0, j].set_title(f"insertion at {angle:+.0f} deg: final state", fontsize=10)
+        draw_scene(axes[0, j], sim.model, sim.state.particle_q, tool=sim.tool, pose=pose,
+                   target=None if trajectories else target, contact=None)
+        axes[0, j].set_title(f"insertion at {shown(angle)}: final state" if not trajectories
+                             else f"{shown(angle)}: final state", fontsize=10)
         ax = axes[1, j]
         ax.plot(run.steps, run.scene_total, color="#c62828", lw=2.0, label="total")
         for name, arr in (("inertial", run.inertial), ("spring", run.spring), ("area", run.area)):
@@ -178,7 +250,7 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None =
         ax.set_ylim(0, ymax)
         ax.set_xlabel("step")
         ax.set_ylabel("implicit Euler energy (scene)")
-        ax.set_title(f"{angle:+.0f} deg: cost (energy added) {insertion_cost(run, baseline):.3g}", fontsize=10)
+        ax.set_title(f"{shown(angle)}: cost (energy added) {insertion_cost(run, baseline):.3g}", fontsize=10)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="upper left")
     fig.suptitle(f"Experiment b: two insertion angles, same target (yellow), {runs[0][2].params.contact_model} contact",
@@ -194,14 +266,14 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None =
     worst = max(costs, key=costs.get)
     res.summary = {
         "contact model": runs[0][2].params.contact_model,
-        "target": target,
-        "angles [deg]": list(angles_deg),
-        "cost (energy added, summed over steps)": {f"{a:+.0f} deg": float(f"{c:.4g}") for a, c in costs.items()},
-        "peak energy added": {f"{a:+.0f} deg": float(f"{(r.scene_total - baseline.scene_total[:len(r.steps)]).max():.4g}")
+        "bodies": list(runs[0][2].model.body_names),
+        **({"trajectories": list(trajectories)} if trajectories else {"target": target, "angles [deg]": list(angles_deg)}),
+        "cost (energy added, summed over steps)": {shown(a): float(f"{c:.4g}") for a, c in costs.items()},
+        "peak energy added": {shown(a): float(f"{(r.scene_total - baseline.scene_total[:len(r.steps)]).max():.4g}")
                               for a, r, _, _ in runs},
-        "contact steps": {f"{a:+.0f} deg": int(r.in_contact.any(axis=1).sum()) for a, r, _, _ in runs},
-        "cheaper angle [deg]": best,
-        "saving vs the other": (f"{(1 - costs[best] / costs[worst]) * 100:.1f}% less energy than {worst:+.0f} deg"
+        "contact steps": {shown(a): int(r.in_contact.any(axis=1).sum()) for a, r, _, _ in runs},
+        ("cheaper trajectory" if trajectories else "cheaper angle [deg]"): best,
+        "saving vs the other": (f"{(1 - costs[best] / costs[worst]) * 100:.1f}% less energy than {shown(worst)}"
                                 if costs[worst] > 0 else "no energy at either angle"),
     }
     return res

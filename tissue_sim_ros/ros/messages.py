@@ -641,6 +641,14 @@ class SceneEncoder:
         return encode_marker_array(specs)
 
 
+def body_label(names) -> str:
+    """``layout.dim[0].label`` of ``tissue/energy/bodies``: ``body:`` and the body names, comma-separated.
+
+    A comma inside a name becomes a space, so the label splits back into one name per body.
+    """
+    return "body:" + ",".join(str(n).replace(",", " ") for n in names)
+
+
 # --------------------------------------------------------------------------- one step's outputs
 
 #: The energy terms of ``tissue/energy/bodies``' columns, in order.
@@ -694,6 +702,8 @@ class StepEncoder:
         self.scene = SceneEncoder(model.tri_indices, model.edge_indices, model.edge_rest_length, model.particle_body,
                                   tool_rounded_box=tool.rounded_box() if tool is not None else None,
                                   strain_color_max=strain_color_max, wire_width=wire_width, wireframe=wireframe)
+        self.body_label = body_label(model.body_names)
+        """``tissue/energy/bodies``' row label: ``body:`` and the body names."""
 
     def strain(self, q: np.ndarray) -> np.ndarray:
         """Signed vertex strain of positions ``q`` (N, 2) [m], shape (N,)."""
@@ -722,7 +732,7 @@ class StepEncoder:
                 for i, term in enumerate(ENERGY_TERMS[:3]):
                     out.messages[f"tissue/energy/{term}"] = encode_float64(float(terms[:, i].sum()))
                 out.messages["tissue/energy/bodies"] = encode_float64_multiarray(
-                    terms, ["body", "term:" + ",".join(ENERGY_TERMS)])
+                    terms, [self.body_label, "term:" + ",".join(ENERGY_TERMS)])
             else:
                 out.withheld.append(f"step {report.step}: non-finite energy not published")
         f, tz = report.reaction_force, report.reaction_torque

@@ -481,6 +481,7 @@ class TissueSimNode(Node):
             "iterations": self.sim.params.iterations,
             "substeps": self.sim.params.substeps,
             "contact_model": self.sim.params.contact_model,
+            "bodies": ",".join(str(n).replace(",", " ") for n in self.sim.model.body_names),
             "sim_time_s": self.sim.time,
         }
         if r is not None:

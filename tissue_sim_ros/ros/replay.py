@@ -5,7 +5,9 @@
 modes); :class:`ReplayBagSink` writes each step's outputs into a bag with the
 node's own :class:`~tissue_sim_ros.ros.messages.StepEncoder`; :func:`write_outputs`
 writes the CSV, plot, frames and video. The command line is in
-:mod:`tissue_sim_ros.cli_replay`. No ROS graph and no rclpy: this runs anywhere
+:mod:`tissue_sim_ros.cli_replay`. Instead of a bag, :func:`track_from_trajectory` turns a trajectory given as
+data (:mod:`tissue_sim_ros.core.trajectories`) into the samples, one step each.
+No ROS graph and no rclpy: this runs anywhere
 the core runs.
 """
 from __future__ import annotations
@@ -23,7 +25,7 @@ from ..core.errors import InputError
 from ..core.rollout import Rollout, rollout
 from ..core.simulation import Simulation, StepReport
 from ..core.stamps import ns_from_seconds, stamp_from_ns
-from ..core.tool import ToolPose, ToolTwist
+from ..core.tool import ToolPose, ToolTwist, Trajectory
 from . import messages as msgs
 from .bags import BagWriter, ToolTrack
 
@@ -90,6 +92,20 @@ class ReplayResult:
                 f"({self.sim_time:.3f} s simulated; "
                 f"Simulation.step {1e3 * self.step_time / max(1, self.n_steps):.3f} ms/step mean, "
                 f"{1e3 * (self.wall_time - self.step_time) / max(1, self.n_steps):.3f} ms/step writing mean)")
+
+
+def track_from_trajectory(traj: Trajectory, dt: float, name: str = "trajectory") -> ToolTrack:
+    """A ToolTrack of a trajectory's steps: sample k (k = 1..K) is the pose at the end of step k and the
+    pose change over it / dt, at t = start + k dt, so per-message replay steps exactly as an offline rollout."""
+    cmds = list(traj.steps(dt))
+    if not cmds:
+        raise InputError(f"trajectory {name!r} lasts {traj.duration} s: shorter than one step of dt={dt} s")
+    t0 = int(round(traj.start_time * 1e9))
+    t_ns = t0 + np.round(np.arange(1, len(cmds) + 1) * dt * 1e9).astype(np.int64)
+    pose = np.array([p.as_array() for p, _ in cmds])
+    twist = np.array([(tw.vx, tw.vy, tw.wz) for _, tw in cmds], dtype=np.float64)
+    return ToolTrack(t_ns=t_ns, pose=pose, twist=twist, topic=f"trajectory {name}", msgtype="trajectory",
+                     twist_topic=f"trajectory {name}", twist_t_ns=t_ns.copy(), n_messages=len(cmds))
 
 
 def schedule(track: ToolTrack, dt: float, mode: str) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -221,7 +237,7 @@ def write_outputs(out: Path, sim: Simulation, result: ReplayResult, *, video: bo
     ro.write_csv(out / "energy.csv")
     if ro.steps.size:
         render.plot_energy(out / "energy.png", ro.steps, {"inertial": ro.inertial, "spring": ro.spring, "area": ro.area},
-                           contact=ro.in_contact, title=title)
+                           body_names=sim.model.body_names, contact=ro.in_contact, title=title)
     frames_dir = out / "frames"
     if frames_dir.exists():
         shutil.rmtree(frames_dir)

@@ -5,9 +5,12 @@ So a newcomer sees the simulation work without a robot::
     tissue_sim_node --ros-args --params-file config/tissue_sim.yaml &
     tool_driver                                        # the paper's experiment a
     tool_driver --ros-args -p preset:=straight -p angle:=-30.0 -p target_x:=0.55 -p target_y:=0.38
+    tool_driver --ros-args -p trajectory:=authors          # or a .csv/.yaml trajectory file
 
-The trajectory is a named experiment preset (``preset``, default the paper's
-experiment a; resolved by ``tissue_sim_ros.experiments.trajectories.preset``)
+The trajectory is ``trajectory`` when set: a preset name or a trajectory file
+(:func:`tissue_sim_ros.core.trajectories.resolve_trajectory`: CSV of
+time,x,y,yaw or YAML); else a named preset (``preset``, default the paper's
+experiment a; :data:`tissue_sim_ros.core.trajectories.PRESETS`)
 or, with ``preset:=straight``, a straight insertion
 (:class:`~tissue_sim_ros.core.tool.StraightInsertion`) toward ``target_x,
 target_y`` at ``angle`` [deg] over ``distance`` [m]. Messages go out at 1/dt
@@ -39,11 +42,13 @@ from ..core.errors import InputError
 from ..core.scene import tool_from_mapping
 from ..core.stamps import ns_from_seconds, stamp_from_ns
 from ..core.tool import StraightInsertion, Trajectory
+from ..core.trajectories import preset, resolve_trajectory
 from . import messages, qos
 
 #: name -> (default, description); defaults of the tool and dt come from config/tissue_sim.yaml.
 DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
-    "preset": ("experiment_a", "An experiment's trajectory (tissue_sim_ros.experiments.trajectories.PRESETS: experiment_a, experiment_b_shallow, experiment_b_steep), or 'straight' for the straight insertion the parameters below describe."),
+    "trajectory": ("", "A trajectory preset (experiment_a, experiment_b_shallow, experiment_b_steep, authors) or a trajectory file (.csv of time,x,y,yaw; .yaml waypoints or a straight motion); set, it replaces preset."),
+    "preset": ("experiment_a", "A trajectory preset (tissue_sim_ros.core.trajectories.PRESETS: experiment_a, experiment_b_shallow, experiment_b_steep, authors), or 'straight' for the straight insertion the parameters below describe."),
     "target_x": (0.5, "Tip position at the end of the insertion, x [m]."),
     "target_y": (0.5, "Tip position at the end of the insertion, y [m]."),
     "angle": (0.0, "Insertion direction (the tool's yaw) [deg]; 0 = moving toward +x."),
@@ -70,12 +75,12 @@ DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
 def _trajectory(values: dict[str, Any]) -> Trajectory:
     """The trajectory the parameters describe (an experiment preset or a straight insertion)."""
     tool = tool_from_mapping({k: values[k] for k in ("tool_shape", "tool_length", "tool_width", "tool_radius")})
-    if values["preset"] != "straight":
+    if values.get("trajectory"):
         try:
-            from ..experiments.trajectories import preset  # noqa: PLC0415  (the experiments are optional here)
-        except ImportError as exc:
-            raise InputError(f"parameter preset={values['preset']!r}: experiment presets are not available in this "
-                             f"build ({exc}); use preset 'straight'") from None
+            return resolve_trajectory(values["trajectory"], tool, values["dt"])
+        except InputError as exc:
+            raise InputError(f"parameter trajectory: {exc}") from None
+    if values["preset"] != "straight":
         try:
             return preset(values["preset"], tool, values["dt"])
         except InputError as exc:

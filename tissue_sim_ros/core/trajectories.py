@@ -1,0 +1,280 @@
+"""Tool trajectories as data: the presets (the paper's experiments, the authors' run) and trajectory files.
+
+``--trajectory PRESET|FILE`` (``tissue-sim experiment a|b``, ``tissue-sim replay``,
+``tissue-sim demo``) and the tool driver's ``trajectory`` parameter resolve
+through :func:`resolve_trajectory`: a name of :data:`PRESETS`, or a file:
+
+* CSV with a header ``time,x,y,yaw`` (time [s], the tool centre's x, y [m], yaw
+  [rad]; or ``yaw_deg`` [deg]), one timed pose per row, linearly interpolated
+  (:class:`~tissue_sim_ros.core.tool.WaypointTrajectory`);
+* YAML, either ``waypoints:`` (a list of ``{time, x, y, yaw}`` mappings or
+  ``[time, x, y, yaw]`` rows; ``yaw_deg`` allowed; optional ``hold`` [s]), or a
+  straight motion: ``start: {x, y, yaw}`` (or ``yaw_deg``; or ``[x, y, yaw]``),
+  ``direction_deg`` (direction of motion, 0 = +x, -90 = straight down; the
+  tool's yaw stays the start's), ``speed`` [m per step] (or ``speed_mps``
+  [m/s]) and ``steps``.
+
+:func:`write_trajectory_csv` writes any trajectory's per-step poses as such a
+CSV (full precision), so a run's trajectory goes back in unchanged.
+
+The paper's experiments on the default scene (config/tissue.png):
+
+The default scene is 1 m x 1 m: an upper tissue hanging from y = 0.984 m with
+its wavy lower edge at y = 0.620-0.674 m, a lower tissue resting on y = 0.014 m
+with its wavy upper edge at y = 0.344-0.398 m (0.396 m at x = 0.5-0.6), and a
+clear channel y = 0.398-0.620 m between them where the tool enters from the left.
+
+* ``experiment_a``: the authors' 0.8 m x 5 mm box, tip first, moves down and to
+  the right at 30 degrees below horizontal at 0.001 m per step (the authors'
+  speed) from the gap toward the lower tissue; it comes within alpha = 0.025 m
+  of the surface near step 145-150 and reaches it near step 190, then pushes it
+  for the rest of the 300 steps (the paper's snapshots are at steps 150, 220, 270).
+* ``experiment_b_*``: insertions from two angles toward one target point 16 mm
+  inside the lower tissue's surface (0.396 m at x = 0.55); the tool is a 0.3 m box so that the
+  steeper insertion fits in the gap without touching the upper tissue.
+* ``authors``: the run of the authors' code whose energies they saved (their
+  frames show it): their 0.8 m x 5 mm box, horizontal (yaw 0, long side
+  first), centred at (0.15, 0.5008) m, moving straight down 1 mm per step for
+  276 steps (their "translation perpendicular to the orientation").
+"""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import yaml
+
+from .errors import InputError
+from .tool import StraightInsertion, ToolShape, Trajectory, WaypointTrajectory
+
+#: Experiment a: tip start [m], direction [deg], speed [m per step], steps.
+A_START = (0.25, 0.47)
+A_ANGLE_DEG = -30.0
+A_SPEED = 0.001
+A_STEPS = 300
+#: The paper's snapshot steps (Fig. 2).
+A_SNAPSHOTS = (0, 150, 220, 270)
+
+#: Experiment b: the common target of the tool tip [m], insertion distance [m], speed [m/step], angles [deg].
+B_TARGET = (0.55, 0.38)
+B_DISTANCE = 0.22
+B_SPEED = 0.001
+B_ANGLES_DEG = (-10.0, -30.0)
+B_TOOL = ToolShape(kind="box", length=0.3, width=0.005)
+
+
+def experiment_a(tool: ToolShape, dt: float, speed: float = A_SPEED, steps: int = A_STEPS) -> StraightInsertion:
+    """Experiment a's insertion: ``steps`` steps of ``speed`` m from A_START along A_ANGLE_DEG."""
+    a = math.radians(A_ANGLE_DEG)
+    travel = speed * steps
+    target = (A_START[0] + travel * math.cos(a), A_START[1] + travel * math.sin(a))
+    return StraightInsertion.from_tool(tool, A_START, target, speed, dt=dt)
+
+
+def experiment_b(tool: ToolShape, dt: float, angle_deg: float, speed: float = B_SPEED,
+                 target: tuple[float, float] = B_TARGET, distance: float = B_DISTANCE) -> StraightInsertion:
+    """An insertion at ``angle_deg`` (direction of the tip's motion) ending at ``target``."""
+    return StraightInsertion.from_angle(tool, target, math.radians(angle_deg), distance, speed, dt=dt)
+
+
+#: The authors' run: the box centre at the start [m], yaw [rad], direction of motion [deg], m per step, steps.
+AUTHORS_START = (0.15, 0.5008)
+AUTHORS_YAW = 0.0
+AUTHORS_DIRECTION_DEG = -90.0
+AUTHORS_SPEED = 0.001
+AUTHORS_STEPS = 276
+
+
+def straight_motion(start: tuple[float, float, float], direction_deg: float, speed: float, steps: int,
+                    dt: float) -> WaypointTrajectory:
+    """The tool centre from ``start`` (x, y [m], yaw [rad]) along ``direction_deg`` at ``speed`` m per step.
+
+    The yaw stays the start's (the tool may move sideways, as the authors' box
+    moving down); after ``steps`` steps of ``dt`` it stops.
+    """
+    x, y, yaw = (float(v) for v in start)
+    for name, v in (("start x", x), ("start y", y), ("start yaw", yaw), ("direction_deg", direction_deg),
+                    ("speed", speed)):
+        if not math.isfinite(v):
+            raise InputError(f"trajectory {name}={v!r}: expected a finite number")
+    if not speed > 0:
+        raise InputError(f"trajectory speed={speed!r}: expected a distance > 0 m per step")
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 1:
+        raise InputError(f"trajectory steps={steps!r}: expected an integer >= 1")
+    if not (math.isfinite(dt) and dt > 0):
+        raise InputError(f"dt={dt!r}: expected a time step > 0 s")
+    a = math.radians(direction_deg)
+    # an axis direction is exact (cos(-90 deg) is 6e-17 in floating point, which would move x)
+    c, s = (0.0 if abs(v) < 1e-15 else v for v in (math.cos(a), math.sin(a)))
+    travel = speed * int(steps)
+    end = (x + travel * c, y + travel * s, yaw)
+    return WaypointTrajectory(np.array([0.0, int(steps) * dt]), np.array([(x, y, yaw), end]))
+
+
+def authors_run(tool: ToolShape, dt: float) -> WaypointTrajectory:
+    """The authors' saved run (see the module text); ``tool`` is theirs by default (0.8 x 0.005 box)."""
+    del tool  # the motion is of the tool's centre, whatever its shape
+    return straight_motion((*AUTHORS_START, AUTHORS_YAW), AUTHORS_DIRECTION_DEG, AUTHORS_SPEED, AUTHORS_STEPS, dt)
+
+
+PRESETS = ("experiment_a", "experiment_b_shallow", "experiment_b_steep", "authors")
+
+
+def preset(name: str, tool: ToolShape, dt: float) -> Trajectory:
+    """A named trajectory: one of :data:`PRESETS`."""
+    if name == "experiment_a":
+        return experiment_a(tool, dt)
+    if name == "experiment_b_shallow":
+        return experiment_b(tool, dt, B_ANGLES_DEG[0])
+    if name == "experiment_b_steep":
+        return experiment_b(tool, dt, B_ANGLES_DEG[1])
+    if name == "authors":
+        return authors_run(tool, dt)
+    raise InputError(f"trajectory preset {name!r}: expected one of {', '.join(PRESETS)} or a .csv/.yaml file")
+
+
+TRAJECTORY_SUFFIXES = (".csv", ".yaml", ".yml")
+
+
+def resolve_trajectory(spec: str, tool: ToolShape, dt: float) -> Trajectory:
+    """``spec`` as a preset name (:data:`PRESETS`) or a trajectory file (.csv, .yaml, .yml)."""
+    if not isinstance(spec, str) or not spec:
+        raise InputError(f"trajectory {spec!r}: expected a preset ({', '.join(PRESETS)}) or a .csv/.yaml file")
+    if spec in PRESETS:
+        return preset(spec, tool, dt)
+    path = Path(spec)
+    if path.suffix.lower() not in TRAJECTORY_SUFFIXES:
+        raise InputError(f"trajectory {spec!r}: expected a preset ({', '.join(PRESETS)}) or a .csv/.yaml file")
+    return load_trajectory(path, dt)
+
+
+def load_trajectory(path: str | Path, dt: float) -> Trajectory:
+    """A trajectory file (module text): CSV of timed poses, or YAML waypoints or a straight motion."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"trajectory file {str(path)!r} does not exist")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"trajectory file {str(path)!r} cannot be read as text: {exc}") from None
+    if path.suffix.lower() == ".csv":
+        return _from_csv(text, str(path))
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise InputError(f"trajectory file {str(path)!r} is not valid YAML: {exc}".splitlines()[0]) from None
+    return _from_mapping(data, str(path), dt)
+
+
+def _number(value: Any, what: str, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise InputError(f"trajectory file {name!r}: {what}={value!r}: expected a finite number")
+    return float(value)
+
+
+def _yaw(row: Mapping[str, Any], what: str, name: str) -> float:
+    if "yaw_deg" in row:
+        return math.radians(_number(row["yaw_deg"], f"{what} yaw_deg", name))
+    return _number(row.get("yaw", 0.0), f"{what} yaw", name)
+
+
+def _from_csv(text: str, name: str) -> WaypointTrajectory:
+    rows = [r for r in csv.reader(line for line in text.splitlines() if line.strip() and not line.startswith("#"))]
+    if not rows:
+        raise InputError(f"trajectory file {name!r} is empty: expected a header time,x,y,yaw and one row per pose")
+    head = [h.strip().lower() for h in rows[0]]
+    yaw_col = "yaw" if "yaw" in head else "yaw_deg" if "yaw_deg" in head else None
+    missing = [c for c in ("time", "x", "y") if c not in head]
+    if missing or yaw_col is None:
+        raise InputError(f"trajectory file {name!r}: header {','.join(head)!r}: expected columns time,x,y,yaw "
+                         "(yaw [rad]; or yaw_deg [deg])")
+    cols = [head.index(c) for c in ("time", "x", "y", yaw_col)]
+    times, poses = [], []
+    for k, r in enumerate(rows[1:], start=2):
+        try:
+            t, x, y, yaw = (float(r[c]) for c in cols)
+        except (ValueError, IndexError):
+            raise InputError(f"trajectory file {name!r} line {k}: {','.join(r)!r}: expected four numbers "
+                             "time,x,y,yaw") from None
+        times.append(t)
+        poses.append((x, y, math.radians(yaw) if yaw_col == "yaw_deg" else yaw))
+    if not times:
+        raise InputError(f"trajectory file {name!r} has a header but no poses: expected one row per pose")
+    try:
+        return WaypointTrajectory(np.array(times), np.array(poses))
+    except InputError as exc:
+        raise InputError(f"trajectory file {name!r}: {exc}") from None
+
+
+def _from_mapping(data: Any, name: str, dt: float) -> Trajectory:
+    if not isinstance(data, dict):
+        raise InputError(f"trajectory file {name!r}: expected a mapping with 'waypoints', or 'start', "
+                         "'direction_deg', 'speed' and 'steps'")
+    if "waypoints" in data:
+        rows = data["waypoints"]
+        if not isinstance(rows, list) or not rows:
+            raise InputError(f"trajectory file {name!r}: waypoints: expected a list of {{time, x, y, yaw}}")
+        times, poses = [], []
+        for k, r in enumerate(rows):
+            if isinstance(r, (list, tuple)) and len(r) in (3, 4):
+                r = dict(zip(("time", "x", "y", "yaw"), r))
+            if not isinstance(r, dict):
+                raise InputError(f"trajectory file {name!r}: waypoints[{k}]={r!r}: expected {{time, x, y, yaw}}")
+            times.append(_number(r.get("time"), f"waypoints[{k}].time", name))
+            poses.append((_number(r.get("x"), f"waypoints[{k}].x", name),
+                          _number(r.get("y"), f"waypoints[{k}].y", name), _yaw(r, f"waypoints[{k}]", name)))
+        try:
+            return WaypointTrajectory(np.array(times), np.array(poses),
+                                      hold=_number(data.get("hold", 0.0), "hold", name))
+        except InputError as exc:
+            raise InputError(f"trajectory file {name!r}: {exc}") from None
+    missing = [k for k in ("start", "direction_deg", "steps") if k not in data]
+    if "speed" not in data and "speed_mps" not in data:
+        missing.append("speed")
+    if missing:
+        raise InputError(f"trajectory file {name!r}: missing {', '.join(missing)}: expected 'waypoints', or "
+                         "'start', 'direction_deg', 'speed' (m per step) and 'steps'")
+    start = data["start"]
+    if isinstance(start, (list, tuple)) and len(start) in (2, 3):
+        start = dict(zip(("x", "y", "yaw"), start))
+    if not isinstance(start, dict):
+        raise InputError(f"trajectory file {name!r}: start={start!r}: expected {{x, y, yaw}} or [x, y, yaw]")
+    pose = (_number(start.get("x"), "start.x", name), _number(start.get("y"), "start.y", name),
+            _yaw(start, "start", name))
+    if not (math.isfinite(dt) and dt > 0):
+        raise InputError(f"dt={dt!r}: expected a time step > 0 s")
+    speed = (_number(data["speed"], "speed", name) if "speed" in data
+             else _number(data["speed_mps"], "speed_mps", name) * dt)
+    steps = data["steps"]
+    if isinstance(steps, bool) or not isinstance(steps, int):
+        raise InputError(f"trajectory file {name!r}: steps={steps!r}: expected an integer >= 1")
+    try:
+        return straight_motion(pose, _number(data["direction_deg"], "direction_deg", name), speed, steps, dt)
+    except InputError as exc:
+        raise InputError(f"trajectory file {name!r}: {exc}") from None
+
+
+def trajectory_poses(traj: Trajectory, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Times [s] (K + 1,) and poses (K + 1, 3) [m, m, rad]: the start and the end of each of its K steps."""
+    start = traj.pose_at(traj.start_time)
+    times = [traj.start_time]
+    poses = [start.as_array()]
+    for k, (pose, _) in enumerate(traj.steps(dt), start=1):
+        times.append(min(traj.start_time + k * dt, traj.start_time + traj.duration))
+        poses.append(pose.as_array())
+    return np.array(times), np.array(poses)
+
+
+def write_trajectory_csv(path: str | Path, traj: Trajectory, dt: float) -> Path:
+    """Write ``traj`` sampled at its steps of ``dt`` as a trajectory CSV (time,x,y,yaw; full precision)."""
+    path = Path(path)
+    times, poses = trajectory_poses(traj, dt)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["time", "x", "y", "yaw"])
+        for t, (x, y, yaw) in zip(times, poses):
+            w.writerow([repr(float(t)), repr(float(x)), repr(float(y)), repr(float(yaw))])
+    return path

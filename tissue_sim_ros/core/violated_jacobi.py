@@ -1,0 +1,187 @@
+r"""PBD Jacobi as the paper authors' code averages it, and walls that keep every particle in a band.
+
+The authors' ``forward()`` (y8han/2DPBD_Interface, ``Surgical_spring_IROS_workshop.py``,
+commit a0ff238) solves the springs and areas in parallel (Jacobi), but it does not
+average a particle's corrections over all of its constraints: in every
+iteration it first finds the *violated* ones,
+
+* a spring e = (i, j) is violated when |C_e| >= tol_s, C_e = |x_i - x_j| - d_e
+  (their ``epsolon`` = 1e-4 m);
+* a triangle t is violated when |C_t| > tol_a, C_t = |A_t| - |A0_t| (their
+  ``area_epsolon`` = 1e-11 m^2; with ``area_mode: signed`` C_t = A_t - A0_t),
+
+counts them per particle and per type (n_s(i) springs, n_a(i) triangles), and
+moves each free particle by the two averages added::
+
+    dx_i = 1/n_s(i) sum_{violated e at i} -k_s w_i / (w_i + w_j) C_e (x_i - x_j) / |x_i - x_j|
+         + 1/n_a(i) sum_{violated t at i} -k_a w_i C_t / (sum_p w_p |grad_p C_t|^2) grad_i C_t
+
+(an average with no violated constraint of its type is 0). The spring
+stiffness k_s scales its correction, the area correction is the full one
+(their code has no area coefficient; ``k_area`` = 1 is theirs). A violated
+triangle whose area is exactly 0 is counted but not corrected, as theirs
+(its |A| has no gradient). ``w`` are the inverse masses weighting each
+correction; only particles with ``w_move > 0`` move (the paper contact's
+held particles keep their mass in their neighbours' weights but are not
+moved, as the authors' ``actuation_type == 2`` particles). After the
+corrections are applied every particle, pinned ones too, is clamped into
+the walls (their ``collision_check``): y < y_bottom -> y_bottom, y > y_top -> y_top.
+
+:func:`~tissue_sim_ros.core.kernels.jacobi_iterations` with per-particle scale
+1 / (all constraints at i) is the other averaging (``jacobi_averaging: all``).
+Twins: ``test/naive.py`` (``authors_forward``, written from the authors' code
+line by line, and ``apply_walls``).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .collision import project_edges, project_tool
+
+#: Squared length [m^2] below which an edge (or a triangle's gradient) counts as degenerate.
+EPS_LEN2 = 1e-30
+
+
+@njit(cache=True)
+def apply_walls(x: np.ndarray, y_bottom: float, y_top: float) -> int:
+    """Keep every particle between the walls: y < y_bottom -> y_bottom, y > y_top -> y_top.
+
+    All particles, pinned ones too (the authors' ``collision_check``); a NaN wall
+    is absent. Velocities are not touched: the step's velocity update
+    v = (x - x_start) / h sees the clamped positions. Returns how many moved.
+    """
+    has_b = not math.isnan(y_bottom)
+    has_t = not math.isnan(y_top)
+    moved = 0
+    for i in range(x.shape[0]):
+        if has_b and x[i, 1] < y_bottom:
+            x[i, 1] = y_bottom
+            moved += 1
+        if has_t and x[i, 1] > y_top:
+            x[i, 1] = y_top
+            moved += 1
+    return moved
+
+
+@njit(cache=True)
+def violated_jacobi_pass(x: np.ndarray, w: np.ndarray, w_move: np.ndarray,
+                         edges: np.ndarray, rest: np.ndarray, k_e: float, tol_e: float,
+                         tris: np.ndarray, area0: np.ndarray, k_t: float, tol_a: float, signed: bool,
+                         dxs: np.ndarray, dxa: np.ndarray, ns: np.ndarray, na: np.ndarray) -> None:
+    """One authors' Jacobi iteration: corrections from the same ``x``, averaged per type over violated constraints.
+
+    Parameters
+    ----------
+    x : (N, 2) float64
+        Positions [m], updated in place.
+    w : (N,) float64
+        Inverse masses weighting the corrections [1/kg] (0 = pinned).
+    w_move : (N,) float64
+        A particle moves only where ``w_move > 0`` (the step's held particles are 0 here, not in ``w``).
+    edges, rest, k_e, tol_e
+        Springs (E, 2) int32, rest lengths (E,) [m], coefficient, violation tolerance [m].
+    tris, area0, k_t, tol_a, signed
+        Triangles (T, 3) int32, signed rest areas (T,) [m^2], coefficient, tolerance [m^2], signed or |area|.
+    dxs, dxa : (N, 2) float64; ns, na : (N,) float64
+        Scratch: summed spring / area corrections and violated counts (overwritten).
+    """
+    n = x.shape[0]
+    for i in range(n):
+        dxs[i, 0] = 0.0
+        dxs[i, 1] = 0.0
+        dxa[i, 0] = 0.0
+        dxa[i, 1] = 0.0
+        ns[i] = 0.0
+        na[i] = 0.0
+    for e in range(edges.shape[0]):
+        i = edges[e, 0]
+        j = edges[e, 1]
+        dx = x[i, 0] - x[j, 0]
+        dy = x[i, 1] - x[j, 1]
+        len2 = dx * dx + dy * dy
+        length = math.sqrt(len2)
+        C = length - rest[e]
+        if abs(C) < tol_e:
+            continue
+        ns[i] += 1.0
+        ns[j] += 1.0
+        wi = w[i]
+        wj = w[j]
+        ws = wi + wj
+        if ws == 0.0 or len2 <= EPS_LEN2:
+            continue
+        f = -k_e * C / (ws * length)
+        dxs[i, 0] += wi * f * dx
+        dxs[i, 1] += wi * f * dy
+        dxs[j, 0] -= wj * f * dx
+        dxs[j, 1] -= wj * f * dy
+    for t in range(tris.shape[0]):
+        a = tris[t, 0]
+        b = tris[t, 1]
+        c = tris[t, 2]
+        e1x = x[b, 0] - x[a, 0]
+        e1y = x[b, 1] - x[a, 1]
+        e2x = x[c, 0] - x[a, 0]
+        e2y = x[c, 1] - x[a, 1]
+        area = 0.5 * (e1x * e2y - e1y * e2x)
+        if signed:
+            C = area - area0[t]
+            sg = 0.5
+        else:
+            C = abs(area) - abs(area0[t])
+            sg = 0.5 if area > 0.0 else -0.5
+        if not abs(C) > tol_a:
+            continue
+        na[a] += 1.0
+        na[b] += 1.0
+        na[c] += 1.0
+        if not signed and area == 0.0:
+            continue
+        gbx = sg * e2y
+        gby = -sg * e2x
+        gcx = -sg * e1y
+        gcy = sg * e1x
+        gax = -gbx - gcx
+        gay = -gby - gcy
+        den = (w[a] * (gax * gax + gay * gay) + w[b] * (gbx * gbx + gby * gby)
+               + w[c] * (gcx * gcx + gcy * gcy))
+        if den <= 0.0:
+            continue
+        s = -k_t * C / den
+        dxa[a, 0] += w[a] * s * gax
+        dxa[a, 1] += w[a] * s * gay
+        dxa[b, 0] += w[b] * s * gbx
+        dxa[b, 1] += w[b] * s * gby
+        dxa[c, 0] += w[c] * s * gcx
+        dxa[c, 1] += w[c] * s * gcy
+    for i in range(n):
+        if w_move[i] > 0.0:
+            if ns[i] > 0.0:
+                x[i, 0] += dxs[i, 0] / ns[i]
+                x[i, 1] += dxs[i, 1] / ns[i]
+            if na[i] > 0.0:
+                x[i, 0] += dxa[i, 0] / na[i]
+                x[i, 1] += dxa[i, 1] / na[i]
+
+
+@njit(cache=True)
+def violated_jacobi_iterations(x: np.ndarray, w: np.ndarray, w_move: np.ndarray,
+                               edges: np.ndarray, rest: np.ndarray, k_e: float, tol_e: float,
+                               tris: np.ndarray, area0: np.ndarray, k_t: float, tol_a: float, signed: bool,
+                               iterations: int, y_bottom: float, y_top: float,
+                               dxs: np.ndarray, dxa: np.ndarray, ns: np.ndarray, na: np.ndarray,
+                               x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
+                               dx_accum: np.ndarray, surface_edges: np.ndarray, edge_side_tol: float) -> None:
+    """``iterations`` of :func:`violated_jacobi_pass`, each followed by the tool projection (projection
+    contact, as :func:`~tissue_sim_ros.core.kernels.jacobi_iterations`) and the walls (:func:`apply_walls`)."""
+    for _ in range(iterations):
+        violated_jacobi_pass(x, w, w_move, edges, rest, k_e, tol_e, tris, area0, k_t, tol_a, signed,
+                             dxs, dxa, ns, na)
+        if candidates.shape[0] > 0:
+            project_tool(x, x_start, w_move, candidates, shape0, shape1, dx_accum)
+        if surface_edges.shape[0] > 0:
+            project_edges(x, x_start, w_move, surface_edges, shape0, shape1, edge_side_tol, dx_accum)
+        apply_walls(x, y_bottom, y_top)
