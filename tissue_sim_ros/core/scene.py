@@ -15,7 +15,7 @@ import yaml
 
 from .errors import InputError
 from .mesh import TissueMesh, load_mesh
-from .model import METHOD_ALIASES, Model, SimParams
+from .model import MATERIAL_DEFAULTS, METHOD_ALIASES, Model, SimParams
 from .simulation import Simulation
 from .tool import ToolShape
 
@@ -121,6 +121,11 @@ def build_simulation(values: Mapping[str, Any] | None = None, mesh: TissueMesh |
         # a method alias (xpbd_jacobi, xpbd_substep) sets its own scheme/iterations/substeps: the shipped
         # file's values must not override them, only values the caller gave explicitly
         for key in alias:
+            merged.pop(key, None)
+    material = values.get("material", merged.get("material"))
+    for key in MATERIAL_DEFAULTS.get(material, {}) if isinstance(material, str) else ():
+        # likewise a material's own solver settings (neo_hookean: xpbd, substeps, projection contact)
+        if key not in values:
             merged.pop(key, None)
     merged.update(values)
     params = SimParams.from_mapping(merged)

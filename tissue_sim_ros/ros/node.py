@@ -42,7 +42,7 @@ from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
 from ..core.errors import InputError
-from ..core.model import METHOD_ALIASES, Model, SimParams
+from ..core.model import METHOD_ALIASES, Model, SimParams, apply_material_defaults
 from ..core.scene import SceneConfig, default_params, tool_from_mapping
 from ..core.simulation import Simulation, StepReport
 from ..core.tool import ToolPose, ToolTwist, yaw_from_quaternion
@@ -247,7 +247,7 @@ class TissueSimNode(Node):
             for k in ("scheme", "substeps", "iterations"):
                 if k in METHOD_ALIASES[out["method"]] and out[k] == self._shipped.get(k, BY_NAME[k].default):
                     del out[k]
-        return out
+        return apply_material_defaults(out, self._shipped)  # neo_hookean's solver where shipped values stand
 
     def _make_encoder(self) -> messages.SceneEncoder:
         m = self.sim.model

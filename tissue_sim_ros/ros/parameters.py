@@ -21,8 +21,18 @@ from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 from ..core.errors import InputError
-from ..core.model import AREA_MODES, CONTACT_MODELS, CONTACT_SURFACES, METHOD_ALIASES, METHODS, SCHEMES, SimParams
-from ..core.scene import SceneConfig, tool_from_mapping
+from ..core.model import (
+    AREA_MODES,
+    CONTACT_MODELS,
+    CONTACT_SURFACES,
+    MATERIALS,
+    METHOD_ALIASES,
+    METHODS,
+    SCHEMES,
+    SimParams,
+    apply_material_defaults,
+)
+from ..core.scene import SceneConfig, default_params, tool_from_mapping
 from ..core.tool import TOOL_SHAPES, ToolShape
 
 Check = Callable[[Any], "str | None"]
@@ -84,6 +94,11 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     # physics (Table I)
     ParamSpec("mass", float, _SIM.mass, "kg", "Mass of each particle (Table I: 1e-4).", True, "physics"),
     ParamSpec("mass_per_area", float, _SIM.mass_per_area, "kg/m^2", "Areal density: > 0 lumps a third of each triangle's area times it on its corners (refined or graded meshes keep the same tissue); 0 = every particle has mass (the paper).", True, "physics"),
+    ParamSpec("material", str, _SIM.material, "", f"Tissue model: {', '.join(MATERIALS)} (constraints = the paper's springs and areas; neo_hookean = a plane-stress membrane from young_modulus, poisson_ratio, thickness, density, with its own defaults method xpbd, substeps 10, iterations 10, contact_model projection where the shipped values stand).", True, "physics"),
+    ParamSpec("young_modulus", float, _SIM.young_modulus, "Pa", "neo_hookean: Young's modulus E (> 0); ignored by constraints.", False, "physics"),
+    ParamSpec("poisson_ratio", float, _SIM.poisson_ratio, "", "neo_hookean: Poisson's ratio nu in [0, 0.5); ignored by constraints.", False, "physics"),
+    ParamSpec("thickness", float, _SIM.thickness, "m", "neo_hookean: membrane thickness (> 0); ignored by constraints.", True, "physics"),
+    ParamSpec("density", float, _SIM.density, "kg/m^3", "neo_hookean: density (> 0); particle masses lumped from density x thickness x a third of each adjacent triangle's rest area (replaces mass, mass_per_area); ignored by constraints.", True, "physics"),
     ParamSpec("gravity", float, _SIM.gravity, "m/s^2", "Gravity along world y (Table I: -9.8).", False, "physics"),
     ParamSpec("dt", float, _SIM.dt, "s", "Time step; the node steps at 1/dt of its clock (Table I: 0.01).", True, "physics"),
     ParamSpec("damping", float, _SIM.damping, "1/s", "Velocity damping rate; 0 = off (paper).", False, "physics"),
@@ -163,7 +178,7 @@ def validate(values: Mapping[str, Any]) -> dict[str, Any]:
     :class:`ToolShape`.
     """
     out = {name: coerce(BY_NAME[name], value) for name, value in values.items() if name in BY_NAME}
-    SimParams.from_mapping(out)
+    SimParams.from_mapping(apply_material_defaults(out, default_params()))
     SceneConfig.from_mapping(out)
     tool_from_mapping(out)
     return out
