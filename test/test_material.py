@@ -16,7 +16,7 @@ from tissue_sim_ros.cli import main
 from tissue_sim_ros.core import material
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_from_arrays, mesh_rectangle
-from tissue_sim_ros.core.model import Model, SimParams
+from tissue_sim_ros.core.model import MATERIAL_DEFAULTS, Model, SimParams
 from tissue_sim_ros.core.scene import build_simulation
 from tissue_sim_ros.core.simulation import Simulation
 from tissue_sim_ros.core.solvers import Solver
@@ -37,7 +37,12 @@ def material_params(**changes) -> SimParams:
     values = dict(material="neo_hookean", young_modulus=E, poisson_ratio=NU, thickness=THICK, density=RHO,
                   gravity=0.0)
     values.update(changes)
-    return SimParams.from_mapping(values)
+    return params(**values)
+
+
+def params(**values) -> SimParams:
+    """SimParams with the material's own solver defaults under the given values (as the front door does)."""
+    return SimParams(**{**MATERIAL_DEFAULTS.get(values.get("material", "constraints"), {}), **values})
 
 
 def random_elements(seed: int, n: int = 20, n_tris: int = 16) -> dict:
@@ -233,7 +238,7 @@ def test_bad_material_input_is_refused_by_name(name, value, expected) -> None:
     assert name in str(err.value) and expected in str(err.value)
     # the same check with material: constraints (a bad value is refused whatever the model)
     with pytest.raises(InputError):
-        SimParams.from_mapping({name: value})
+        SimParams(**{name: value})
 
 
 def test_bad_material_input_on_the_command_line_exits_2(tmp_path, capsys) -> None:
@@ -403,7 +408,7 @@ def test_hanging_strip_converges_to_the_fem_reference() -> None:
     ref = fem.hanging_strip(width=0.1, height=0.04, gravity=9.8, **STRIP).mean_sag
     errors = []
     for spacing in SPACINGS:
-        p = SimParams.from_mapping(dict(material="neo_hookean", dt=0.002, damping=30.0,
+        p = params(**dict(material="neo_hookean", dt=0.002, damping=30.0,
                                         boundary_y_top=0.04 - 1e-9, **STRIP))
         sim = Simulation(Model.from_mesh(mesh_rectangle(0.1, 0.04, spacing), p))
         run_to_rest(sim)
@@ -433,7 +438,7 @@ def test_punch_reaction_is_the_elastic_force_and_converges_to_the_fem_force() ->
                          poisson_ratio=STRIP["poisson_ratio"], thickness=STRIP["thickness"]).force
     errors = []
     for spacing in SPACINGS:
-        p = SimParams.from_mapping(dict(material="neo_hookean", dt=0.002, damping=30.0, gravity=0.0,
+        p = params(**dict(material="neo_hookean", dt=0.002, damping=30.0, gravity=0.0,
                                         boundary_y_bottom=1e-9, contact_margin=0.0, **STRIP))
         assert p.substeps == 10 and p.contact_model == "projection"
         sim = Simulation(Model.from_mesh(mesh_rectangle(0.1, 0.04, spacing), p),
@@ -448,3 +453,22 @@ def test_punch_reaction_is_the_elastic_force_and_converges_to_the_fem_force() ->
     # measured: 2.6 %, 1.4 %, 0.53 %
     assert errors[-1] < 0.02
     assert errors[0] > errors[1] > errors[2], errors
+
+
+def test_material_defaults_through_the_front_door(tmp_path) -> None:
+    from tissue_sim_ros.core.config import resolve_config  # noqa: PLC0415
+
+    cfg = resolve_config({"material": "neo_hookean"})
+    assert (cfg.sim.method, cfg.sim.substeps, cfg.sim.iterations, cfg.sim.contact_model) == \
+        ("xpbd", 10, 10, "projection")
+    # a value set later is the user's (the material's defaults are applied once, when it is chosen)
+    assert cfg.replace(iterations=30).sim.iterations == 30
+    assert resolve_config().replace(material="neo_hookean").sim.method == "xpbd"
+    # an alias keeps its own substeps; explicit values win
+    sub = resolve_config({"material": "neo_hookean", "method": "xpbd_substep"}).sim
+    assert (sub.substeps, sub.iterations) == (30, 1)
+    assert resolve_config({"material": "neo_hookean", "iterations": 30}).sim.iterations == 30
+    # the resolved file reads back to the same configuration
+    path = tmp_path / "material.yaml"
+    path.write_text(cfg.to_yaml())
+    assert resolve_config(params_file=path) == cfg

@@ -12,16 +12,34 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
 from .collision import ContactModel, Contacts
+from .config import BY_NAME, Config
 from .energy import EnergyTerms, energy_terms
+from .errors import InputError
 from .kernels import count_inverted
 from .model import Model, State
 from .solvers import Solver
 from .tool import ToolPose, ToolShape, ToolTwist, tool_shape_array
 from .tool_checks import INSIDE_TOL, tool_checks
+
+if TYPE_CHECKING:
+    from .mesh import TissueMesh
+
+SolverFactory = Callable[[Model], Any]
+"""Makes the solver of a Model (a :class:`~tissue_sim_ros.core.solvers.Solver` or one with its step())."""
+
+
+def default_solver(model: Model) -> Any:
+    """The solver a Model's parameters ask for: sleeping when ``sleep_speed`` > 0, else :class:`Solver`."""
+    if model.params.sleep_speed > 0:
+        from .sleeping import SleepingSolver  # noqa: PLC0415  (a scene that asks for it)
+
+        return SleepingSolver(model, wake_radius=model.params.sleep_wake_radius, sleep_speed=model.params.sleep_speed)
+    return Solver(model)
 
 
 @dataclass
@@ -77,25 +95,30 @@ class StepReport:
 class Simulation:
     """One scene: Model + State + Solver + tool contact.
 
+    Build one with :meth:`from_config` (the one way the node, the commands and
+    the library do) or from a Model directly.
+
     Parameters
     ----------
     model : Model
         Topology, rest state and parameters (``model.params``).
     tool : ToolShape, optional
         Shape of the tool; without it the tissue only feels gravity.
+    solver : callable, optional
+        ``solver(model)`` makes the solver (default: :func:`default_solver`); it is
+        called again with the new Model by :meth:`retune`.
+    config : Config, optional
+        The configuration the scene was built from (kept for :meth:`retune`).
     """
 
-    def __init__(self, model: Model, tool: ToolShape | None = None) -> None:
+    def __init__(self, model: Model, tool: ToolShape | None = None, solver: SolverFactory | None = None,
+                 config: Config | None = None) -> None:
         self.model = model
         self.params = model.params
         self.tool = tool
-        if model.params.sleep_speed > 0:
-            from .sleeping import SleepingSolver  # noqa: PLC0415  (a scene that asks for it)
-
-            self.solver: Solver = SleepingSolver(model, wake_radius=model.params.sleep_wake_radius,
-                                                 sleep_speed=model.params.sleep_speed)
-        else:
-            self.solver = Solver(model)
+        self.config = config
+        self._solver_factory: SolverFactory = solver or default_solver
+        self.solver = self._solver_factory(model)
         self.contact = ContactModel(model, tool) if tool is not None else None
         self.state: State = model.state()
         self._state_out: State = model.state()
@@ -103,6 +126,43 @@ class Simulation:
         self.time = 0.0
         self.tool_pose: ToolPose | None = None
         self._last_good: State = self.state.copy()
+
+    @classmethod
+    def from_config(cls, cfg: Config, mesh: "TissueMesh | None" = None,
+                    solver: SolverFactory | None = None) -> "Simulation":
+        """The scene a resolved configuration describes.
+
+        Parameters
+        ----------
+        cfg : Config
+            From :func:`~tissue_sim_ros.core.config.resolve_config`.
+        mesh : TissueMesh, optional
+            Use this mesh instead of building ``cfg.scene``'s (a benchmark's strip, a cached mesh).
+        solver : callable, optional
+            ``solver(model)`` makes the solver (default: what the parameters ask for).
+        """
+        mesh = mesh if mesh is not None else cfg.scene.build_mesh()
+        return cls(Model.from_mesh(mesh, cfg.sim), tool=cfg.tool, solver=solver, config=cfg)
+
+    def retune(self, cfg: Config) -> None:
+        """Apply tunable changes (iterations, stiffness, contact model...) and keep state, time and tool pose.
+
+        Raises InputError naming the first changed parameter that is read-only
+        (the mesh, dt, masses, boundary lines, the tool shape: a new scene).
+        """
+        if self.config is not None:
+            for name in self.config.changed(cfg):
+                if BY_NAME[name].read_only:
+                    raise InputError(f"parameter {name} is read-only: it defines the scene; build a new "
+                                     "simulation (restart the node) to change it")
+        state, last_good = self.state.copy(), self._last_good.copy()
+        model = self.model.with_params(cfg.sim)
+        self.model = model
+        self.params = model.params
+        self.config = cfg
+        self.solver = self._solver_factory(model)
+        self.contact = ContactModel(model, self.tool) if self.tool is not None else None
+        self.state, self._state_out, self._last_good = state, model.state(), last_good
 
     def reset(self) -> None:
         """Back to the rest configuration at t = 0 (tool pose forgotten)."""

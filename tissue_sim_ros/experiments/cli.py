@@ -2,10 +2,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 
+from ..cli_config import add_config_arguments, config_from_args
 from ..core.errors import InputError
-from ..core.scene import load_params_file
 from . import paper
 from . import trajectories as tr
 
@@ -23,9 +22,7 @@ Figures (PNG) and the energy series (CSV) are written to --out."""
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("which", choices=["a", "b"], help="experiment a (approach) or b (two insertion angles)")
     parser.add_argument("--out", default="out", help="output directory (default: out)")
-    parser.add_argument("--params", help="parameter YAML (default: the shipped config/tissue_sim.yaml)")
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                        help="override one parameter, e.g. --set contact_model=projection (repeatable)")
+    add_config_arguments(parser)
     parser.add_argument("--steps", type=int, default=tr.A_STEPS, help=f"experiment a: steps (default {tr.A_STEPS})")
     parser.add_argument("--angles", type=float, nargs="+", default=list(tr.B_ANGLES_DEG),
                         help="experiment b: insertion angles in degrees (default: %(default)s)")
@@ -36,28 +33,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def parse_overrides(items: list[str]) -> dict:
-    """NAME=VALUE strings -> dict, values parsed as YAML scalars (numbers, booleans, strings)."""
-    import yaml  # noqa: PLC0415
-
-    out = {}
-    for item in items:
-        if "=" not in item:
-            raise InputError(f"--set {item!r}: expected NAME=VALUE")
-        name, value = item.split("=", 1)
-        out[name.strip()] = yaml.safe_load(value)
-    return out
-
-
 def run(args: argparse.Namespace) -> int:
-    params = load_params_file(args.params) if args.params else {}
-    params.update(parse_overrides(args.set))
+    cfg = config_from_args(args, defaults=paper.B_TOOL_VALUES if args.which == "b" else None)
     if args.which == "a" and args.steps < 1:
         raise InputError(f"--steps {args.steps}: expected at least 1 step")
     models = args.contact or (["paper", "projection"] if args.which == "a" else [None])
     finite = True
     for model in models:
-        values = dict(params, **({"contact_model": model} if model else {}))
+        values = cfg.replace(contact_model=model) if model else cfg
         tag = f"_{model}" if model else ""
         if args.which == "a":
             result = paper.experiment_a(args.out, params=values, steps=args.steps, progress=not args.no_progress,
@@ -72,7 +55,3 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {f}")
         finite &= bool(result.summary.get("energy finite", True))
     return 0 if finite else 1
-
-
-def summary_json(result: paper.ExperimentResult) -> str:
-    return json.dumps(result.summary, indent=2, default=str)

@@ -18,6 +18,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from tqdm import tqdm
 
+from ..core.config import Config, resolve_config
 from ..core.rollout import Rollout, rollout
 from ..core.scene import build_simulation
 from ..core.simulation import Simulation
@@ -40,6 +41,10 @@ class ExperimentResult:
         return "\n".join(f"  {k}: {v}" for k, v in self.summary.items())
 
 
+#: Experiment b's tool as parameters: the command's defaults, under a parameter file's tool_* values.
+B_TOOL_VALUES = {"tool_shape": tr.B_TOOL.kind, "tool_length": tr.B_TOOL.length, "tool_width": tr.B_TOOL.width}
+
+
 def insertion_cost(run: Rollout, baseline: Rollout) -> float:
     """The planning cost of an insertion: the energy it adds to the scene, summed over its steps.
 
@@ -54,9 +59,9 @@ def insertion_cost(run: Rollout, baseline: Rollout) -> float:
     return float((run.scene_total - baseline.scene_total[:n]).sum())
 
 
-def baseline_rollout(values: Mapping[str, Any], steps: int) -> Rollout:
+def baseline_rollout(values: Mapping[str, Any] | Config, steps: int) -> Rollout:
     """The scene of ``values`` stepped ``steps`` times without a tool (the energy an insertion is measured from)."""
-    sim = build_simulation(dict(values))
+    sim = build_simulation(values)
     return rollout(sim, ((None, None) for _ in range(steps)))
 
 
@@ -100,7 +105,7 @@ def summarise(run: Rollout, wall: float, dt: float) -> dict[str, Any]:
     }
 
 
-def experiment_a(out: str | Path, *, params: Mapping[str, Any] | None = None, steps: int = tr.A_STEPS,
+def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None = None, steps: int = tr.A_STEPS,
                  snapshot_steps: Sequence[int] = tr.A_SNAPSHOTS, progress: bool = True,
                  prefix: str = "experiment_a") -> ExperimentResult:
     """Run experiment a and write ``{prefix}_snapshots.png``, ``{prefix}_energy.png``, ``{prefix}_energy.csv``."""
@@ -108,7 +113,7 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | None = None, st
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    sim = build_simulation(dict(params or {}))
+    sim = build_simulation(params)
     traj = tr.experiment_a(sim.tool, sim.params.dt, steps=steps)
     snaps = [s for s in snapshot_steps if s <= steps]
     run, wall = run_trajectory(sim, traj, snapshot_steps=snaps, progress="experiment a" if progress else False)
@@ -131,7 +136,7 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | None = None, st
     return res
 
 
-def experiment_b(out: str | Path, *, params: Mapping[str, Any] | None = None,
+def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None = None,
                  angles_deg: Sequence[float] = tr.B_ANGLES_DEG, target: tuple[float, float] = tr.B_TARGET,
                  speed: float = tr.B_SPEED, distance: float = tr.B_DISTANCE, progress: bool = True,
                  prefix: str = "experiment_b") -> ExperimentResult:
@@ -142,8 +147,7 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | None = None,
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    values = {"tool_shape": tr.B_TOOL.kind, "tool_length": tr.B_TOOL.length, "tool_width": tr.B_TOOL.width}
-    values.update(params or {})
+    values = params if isinstance(params, Config) else resolve_config(dict(params or {}), defaults=B_TOOL_VALUES)
     res = ExperimentResult("b")
     runs: list[tuple[float, Rollout, Simulation, float]] = []
     baseline: Rollout | None = None
