@@ -31,10 +31,9 @@ def test_source_checkout_finds_config():
     path = config_path(DEFAULT_PARAMS_FILE)
     assert path.is_file()
     # the shipped params parse into valid SimParams
-    from tissue_sim_ros.core.model import SimParams
-    from tissue_sim_ros.core.scene import load_params_file
+    from tissue_sim_ros.core.config import resolve_config
 
-    params = SimParams.from_mapping(load_params_file(path))
+    params = resolve_config(params_file=path).sim
     assert params.dt == 0.01 and params.iterations == 30 and params.k_spring == 0.15
 
 

@@ -23,12 +23,13 @@ from sensor_msgs.msg import PointCloud2, PointField  # noqa: E402
 from std_msgs.msg import ColorRGBA, Float64, Float64MultiArray, MultiArrayDimension  # noqa: E402
 from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 
+from tissue_sim_ros.core.config import resolve_config  # noqa: E402
 from tissue_sim_ros.core.errors import InputError  # noqa: E402
 from tissue_sim_ros.core.mesh import mesh_rectangle  # noqa: E402
 from tissue_sim_ros.core.model import SimParams  # noqa: E402
 from tissue_sim_ros.core.scene import SceneConfig, default_params  # noqa: E402
 from tissue_sim_ros.ros import messages as M  # noqa: E402
-from tissue_sim_ros.ros.parameters import BY_NAME, PARAMETERS, coerce, markdown_table, validate  # noqa: E402
+from tissue_sim_ros.ros.parameters import BY_NAME, PARAMETERS, coerce, markdown_table  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -234,7 +235,7 @@ def test_parameter_table_covers_every_flat_name() -> None:
     for name in names:
         assert f"`{name}`" in doc, f"msg_docs/parameters.md does not describe {name}"
     # the shipped defaults pass validation
-    validate({**{p.name: p.default for p in PARAMETERS}, **default_params()})
+    resolve_config()
 
 
 @pytest.mark.parametrize("name, value, expected", [
@@ -253,14 +254,13 @@ def test_coerce_names_the_parameter(name: str, value: object, expected: str) -> 
 
 
 def test_validate_checks_physics_through_simparams() -> None:
-    values = {**{p.name: p.default for p in PARAMETERS}, **default_params()}
     assert coerce(BY_NAME["dt"], 1) == 1.0 and isinstance(coerce(BY_NAME["dt"], 1), float)
     with pytest.raises(InputError, match="k_spring"):
-        validate({**values, "k_spring": 1.5})
+        resolve_config({"k_spring": 1.5})
     with pytest.raises(InputError, match="tool_shape"):
-        validate({**values, "tool_shape": "scalpel"})
+        resolve_config({"tool_shape": "scalpel"})
     with pytest.raises(InputError, match="spacing"):
-        validate({**values, "spacing": -0.1})
+        resolve_config({"spacing": -0.1})
 
 
 def test_vertex_strain_matches_a_plain_loop() -> None:

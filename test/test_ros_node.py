@@ -437,6 +437,9 @@ def test_malformed_parameter_file_exits_2(start_process: Any, tmp_path: Path) ->
     proc = start_process(["tissue_sim_node", "--ros-args", "--params-file", str(path)], name="broken")
     assert proc.wait(timeout=60) == 2
     assert "broken.yaml" in proc.output() and "Traceback" not in proc.output()
+    # one line, naming the file and where (not rcl's log line and its own)
+    lines = [line for line in proc.output().splitlines() if line.strip()]
+    assert len(lines) == 1 and "not valid YAML at line" in lines[0], proc.output()
 
 
 def test_sigterm_ends_the_node_cleanly(node: Node) -> None:

@@ -22,6 +22,7 @@ from .core.errors import InputError
 
 #: subcommand -> (module, one-line help). Nested groups ("bench") hold their own table.
 COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
+    "config": ("tissue_sim_ros.cli_config", "print the resolved configuration (shipped YAML + --params + --set) as a parameter YAML"),
     "mesh": ("tissue_sim_ros.cli_mesh", "mesh a tissue image (or load a mesh file), report quality, write .npz and a picture"),
     "experiment": ("tissue_sim_ros.experiments.cli", "run the paper's experiment a or b offline and write its figures"),
     "plan": ("tissue_sim_ros.experiments.plan", "rank insertion angles/speeds toward a target by implicit Euler energy"),

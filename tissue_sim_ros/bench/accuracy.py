@@ -37,6 +37,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ..core.collision import ContactModel, Contacts
+from ..core.config import parse_assignments, resolve_config
 from ..core.errors import InputError
 from ..core.mesh import TissueMesh, mesh_rectangle
 from ..core.model import Model, SimParams, State
@@ -176,13 +177,8 @@ def default_scene(spacing: float = 0.05, dt: float = 0.01, n_steps: int = 40, sp
     ``like``: take the tool trajectory from this scene (so that meshes of other resolutions
     see exactly the same tool motion; ``n_steps`` is then ignored).
     """
-    from ..core.scene import SceneConfig, default_params, tool_from_mapping  # noqa: PLC0415
-
-    values = default_params()
-    values.update(overrides or {})
-    values["spacing"] = spacing
-    values["dt"] = dt
-    cfg = SceneConfig.from_mapping(values)
+    resolved = resolve_config({**(overrides or {}), "spacing": spacing, "dt": dt}, source="the accuracy scene")
+    cfg = resolved.scene
     if grading is None:
         mesh = cfg.build_mesh()
     else:
@@ -192,8 +188,8 @@ def default_scene(spacing: float = 0.05, dt: float = 0.01, n_steps: int = 40, sp
         mesh = mesh_from_image(cfg.image or str(config_path(DEFAULT_IMAGE)), spacing=spacing, scale=cfg.scale,
                                origin=(cfg.origin_x, cfg.origin_y),
                                threshold=None if cfg.threshold < 0 else cfg.threshold, grading=grading)
-    params = SimParams.from_mapping(values)
-    tool = tool_from_mapping(values)
+    params = resolved.sim
+    tool = resolved.tool
     if like is not None:
         poses, focus = list(like.poses), like.focus
     else:
@@ -207,7 +203,7 @@ def strip_scene(spacing: float = 0.05, dt: float = 0.01, n_steps: int = 20, spee
     mesh = mesh_rectangle(width, height, spacing)
     values: dict[str, Any] = {"dt": dt, "boundary_y_bottom": 0.5 * spacing, "contact_model": "paper"}
     values.update(overrides or {})
-    params = SimParams.from_mapping(values)
+    params = resolve_config(values, base={}, source="the strip scene").sim  # the code's defaults, no shipped scene
     tool = ToolShape("box", length=0.4 * width, width=0.005)
     # a single body: push its top surface (push_poses picks the bottom body, which here is the only one)
     poses, focus = push_poses(mesh, tool, n_steps, speed)
@@ -600,9 +596,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--tolerance={tol}: expected an error > 0")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from ..experiments.cli import parse_overrides  # noqa: PLC0415
-
-    overrides = parse_overrides(args.set)
+    overrides = parse_assignments(args.set)
 
     # the scenes: every resolution at the first dt; the other dts at the base resolution; graded at base spacing
     base_speed = 0.002  # unused by experiment a's scenes (their speed is the experiment's)

@@ -142,12 +142,12 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
     from sensor_msgs.msg import PointCloud2  # noqa: PLC0415
     from visualization_msgs.msg import MarkerArray  # noqa: PLC0415
 
-    from ..core.scene import default_params  # noqa: PLC0415
+    from ..core.config import resolve_config  # noqa: PLC0415
     from ..ros import messages, qos  # noqa: PLC0415
 
-    params = {**default_params(), **overrides, "marker_rate": 1000.0, "points_rate": 1000.0,
-              "markers_wireframe": True, "diagnostics_rate": 1.0, "max_tool_jump": 1.0,
-              "lock_step": mode == "lock_step"}
+    params = resolve_config({**overrides, "marker_rate": 1000.0, "points_rate": 1000.0,
+                             "markers_wireframe": True, "diagnostics_rate": 1.0, "max_tool_jump": 1.0,
+                             "lock_step": mode == "lock_step"}, source="bench node").flat()
     dt = float(params["dt"])
     tag = f"{name}_{mode}"
     params_file = out / f"node_{tag}.yaml"
@@ -362,9 +362,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--domain-id={domain_id}: expected 0..101")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from ..core.scene import default_params  # noqa: PLC0415
+    from ..core.config import resolve_config  # noqa: PLC0415
 
-    dt = float(default_params()["dt"])
+    dt = resolve_config().sim.dt
     results = []
     for name in args.scene or list(SCENES):
         for mode in args.mode or list(MODES):

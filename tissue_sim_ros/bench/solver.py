@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import math
 import os
 import time
@@ -40,9 +41,11 @@ import numba
 import numpy as np
 
 from ..core.collision import Contacts
+from ..core.config import resolve_config
 from ..core.errors import InputError
 from ..core.mesh import TissueMesh, mesh_rectangle
 from ..core.model import Model, SimParams
+from ..core.simulation import Simulation
 from ..core.solvers import Solver
 from .numpy_baseline import NumpyJacobiSolver
 
@@ -126,7 +129,6 @@ def _threads(solver: Any) -> int:
 
 def paper_scene_rows(methods: list[Method], iterations: int, steps: int, progress) -> list[dict[str, Any]]:
     """Experiment a on the default scene: solve and contact cost over the steps in contact."""
-    from ..core.scene import build_simulation  # noqa: PLC0415
     from ..experiments.trajectories import experiment_a  # noqa: PLC0415
 
     rows = []
@@ -135,11 +137,9 @@ def paper_scene_rows(methods: list[Method], iterations: int, steps: int, progres
         flat.setdefault("iterations", iterations)
         for key in ("scheme", "substeps"):
             flat.setdefault(key, SimParams.__dataclass_fields__[key].default)
-        sim = build_simulation(flat)
-        if method.numpy:
-            sim.solver = NumpyJacobiSolver(sim.model)
-        else:
-            sim.solver = Solver(sim.model, **method.solver)
+        cfg = resolve_config(flat, source=f"bench solver method {method.name}")
+        sim = Simulation.from_config(cfg, solver=NumpyJacobiSolver if method.numpy
+                                     else functools.partial(Solver, **method.solver))
         traj = experiment_a(sim.tool, sim.params.dt)
         solve, contact, total = [], [], []
         for pose, twist in traj.steps(sim.params.dt):

@@ -25,6 +25,7 @@ first failure) and prints a table of failure counts and the safe region.
 from __future__ import annotations
 
 import argparse
+import functools
 import itertools
 import math
 from dataclasses import dataclass
@@ -37,6 +38,7 @@ from ..core.errors import InputError
 from ..core.mesh import TissueMesh, mesh_from_arrays, mesh_rectangle
 from ..core.model import Model, SimParams
 from ..core.simulation import Simulation
+from ..core.solvers import Solver
 from ..core.tool import ToolPose, ToolShape
 from .accuracy import format_table, push_poses, write_csv
 from .failures import FAILURE_KINDS, Failure, FailureMonitor, iteration_residuals, residual_falls
@@ -168,11 +170,7 @@ def run_one(cfg: RunConfig, mesh: TissueMesh | None = None, flip: Sequence[int] 
     params, solver_options = run_params(cfg)
     model = Model.from_mesh(mesh, params)
     tool = ToolShape("box", length=0.4, width=0.005)
-    sim = Simulation(model, tool)
-    if solver_options:
-        from ..core.solvers import Solver  # noqa: PLC0415
-
-        sim.solver = Solver(model, **solver_options)
+    sim = Simulation(model, tool, solver=functools.partial(Solver, **solver_options) if solver_options else None)
     state = sim.state
     for t in flip:
         i, j, k = model.tri_indices[t]

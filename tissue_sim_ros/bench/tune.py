@@ -25,6 +25,7 @@ from typing import Any
 
 import yaml
 
+from ..core.config import resolve_config
 from ..core.errors import InputError
 from ..core.model import SimParams
 from .accuracy import (
@@ -111,17 +112,13 @@ def params_for(values: dict[str, Any], row: dict[str, Any]) -> dict[str, Any]:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm  # noqa: PLC0415
 
-    from ..core.scene import default_params, load_params_file  # noqa: PLC0415
-
     if not (math.isfinite(args.tolerance) and args.tolerance > 0):
         raise InputError(f"--tolerance={args.tolerance}: expected an error > 0")
     if not (math.isfinite(args.budget_ms) and args.budget_ms > 0):
         raise InputError(f"--budget-ms={args.budget_ms}: expected a time > 0 ms")
     if args.steps < 1:
         raise InputError(f"--steps={args.steps}: expected at least 1 step")
-    values = default_params()
-    if args.params:
-        values.update(load_params_file(args.params))
+    values = resolve_config(params_file=args.params or None).flat()
     spacings = [0.1, 0.05] if args.quick else _parse_spacings(args.spacings)
     counts = (1, 10) if args.quick else COUNTS
     n_steps = min(args.steps, 4) if args.quick else args.steps

@@ -169,11 +169,15 @@ def solve_elements_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, 
         s_dev = wa * (cax * cax + cay * cay) + wb * (cbx * cbx + cby * cby) + wc * (ccx * ccx + ccy * ccy)
         if s_dev <= EPS_DEN:
             continue
-        # F = sum_p x_p c_p^T
-        f00 = x[a, 0] * cax + x[b, 0] * cbx + x[c, 0] * ccx
-        f01 = x[a, 0] * cay + x[b, 0] * cby + x[c, 0] * ccy
-        f10 = x[a, 1] * cax + x[b, 1] * cbx + x[c, 1] * ccx
-        f11 = x[a, 1] * cay + x[b, 1] * cby + x[c, 1] * ccy
+        # F = D_s D_m^-1 = (x_b - x_a) c_b^T + (x_c - x_a) c_c^T
+        e1x = x[b, 0] - x[a, 0]
+        e1y = x[b, 1] - x[a, 1]
+        e2x = x[c, 0] - x[a, 0]
+        e2y = x[c, 1] - x[a, 1]
+        f00 = e1x * cbx + e2x * ccx
+        f01 = e1x * cby + e2x * ccy
+        f10 = e1y * cbx + e2y * ccx
+        f11 = e1y * cby + e2y * ccy
         # deviatoric: g_0 = F00 - F11, g_1 = F01 + F10, grad_p g_0 = (c_px, -c_py), grad_p g_1 = (c_py, c_px)
         alpha = elastic[t, 4] * inv_h2
         den = s_dev + alpha
@@ -188,10 +192,14 @@ def solve_elements_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, 
         x[c, 0] += wc * (d0 * ccx + d1 * ccy)
         x[c, 1] += wc * (d1 * ccx - d0 * ccy)
         # hydrostatic: C_H = det F - 1, grad_p = cof(F) c_p = (F11 c_px - F10 c_py, -F01 c_px + F00 c_py)
-        f00 = x[a, 0] * cax + x[b, 0] * cbx + x[c, 0] * ccx
-        f01 = x[a, 0] * cay + x[b, 0] * cby + x[c, 0] * ccy
-        f10 = x[a, 1] * cax + x[b, 1] * cbx + x[c, 1] * ccx
-        f11 = x[a, 1] * cay + x[b, 1] * cby + x[c, 1] * ccy
+        e1x = x[b, 0] - x[a, 0]
+        e1y = x[b, 1] - x[a, 1]
+        e2x = x[c, 0] - x[a, 0]
+        e2y = x[c, 1] - x[a, 1]
+        f00 = e1x * cbx + e2x * ccx
+        f01 = e1x * cby + e2x * ccy
+        f10 = e1y * cbx + e2y * ccx
+        f11 = e1y * cby + e2y * ccy
         gax = f11 * cax - f10 * cay
         gay = -f01 * cax + f00 * cay
         gbx = f11 * cbx - f10 * cby
@@ -277,10 +285,14 @@ def jacobi_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elast
         s_dev = wa * (cax * cax + cay * cay) + wb * (cbx * cbx + cby * cby) + wc * (ccx * ccx + ccy * ccy)
         if s_dev <= EPS_DEN:
             continue
-        f00 = x[a, 0] * cax + x[b, 0] * cbx + x[c, 0] * ccx
-        f01 = x[a, 0] * cay + x[b, 0] * cby + x[c, 0] * ccy
-        f10 = x[a, 1] * cax + x[b, 1] * cbx + x[c, 1] * ccx
-        f11 = x[a, 1] * cay + x[b, 1] * cby + x[c, 1] * ccy
+        e1x = x[b, 0] - x[a, 0]
+        e1y = x[b, 1] - x[a, 1]
+        e2x = x[c, 0] - x[a, 0]
+        e2y = x[c, 1] - x[a, 1]
+        f00 = e1x * cbx + e2x * ccx
+        f01 = e1x * cby + e2x * ccy
+        f10 = e1y * cbx + e2y * ccx
+        f11 = e1y * cby + e2y * ccy
         alpha = elastic[t, 4] * inv_h2
         den = s_dev + alpha
         om = omega[t, 0]
@@ -356,10 +368,14 @@ def jacobi_relaxation_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.nda
         node_sum[a] += 2.0 * la / sd
         node_sum[b] += 2.0 * lb / sd
         node_sum[c] += 2.0 * lc / sd
-        f00 = x[a, 0] * cax + x[b, 0] * cbx + x[c, 0] * ccx
-        f01 = x[a, 0] * cay + x[b, 0] * cby + x[c, 0] * ccy
-        f10 = x[a, 1] * cax + x[b, 1] * cbx + x[c, 1] * ccx
-        f11 = x[a, 1] * cay + x[b, 1] * cby + x[c, 1] * ccy
+        e1x = x[b, 0] - x[a, 0]
+        e1y = x[b, 1] - x[a, 1]
+        e2x = x[c, 0] - x[a, 0]
+        e2y = x[c, 1] - x[a, 1]
+        f00 = e1x * cbx + e2x * ccx
+        f01 = e1x * cby + e2x * ccy
+        f10 = e1y * cbx + e2y * ccx
+        f11 = e1y * cby + e2y * ccy
         ha = math.hypot(f11 * cax - f10 * cay, -f01 * cax + f00 * cay)
         hb = math.hypot(f11 * cbx - f10 * cby, -f01 * cbx + f00 * cby)
         hc = math.hypot(f11 * ccx - f10 * ccy, -f01 * ccx + f00 * ccy)
@@ -393,10 +409,14 @@ def jacobi_relaxation_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.nda
             omega[t, 0] = scale / r if r > 0.0 else scale
         sd = omega[t, 1]
         if sd > 0.0:
-            f00 = x[a, 0] * cax + x[b, 0] * cbx + x[c, 0] * ccx
-            f01 = x[a, 0] * cay + x[b, 0] * cby + x[c, 0] * ccy
-            f10 = x[a, 1] * cax + x[b, 1] * cbx + x[c, 1] * ccx
-            f11 = x[a, 1] * cay + x[b, 1] * cby + x[c, 1] * ccy
+            e1x = x[b, 0] - x[a, 0]
+            e1y = x[b, 1] - x[a, 1]
+            e2x = x[c, 0] - x[a, 0]
+            e2y = x[c, 1] - x[a, 1]
+            f00 = e1x * cbx + e2x * ccx
+            f01 = e1x * cby + e2x * ccy
+            f10 = e1y * cbx + e2y * ccx
+            f11 = e1y * cby + e2y * ccy
             ha = math.hypot(f11 * cax - f10 * cay, -f01 * cax + f00 * cay)
             hb = math.hypot(f11 * cbx - f10 * cby, -f01 * cbx + f00 * cby)
             hc = math.hypot(f11 * ccx - f10 * ccy, -f01 * ccx + f00 * ccy)
@@ -450,12 +470,14 @@ def strain_energy_kernel(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, t
         cby = elastic[t, 1]
         ccx = elastic[t, 2]
         ccy = elastic[t, 3]
-        cax = -cbx - ccx
-        cay = -cby - ccy
-        f00 = x[a, 0] * cax + x[b, 0] * cbx + x[c, 0] * ccx
-        f01 = x[a, 0] * cay + x[b, 0] * cby + x[c, 0] * ccy
-        f10 = x[a, 1] * cax + x[b, 1] * cbx + x[c, 1] * ccx
-        f11 = x[a, 1] * cay + x[b, 1] * cby + x[c, 1] * ccy
+        e1x = x[b, 0] - x[a, 0]
+        e1y = x[b, 1] - x[a, 1]
+        e2x = x[c, 0] - x[a, 0]
+        e2y = x[c, 1] - x[a, 1]
+        f00 = e1x * cbx + e2x * ccx
+        f01 = e1x * cby + e2x * ccy
+        f10 = e1y * cbx + e2y * ccx
+        f11 = e1y * cby + e2y * ccy
         g0 = f00 - f11
         g1 = f01 + f10
         ch = f00 * f11 - f01 * f10 - 1.0
@@ -479,10 +501,14 @@ def elastic_forces(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, out: np
         ccy = elastic[t, 3]
         cax = -cbx - ccx
         cay = -cby - ccy
-        f00 = x[a, 0] * cax + x[b, 0] * cbx + x[c, 0] * ccx
-        f01 = x[a, 0] * cay + x[b, 0] * cby + x[c, 0] * ccy
-        f10 = x[a, 1] * cax + x[b, 1] * cbx + x[c, 1] * ccx
-        f11 = x[a, 1] * cay + x[b, 1] * cby + x[c, 1] * ccy
+        e1x = x[b, 0] - x[a, 0]
+        e1y = x[b, 1] - x[a, 1]
+        e2x = x[c, 0] - x[a, 0]
+        e2y = x[c, 1] - x[a, 1]
+        f00 = e1x * cbx + e2x * ccx
+        f01 = e1x * cby + e2x * ccy
+        f10 = e1y * cbx + e2y * ccx
+        f11 = e1y * cby + e2y * ccy
         kd = (f00 - f11) / ad  # dE/dg_0
         kd1 = (f01 + f10) / ad
         kh = (f00 * f11 - f01 * f10 - 1.0) / ah

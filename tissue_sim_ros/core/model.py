@@ -8,8 +8,8 @@ and :class:`SimParams` into a Model of plain arrays; ``model.state()`` makes a
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
-from typing import Any, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -34,16 +34,6 @@ MATERIAL_DEFAULTS: dict[str, dict[str, Any]] = {
     "constraints": {},
     "neo_hookean": {"method": "xpbd", "contact_model": "projection", "substeps": 10, "iterations": 10},
 }
-
-#: Method names of the design card, mapped onto the orthogonal options.
-METHOD_ALIASES: dict[str, dict[str, Any]] = {
-    "pbd": {"method": "pbd", "scheme": "gauss_seidel"},
-    "pbd_jacobi": {"method": "pbd", "scheme": "jacobi"},
-    "xpbd": {"method": "xpbd", "scheme": "gauss_seidel"},
-    "xpbd_jacobi": {"method": "xpbd", "scheme": "jacobi"},
-    "xpbd_substep": {"method": "xpbd", "scheme": "gauss_seidel", "substeps": 30, "iterations": 1},
-}
-
 
 @dataclass(frozen=True)
 class SimParams:
@@ -233,55 +223,9 @@ class SimParams:
                 and self.boundary_y_top <= self.boundary_y_bottom):
             raise bad("boundary_y_top", f"a line above boundary_y_bottom={self.boundary_y_bottom}")
 
-    @classmethod
-    def from_mapping(cls, values: Mapping[str, Any]) -> "SimParams":
-        """Build from a flat mapping (a YAML or ROS parameter dict); unknown keys are ignored.
-
-        A ``method`` given as a design-card alias (``xpbd_jacobi``, ``xpbd_substep``,
-        ``pbd_jacobi``) expands into the orthogonal options, which explicit keys override.
-        """
-        names = {f.name for f in fields(cls)}
-        kwargs: dict[str, Any] = {}
-        method = values.get("method")
-        if isinstance(method, str) and method in METHOD_ALIASES:
-            kwargs.update(METHOD_ALIASES[method])
-            explicit = {k: values[k] for k in ("scheme", "substeps", "iterations") if k in values}
-            if method == "xpbd_substep" and "substeps" in values and "iterations" not in values:
-                explicit["iterations"] = 1
-            kwargs.update(explicit)
-        for key, value in values.items():
-            if key in names and key not in ("method",) and key not in kwargs:
-                kwargs[key] = value
-        if isinstance(method, str) and method not in METHOD_ALIASES:
-            kwargs["method"] = method
-        material = values.get("material")
-        for key, value in MATERIAL_DEFAULTS.get(material, {}).items() if isinstance(material, str) else ():
-            kwargs.setdefault(key, value)  # what the material sets when the mapping does not
-        # YAML/ROS integers for float fields
-        for f in fields(cls):
-            if f.name in kwargs and f.type in ("float",) and isinstance(kwargs[f.name], int) \
-                    and not isinstance(kwargs[f.name], bool):
-                kwargs[f.name] = float(kwargs[f.name])
-        return cls(**kwargs)
-
     def with_(self, **changes: Any) -> "SimParams":
         """A copy with some fields changed (validated)."""
         return replace(self, **changes)
-
-
-def apply_material_defaults(values: Mapping[str, Any], shipped: Mapping[str, Any]) -> dict[str, Any]:
-    """``values`` with the material's own defaults (:data:`MATERIAL_DEFAULTS`) where they hold a shipped value.
-
-    The shipped ``config/tissue_sim.yaml`` is the paper's scene (``method: pbd``, one step of 30
-    iterations, the paper's contact); ``material: neo_hookean`` brings its own solver settings, which a
-    value the caller gave (one that differs from the shipped one, or a key the shipped file lacks) overrides.
-    """
-    out = dict(values)
-    material = out.get("material")
-    for key, value in MATERIAL_DEFAULTS.get(material, {}).items() if isinstance(material, str) else ():
-        if key not in out or (key in shipped and out[key] == shipped[key]):
-            out[key] = value
-    return out
 
 
 @dataclass

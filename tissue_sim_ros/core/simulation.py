@@ -12,15 +12,34 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
 from .collision import ContactModel, Contacts
+from .config import BY_NAME, Config
 from .energy import EnergyTerms, energy_terms
+from .errors import InputError
 from .kernels import count_inverted
 from .model import Model, State
 from .solvers import Solver
-from .tool import ToolPose, ToolShape, ToolTwist
+from .tool import ToolPose, ToolShape, ToolTwist, tool_shape_array
+from .tool_checks import INSIDE_TOL, tool_checks
+
+if TYPE_CHECKING:
+    from .mesh import TissueMesh
+
+SolverFactory = Callable[[Model], Any]
+"""Makes the solver of a Model (a :class:`~tissue_sim_ros.core.solvers.Solver` or one with its step())."""
+
+
+def default_solver(model: Model) -> Any:
+    """The solver a Model's parameters ask for: sleeping when ``sleep_speed`` > 0, else :class:`Solver`."""
+    if model.params.sleep_speed > 0:
+        from .sleeping import SleepingSolver  # noqa: PLC0415  (a scene that asks for it)
+
+        return SleepingSolver(model, wake_radius=model.params.sleep_wake_radius, sleep_speed=model.params.sleep_speed)
+    return Solver(model)
 
 
 @dataclass
@@ -44,7 +63,8 @@ class StepReport:
     contact_particles: np.ndarray
     """Indices of the particles moved by the contact model this step, int32."""
     reaction_force: np.ndarray
-    """Tissue's reaction on the tool [N], shape (2,): - sum m dx / dt^2 over contact corrections."""
+    """Tissue's reaction on the tool [N], shape (2,): - sum m dx / (dt h) over projection contact corrections
+    (h = dt / substeps: the mean over the substeps), - sum m dx / dt^2 over the paper contact's held displacements."""
     reaction_torque: float
     """Torque of the reaction about the tool centre [N m] (about +z)."""
     n_inverted: int
@@ -53,10 +73,30 @@ class StepReport:
     """True if the solve produced NaN/inf and the previous state was restored."""
     timings: dict[str, float] = field(default_factory=dict)
     """Wall time of each phase [s]: contact, solve, energy, total."""
+    x_pred: np.ndarray | None = None
+    """The step's prediction x* [m], shape (N, 2) (the paper contact's held displacements included): with the
+    published positions x it gives the energy, E = 1/2 sum m |x - x*|^2 + dt^2 E_p(x)."""
+    held_idx: np.ndarray | None = None
+    """Paper contact: the particles displaced and held this step, int32 (empty for projection)."""
+    held_dx: np.ndarray | None = None
+    """Paper contact: their displacements [m], shape (K, 2) (x* = free prediction + held_dx there)."""
+    n_penetrating: int = 0
+    """Particles inside the tool's shape (no margin) after the step."""
+    penetration_depth: float = 0.0
+    """Depth of the deepest of them inside the tool [m] (0 when none)."""
+    deepest_particle: int = -1
+    """Index of that particle (-1 when none)."""
+    n_tunnelled: int = 0
+    """Particles whose path relative to the tool ran through it within the step (``core/tool_checks.py``)."""
+    tool_buried: bool = False
+    """True when the tool's centre lies inside the deformed tissue (the mesh closed over the tool)."""
 
 
 class Simulation:
     """One scene: Model + State + Solver + tool contact.
+
+    Build one with :meth:`from_config` (the one way the node, the commands and
+    the library do) or from a Model directly.
 
     Parameters
     ----------
@@ -64,19 +104,21 @@ class Simulation:
         Topology, rest state and parameters (``model.params``).
     tool : ToolShape, optional
         Shape of the tool; without it the tissue only feels gravity.
+    solver : callable, optional
+        ``solver(model)`` makes the solver (default: :func:`default_solver`); it is
+        called again with the new Model by :meth:`retune`.
+    config : Config, optional
+        The configuration the scene was built from (kept for :meth:`retune`).
     """
 
-    def __init__(self, model: Model, tool: ToolShape | None = None) -> None:
+    def __init__(self, model: Model, tool: ToolShape | None = None, solver: SolverFactory | None = None,
+                 config: Config | None = None) -> None:
         self.model = model
         self.params = model.params
         self.tool = tool
-        if model.params.sleep_speed > 0:
-            from .sleeping import SleepingSolver  # noqa: PLC0415  (a scene that asks for it)
-
-            self.solver: Solver = SleepingSolver(model, wake_radius=model.params.sleep_wake_radius,
-                                                 sleep_speed=model.params.sleep_speed)
-        else:
-            self.solver = Solver(model)
+        self.config = config
+        self._solver_factory: SolverFactory = solver or default_solver
+        self.solver = self._solver_factory(model)
         self.contact = ContactModel(model, tool) if tool is not None else None
         self.state: State = model.state()
         self._state_out: State = model.state()
@@ -84,6 +126,43 @@ class Simulation:
         self.time = 0.0
         self.tool_pose: ToolPose | None = None
         self._last_good: State = self.state.copy()
+
+    @classmethod
+    def from_config(cls, cfg: Config, mesh: "TissueMesh | None" = None,
+                    solver: SolverFactory | None = None) -> "Simulation":
+        """The scene a resolved configuration describes.
+
+        Parameters
+        ----------
+        cfg : Config
+            From :func:`~tissue_sim_ros.core.config.resolve_config`.
+        mesh : TissueMesh, optional
+            Use this mesh instead of building ``cfg.scene``'s (a benchmark's strip, a cached mesh).
+        solver : callable, optional
+            ``solver(model)`` makes the solver (default: what the parameters ask for).
+        """
+        mesh = mesh if mesh is not None else cfg.scene.build_mesh()
+        return cls(Model.from_mesh(mesh, cfg.sim), tool=cfg.tool, solver=solver, config=cfg)
+
+    def retune(self, cfg: Config) -> None:
+        """Apply tunable changes (iterations, stiffness, contact model...) and keep state, time and tool pose.
+
+        Raises InputError naming the first changed parameter that is read-only
+        (the mesh, dt, masses, boundary lines, the tool shape: a new scene).
+        """
+        if self.config is not None:
+            for name in self.config.changed(cfg):
+                if BY_NAME[name].read_only:
+                    raise InputError(f"parameter {name} is read-only: it defines the scene; build a new "
+                                     "simulation (restart the node) to change it")
+        state, last_good = self.state.copy(), self._last_good.copy()
+        model = self.model.with_params(cfg.sim)
+        self.model = model
+        self.params = model.params
+        self.config = cfg
+        self.solver = self._solver_factory(model)
+        self.contact = ContactModel(model, self.tool) if self.tool is not None else None
+        self.state, self._state_out, self._last_good = state, model.state(), last_good
 
     def reset(self) -> None:
         """Back to the rest configuration at t = 0 (tool pose forgotten)."""
@@ -140,6 +219,7 @@ class Simulation:
         else:
             energy = energy_terms(model, out.particle_q, info.x_pred)
             force, torque = self._reaction(info.contact_dx, tool_pose, p.dt, contacts, out.particle_q)
+        checks = self._tool_checks(self.state.particle_q, out.particle_q, self.tool_pose or tool_pose, tool_pose)
         t_energy = time.perf_counter()
 
         self.state, self._state_out = out, self.state
@@ -157,7 +237,21 @@ class Simulation:
             reaction_force=force, reaction_torque=torque, n_inverted=self.count_inverted(), diverged=diverged,
             timings={"contact": t_contact - t_start, "solve": t_solve - t_contact,
                      "energy": t_energy - t_solve, "total": time.perf_counter() - t_start},
+            x_pred=info.x_pred.copy(), held_idx=np.asarray(contacts.held_idx, dtype=np.int32).copy(),
+            held_dx=np.asarray(contacts.held_dx, dtype=np.float64).reshape(-1, 2).copy(),
+            n_penetrating=checks[0], penetration_depth=checks[1], deepest_particle=checks[2],
+            n_tunnelled=checks[3], tool_buried=checks[4],
         )
+
+    def _tool_checks(self, x0: np.ndarray, x1: np.ndarray, pose0: ToolPose | None,
+                     pose1: ToolPose | None) -> tuple[int, float, int, int, bool]:
+        """Penetration, tunnelling and a buried tool after a step (``core/tool_checks.py``); zeros without a tool."""
+        if self.tool is None or pose1 is None:
+            return 0, 0.0, -1, 0, False
+        n_in, depth, arg, n_tunnel, buried = tool_checks(
+            x0, x1, tool_shape_array(self.tool, pose0 or pose1), tool_shape_array(self.tool, pose1),
+            self.model.tri_indices, INSIDE_TOL)
+        return int(n_in), float(depth), int(arg), int(n_tunnel), bool(buried)
 
     @staticmethod
     def _twist_from_poses(prev: ToolPose | None, pose: ToolPose, dt: float) -> ToolTwist:
@@ -168,10 +262,13 @@ class Simulation:
 
     def _reaction(self, contact_dx: np.ndarray | None, tool_pose: ToolPose | None, dt: float,
                   contacts: Contacts | None = None, x: np.ndarray | None = None) -> tuple[np.ndarray, float]:
-        """Reaction on the tool: the tool pushed particles by dx, so they push back with -m dx / dt^2.
+        """Reaction on the tool: the tool pushed particles by dx, so they push back with -m dx / h^2.
 
-        ``contact_dx`` (N, 2) are the projection model's summed corrections; without
-        them the paper model's held displacements (``contacts.held_dx``) are used.
+        ``contact_dx`` (N, 2) are the projection model's corrections summed over the step's
+        n = ``substeps`` substeps of h = dt / n: a correction dx in a substep is a force m dx / h^2
+        acting for h, so the step's mean force is m sum(dx) / (n h^2) = m sum(dx) / (dt h) (dividing
+        by dt^2 made the force n times too small). Without them the paper model's held displacements
+        (``contacts.held_dx``, prescribed over the whole step) give m dx / dt^2.
         The torque is about the tool's centre, with the particles at ``x`` (their
         positions after the step; default: the current state).
         """
@@ -181,11 +278,13 @@ class Simulation:
         if contact_dx is not None:
             idx = np.flatnonzero(contact_dx.any(axis=1))
             dx = contact_dx[idx]
+            denominator = dt * (dt / self.params.substeps)
         elif contacts is not None and contacts.held_idx.size:
             idx, dx = contacts.held_idx, contacts.held_dx
+            denominator = dt * dt
         else:
             return np.zeros(2), 0.0
-        f_particles = -m[idx, None] * dx / (dt * dt)
+        f_particles = -m[idx, None] * dx / denominator
         force = f_particles.sum(axis=0)
         x = self.state.particle_q if x is None else x
         r = x[idx] - np.array([tool_pose.x, tool_pose.y])

@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 
+from ..cli_config import add_config_arguments
+from ..core.config import parse_assignments, resolve_config
 from ..core.errors import InputError
-from ..core.scene import load_params_file
 from ..resources import scene_names, scene_params_file
 from . import paper
 from . import trajectories as tr
@@ -26,11 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("which", choices=["a", "b"], help="experiment a (approach) or b (two insertion angles)")
     parser.add_argument("--out", default="out", help="output directory (default: out)")
     parser.add_argument("--scene", default="paper", choices=scene_names(),
-                        help="shipped scene: its parameter file (config/scenes/NAME.yaml; paper: "
+                        help="shipped scene: its parameter file (config/scenes/NAME.yaml, under --params; paper: "
                              "config/tissue_sim.yaml) and where its experiments put the tool (default: paper)")
-    parser.add_argument("--params", help="parameter YAML read over the scene's (default: none)")
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                        help="override one parameter, e.g. --set contact_model=projection (repeatable)")
+    add_config_arguments(parser)
     parser.add_argument("--steps", type=int, default=None,
                         help=f"experiment a: steps (default: the scene's, {tr.A_STEPS} for the paper's)")
     parser.add_argument("--angles", type=float, nargs="+", default=None,
@@ -44,31 +42,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
-def parse_overrides(items: list[str]) -> dict:
-    """NAME=VALUE strings -> dict, values parsed as YAML scalars (numbers, booleans, strings)."""
-    import yaml  # noqa: PLC0415
-
-    out = {}
-    for item in items:
-        if "=" not in item:
-            raise InputError(f"--set {item!r}: expected NAME=VALUE")
-        name, value = item.split("=", 1)
-        out[name.strip()] = yaml.safe_load(value)
-    return out
-
-
 def run(args: argparse.Namespace) -> int:
     scene = tr.scene_experiments(args.scene)
-    params = load_params_file(scene_params_file(args.scene)) if args.scene != "paper" else {}
-    if args.params:
-        params.update(load_params_file(args.params))
-    params.update(parse_overrides(args.set))
+    files = ([scene_params_file(args.scene)] if args.scene != "paper" else []) + ([args.params] if args.params else [])
+    tool = scene.b_tool
+    defaults = ({"tool_shape": tool.kind, "tool_length": tool.length, "tool_width": tool.width}
+                if args.which == "b" and tool is not None else None)
+    cfg = resolve_config(overrides=parse_assignments(args.set), params_file=files or None, defaults=defaults,
+                         source="--set")
     if args.which == "a" and args.steps is not None and args.steps < 1:
         raise InputError(f"--steps {args.steps}: expected at least 1 step")
     models = args.contact or (["paper", "projection"] if args.which == "a" and args.scene == "paper" else [None])
     finite = True
     for model in models:
-        values = dict(params, **({"contact_model": model} if model else {}))
+        values = cfg.replace(contact_model=model) if model else cfg
         tag = f"_{model}" if model else ""
         if args.which == "a":
             result = paper.experiment_a(args.out, params=values, steps=args.steps, progress=not args.no_progress,
@@ -83,7 +70,3 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {f}")
         finite &= bool(result.summary.get("energy finite", True))
     return 0 if finite else 1
-
-
-def summary_json(result: paper.ExperimentResult) -> str:
-    return json.dumps(result.summary, indent=2, default=str)

@@ -39,7 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scene", default="paper", choices=scene_names(),
                         help="shipped scene: the node's parameter file (config/scenes/NAME.yaml; paper: "
                              "config/tissue_sim.yaml) and the driver's experiment a for it (default: paper)")
-    parser.add_argument("--params", help="parameter YAML for the node (default: the scene's)")
+    parser.add_argument("--params", help="parameter YAML for the node, over the shipped config/tissue_sim.yaml "
+                                         "(default: the scene's)")
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID to use (default: a free-looking one derived from the process id)")
     parser.add_argument("--timeout", type=float, default=120.0, help="give up after this many seconds (default 120)")
@@ -248,8 +249,8 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.model import Model, SimParams  # noqa: PLC0415
-    from ..core.scene import SceneConfig, load_params_file, tool_from_mapping  # noqa: PLC0415
+    from ..core.config import resolve_config  # noqa: PLC0415
+    from ..core.model import Model  # noqa: PLC0415
     from ..core.tool import ToolPose  # noqa: PLC0415
     from ..render import plot_energy, save_snapshots  # noqa: PLC0415
 
@@ -257,10 +258,9 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     params_file = Path(args.params) if args.params else scene_params_file(args.scene)
     scene = tr.scene_experiments(args.scene)
-    values = load_params_file(params_file)
-    values["contact_model"] = args.contact_model
-    params = SimParams.from_mapping(values)
-    tool = tool_from_mapping(values)
+    # the node resolves the same file and -p contact_model through the same front door
+    cfg = resolve_config({"contact_model": args.contact_model}, params_file=params_file, source="--contact-model")
+    params, tool = cfg.sim, cfg.tool
     n_steps = tr.experiment_a(tool, params.dt, scene=scene).n_steps(params.dt)
     domain = args.domain_id if args.domain_id is not None else 120 + os.getpid() % 100
     if not 0 <= domain <= 232:
@@ -337,7 +337,7 @@ def run(args: argparse.Namespace) -> int:
     if len(run_["steps"]) != n_steps or len(run_["points"]) != n_steps:
         raise InputError(f"the bag {bag_path} holds {len(run_['steps'])} energy and {len(run_['points'])} point "
                          f"messages of {n_steps} steps: the recorder lost messages (see {out}/record.log)")
-    model = Model.from_mesh(SceneConfig.from_mapping(values).build_mesh(), params)
+    model = Model.from_mesh(cfg.scene.build_mesh(), params)
     snaps = []
     for s in scene.a_snapshots:
         x = model.particle_q0 if s == 0 else run_["points"].get(s)

@@ -18,6 +18,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from tqdm import tqdm
 
+from ..core.config import Config, resolve_config
 from ..core.rollout import Rollout, rollout
 from ..core.scene import build_simulation
 from ..core.simulation import Simulation
@@ -40,6 +41,10 @@ class ExperimentResult:
         return "\n".join(f"  {k}: {v}" for k, v in self.summary.items())
 
 
+#: Experiment b's tool as parameters: the command's defaults, under a parameter file's tool_* values.
+B_TOOL_VALUES = {"tool_shape": tr.B_TOOL.kind, "tool_length": tr.B_TOOL.length, "tool_width": tr.B_TOOL.width}
+
+
 def insertion_cost(run: Rollout, baseline: Rollout) -> float:
     """The planning cost of an insertion: the energy it adds to the scene, summed over its steps.
 
@@ -54,9 +59,9 @@ def insertion_cost(run: Rollout, baseline: Rollout) -> float:
     return float((run.scene_total - baseline.scene_total[:n]).sum())
 
 
-def baseline_rollout(values: Mapping[str, Any], steps: int) -> Rollout:
+def baseline_rollout(values: Mapping[str, Any] | Config, steps: int) -> Rollout:
     """The scene of ``values`` stepped ``steps`` times without a tool (the energy an insertion is measured from)."""
-    sim = build_simulation(dict(values))
+    sim = build_simulation(values)
     return rollout(sim, ((None, None) for _ in range(steps)))
 
 
@@ -100,7 +105,7 @@ def summarise(run: Rollout, wall: float, dt: float) -> dict[str, Any]:
     }
 
 
-def experiment_a(out: str | Path, *, params: Mapping[str, Any] | None = None, steps: int | None = None,
+def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None = None, steps: int | None = None,
                  snapshot_steps: Sequence[int] | None = None, progress: bool = True,
                  prefix: str = "experiment_a", scene: tr.SceneExperiments = tr.PAPER) -> ExperimentResult:
     """Run experiment a and write ``{prefix}_snapshots.png``, ``{prefix}_energy.png``, ``{prefix}_energy.csv``.
@@ -114,7 +119,7 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | None = None, st
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    sim = build_simulation(dict(params or {}))
+    sim = build_simulation(params)
     traj = tr.experiment_a(sim.tool, sim.params.dt, steps=steps, scene=scene)
     snaps = [s for s in snapshot_steps if s <= steps]
     run, wall = run_trajectory(sim, traj, snapshot_steps=snaps, progress="experiment a" if progress else False)
@@ -137,14 +142,14 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | None = None, st
     return res
 
 
-def experiment_b(out: str | Path, *, params: Mapping[str, Any] | None = None,
+def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None = None,
                  angles_deg: Sequence[float] | None = None, target: tuple[float, float] | None = None,
                  speed: float | None = None, distance: float | None = None, progress: bool = True,
                  prefix: str = "experiment_b", scene: tr.SceneExperiments = tr.PAPER) -> ExperimentResult:
     """Run experiment b: the same target from each angle; figure of final states and energy curves.
 
     Unset arguments come from ``scene`` (:data:`~.trajectories.SCENE_EXPERIMENTS`), whose tool (if it names
-    one) replaces the parameters' tool, as the paper's 0.3 m box does.
+    one) is the command's default tool, under a parameter file's, as the paper's 0.3 m box is.
     """
     angles_deg = scene.b_angles_deg if angles_deg is None else angles_deg
     target = scene.b_target if target is None else target
@@ -156,9 +161,9 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | None = None,
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    values = ({"tool_shape": scene.b_tool.kind, "tool_length": scene.b_tool.length, "tool_width": scene.b_tool.width}
-              if scene.b_tool is not None else {})
-    values.update(params or {})
+    tool_values = ({"tool_shape": scene.b_tool.kind, "tool_length": scene.b_tool.length,
+                    "tool_width": scene.b_tool.width} if scene.b_tool is not None else {})
+    values = params if isinstance(params, Config) else resolve_config(dict(params or {}), defaults=tool_values)
     res = ExperimentResult("b")
     runs: list[tuple[float, Rollout, Simulation, float]] = []
     baseline: Rollout | None = None

@@ -23,6 +23,8 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from ..cli_config import add_config_arguments, config_from_args
+from ..core.config import Config
 from ..core.errors import InputError
 from . import trajectories as tr
 
@@ -39,8 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="tip speeds [m per step] (default: 0.001 0.002)")
     parser.add_argument("--distance", type=float, default=tr.B_DISTANCE, help="insertion distance [m]")
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
-    parser.add_argument("--params", help="parameter YAML (default: the shipped config/tissue_sim.yaml)")
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a parameter")
+    add_config_arguments(parser)
     parser.add_argument("--out", default="out/plan", help="output directory (default: out/plan)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -54,7 +55,7 @@ def angle_grid(start: float, stop: float, step: float) -> list[float]:
     return [start + sign * abs(step) * k for k in range(n)]
 
 
-def evaluate(values: dict[str, Any], angle_deg: float, speed: float, target: tuple[float, float],
+def evaluate(values: Config, angle_deg: float, speed: float, target: tuple[float, float],
              distance: float) -> dict[str, Any]:
     """One insertion from rest; the numbers a planner ranks by (runs in a worker process)."""
     from ..core.rollout import rollout  # noqa: PLC0415
@@ -78,7 +79,7 @@ def evaluate(values: dict[str, Any], angle_deg: float, speed: float, target: tup
     }
 
 
-def plan(values: dict[str, Any], angles: list[float], speeds: list[float], target: tuple[float, float],
+def plan(values: Config, angles: list[float], speeds: list[float], target: tuple[float, float],
          distance: float, jobs: int, progress: bool = True) -> list[dict[str, Any]]:
     """Evaluate every (angle, speed) on ``jobs`` processes; rows ranked by cost (cheapest first)."""
     for s in speeds:
@@ -133,12 +134,9 @@ def chart(path: Path, rows: list[dict[str, Any]], target: tuple[float, float]) -
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.scene import load_params_file  # noqa: PLC0415
-    from .cli import parse_overrides  # noqa: PLC0415
+    from .paper import B_TOOL_VALUES  # noqa: PLC0415
 
-    values = {"tool_shape": tr.B_TOOL.kind, "tool_length": tr.B_TOOL.length, "tool_width": tr.B_TOOL.width}
-    values.update(load_params_file(args.params) if args.params else {})
-    values.update(parse_overrides(args.set))
+    values = config_from_args(args, defaults=B_TOOL_VALUES)
     angles = angle_grid(*args.angles)
     target = (float(args.target[0]), float(args.target[1]))
     out = Path(args.out)

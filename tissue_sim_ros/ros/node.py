@@ -30,7 +30,7 @@ import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.node import Node
@@ -41,17 +41,13 @@ from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
+from ..core.config import FOREIGN_PREFIXES, METHOD_ALIASES, Config, load_params_file, resolve_config
 from ..core.errors import InputError
-from ..core.model import METHOD_ALIASES, Model, SimParams, apply_material_defaults
-from ..core.scene import SceneConfig, default_params, tool_from_mapping
 from ..core.simulation import Simulation, StepReport
 from ..core.tool import ToolPose, ToolTwist, yaw_from_quaternion
 from . import messages, qos
 from .node_recording import NodeRecorder
-from .parameters import BY_NAME, PARAMETERS, SIM_NAMES, coerce, validate
-
-#: Prefixes of parameters a parameter file may hold that this node does not declare itself.
-_FOREIGN_PARAMETER_PREFIXES = ("qos_overrides.", "use_sim_time", "start_type_description_service")
+from .parameters import BY_NAME, PARAMETERS, SIM_NAMES, descriptor, parameter_value
 
 ENERGY_TERMS = ("inertial", "spring", "area", "total")
 
@@ -112,14 +108,9 @@ class TissueSimNode(Node):
 
     def __init__(self, node_name: str = "tissue_sim_node", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        self._values = self._declare_parameters()
-        self._shipped = default_params()
-        mapping = self._sim_mapping(self._values)
-        # built here rather than by scene.build_simulation, which would merge the YAML's
-        # scheme/iterations back over a method alias's own
-        self.sim: Simulation = Simulation(
-            Model.from_mesh(SceneConfig.from_mapping(mapping).build_mesh(), SimParams.from_mapping(mapping)),
-            tool=tool_from_mapping(mapping))
+        self.config: Config = self._declare_parameters()
+        self._values = self.config.flat()
+        self.sim: Simulation = Simulation.from_config(self.config)
         self._warm_up()
         self.stats = NodeStats()
         self.tool = ToolInput()
@@ -150,6 +141,7 @@ class TissueSimNode(Node):
         self.create_service(SetBool, "~/pause", self._on_pause)
         self.step_timer = None if lock_step else self.create_timer(self.sim.params.dt, self._on_tick)
         self.diagnostics_timer = self.create_timer(1.0 / self._values["diagnostics_rate"], self._publish_diagnostics)
+        self.add_pre_set_parameters_callback(self._expand_alias)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self._publish_rest_mesh()
@@ -174,48 +166,61 @@ class TissueSimNode(Node):
 
     # ------------------------------------------------------------------ parameters
 
-    def _declare_parameters(self) -> dict[str, Any]:
-        """Declare every parameter of the table; return the checked values (InputError names a bad one)."""
-        shipped = default_params()
-        overrides = getattr(self, "_parameter_overrides", {})  # rclpy keeps the file's values here
-        unknown = sorted(n for n in overrides if n not in BY_NAME and not n.startswith(_FOREIGN_PARAMETER_PREFIXES))
-        if unknown:
-            raise InputError(f"unknown parameter {unknown[0]!r} for {self.get_name()}: expected one of the names in "
-                             "msg_docs/parameters.md")
-        values: dict[str, Any] = {}
+    def _declare_parameters(self) -> Config:
+        """Resolve the parameters given to the node (file and -p) through the front door; declare them resolved.
+
+        An unknown name, a type mismatch or a bad value raises InputError naming it.
+        Each parameter is declared with its resolved value (a method alias such as
+        ``xpbd_substep`` reads back as ``method: xpbd`` with its substeps and
+        iterations), so ``ros2 param get`` shows what the simulation runs.
+        """
+        overrides = getattr(self, "_parameter_overrides", {})  # rclpy keeps the file's and -p values here
+        given = {name: parameter_value(p.value) for name, p in overrides.items()
+                 if not name.startswith(FOREIGN_PREFIXES)}
+        cfg = resolve_config(overrides=given, source=f"the parameters of {self.get_name()}")
+        flat = cfg.flat()
         for spec in PARAMETERS:
-            default = shipped.get(spec.name, spec.default)
-            descriptor = ParameterDescriptor(
-                name=spec.name, description=f"{spec.description}" + (f" [{spec.unit}]" if spec.unit else ""),
-                read_only=spec.read_only,
-                # dynamic typing: a YAML `1` for a float must not abort with rclpy's type error;
-                # coerce() checks the type and names the parameter instead
-                dynamic_typing=True)
-            param = self.declare_parameter(spec.name, default, descriptor)
-            values[spec.name] = param.value
-        return validate(values)
+            self.declare_parameter(spec.name, flat[spec.name], descriptor(spec), ignore_override=True)
+        return cfg
+
+    def _expand_alias(self, params: list[Parameter]) -> list[Parameter]:
+        """Pre-set: a method alias set at run time becomes the orthogonal values it resolves to."""
+        method = next((p for p in params if p.name == "method"), None)
+        if method is None or method.value not in METHOD_ALIASES:
+            return params
+        try:
+            cfg = self.config.replace(**{p.name: parameter_value(p.value) for p in params if p.name in BY_NAME})
+        except InputError:
+            return params  # the set callback rejects it with the reason
+        resolved = cfg.flat()
+        names = {p.name for p in params}
+        out = [p for p in params if p.name != "method"] + [Parameter("method", value=resolved["method"])]
+        for key in METHOD_ALIASES[method.value]:
+            if key != "method" and key not in names and resolved[key] != self._values[key]:
+                out.append(Parameter(key, value=resolved[key]))
+        return out
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
         """Check a set of tunable parameters as a whole; apply it only if all are fine."""
-        new = dict(self._values)
+        changes: dict[str, Any] = {}
+        for p in params:
+            spec = BY_NAME.get(p.name)
+            if spec is None:
+                continue  # use_sim_time and friends: rclpy handles them
+            if spec.read_only:
+                return SetParametersResult(successful=False, reason=f"parameter {p.name} is read-only: restart the node to change it")
+            changes[p.name] = parameter_value(p.value)
+        if not changes:
+            return SetParametersResult(successful=True)
         try:
-            for p in params:
-                spec = BY_NAME.get(p.name)
-                if spec is None:
-                    continue  # use_sim_time and friends: rclpy handles them
-                if spec.read_only:
-                    return SetParametersResult(successful=False, reason=f"parameter {p.name} is read-only: restart the node to change it")
-                new[p.name] = coerce(spec, p.value)
-            validate(new)
-            sim_changed = any(new[k] != self._values[k] for k in SIM_NAMES
-                              if not (isinstance(new[k], float) and math.isnan(new[k]) and math.isnan(self._values[k])))
-            sim = self._rebuilt_simulation(new) if sim_changed else None
+            cfg = self.config.replace(**changes)
+            changed = self.config.changed(cfg)
+            if any(name in SIM_NAMES for name in changed):
+                self.sim.retune(cfg)
         except InputError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
-        old = self._values
-        self._values = new
-        if sim is not None:
-            self.sim = sim
+        old, new = self._values, cfg.flat()
+        self.config, self._values = cfg, new
         if any(new[k] != old[k] for k in ("strain_color_max", "wire_width", "markers_wireframe")):
             self._encoder = self._make_encoder()
         if new["frame_id"] != old["frame_id"]:
@@ -226,28 +231,6 @@ class TissueSimNode(Node):
         if new["paused"] != old["paused"]:
             self.get_logger().info("paused" if new["paused"] else "running")
         return SetParametersResult(successful=True)
-
-    def _rebuilt_simulation(self, values: dict[str, Any]) -> Simulation:
-        """A Simulation with the new tunable values on the same mesh, continuing from the current state."""
-        params = SimParams.from_mapping(self._sim_mapping(values))
-        sim = Simulation(self.sim.model.with_params(params), tool=self.sim.tool)
-        sim.set_state(self.sim.state)
-        sim.step_count, sim.time, sim.tool_pose = self.sim.step_count, self.sim.time, self.sim.tool_pose
-        return sim
-
-    def _sim_mapping(self, values: dict[str, Any]) -> dict[str, Any]:
-        """The flat values the core reads.
-
-        The node always holds scheme, substeps and iterations, which would
-        override a method alias's own (``xpbd_jacobi`` -> Jacobi): where they
-        still have their shipped defaults, the alias decides.
-        """
-        out = {k: values[k] for k in SIM_NAMES}
-        if out["method"] in METHOD_ALIASES:
-            for k in ("scheme", "substeps", "iterations"):
-                if k in METHOD_ALIASES[out["method"]] and out[k] == self._shipped.get(k, BY_NAME[k].default):
-                    del out[k]
-        return apply_material_defaults(out, self._shipped)  # neo_hookean's solver where shipped values stand
 
     def _make_encoder(self) -> messages.SceneEncoder:
         m = self.sim.model
@@ -516,6 +499,11 @@ class TissueSimNode(Node):
             **{f"dropped_{k}": v for k, v in s.dropped.items()},
             "paused": self.paused,
             "lock_step": self._values["lock_step"],
+            "method": self.sim.params.method,
+            "scheme": self.sim.params.scheme,
+            "iterations": self.sim.params.iterations,
+            "substeps": self.sim.params.substeps,
+            "contact_model": self.sim.params.contact_model,
             "sim_time_s": self.sim.time,
         }
         if r is not None:
@@ -538,8 +526,29 @@ class TissueSimNode(Node):
         s.window_sim_time_sum = 0.0
 
 
+def _params_files(argv: list[str]) -> list[str]:
+    """The ``--params-file`` paths inside the ``--ros-args`` sections of a command line."""
+    files, in_ros, it = [], False, iter(argv)
+    for arg in it:
+        if arg == "--ros-args":
+            in_ros = True
+        elif arg == "--":
+            in_ros = False
+        elif in_ros and arg == "--params-file":
+            files.append(next(it, ""))
+    return files
+
+
 def main(args: list[str] | None = None) -> int:
     """Console script ``tissue_sim_node``: exit 0 on SIGINT/SIGTERM, 2 on a bad parameter (named)."""
+    try:
+        # read every --params-file ourselves first: a malformed one is one line naming it and where,
+        # before rcl logs its own parse error
+        for path in _params_files(sys.argv if args is None else args):
+            load_params_file(path)
+    except InputError as exc:
+        print(f"tissue_sim_node: error: {exc}", file=sys.stderr)
+        return 2
     try:
         rclpy.init(args=args)
     except Exception as exc:  # noqa: BLE001  rcl's parse errors (a missing or malformed --params-file)

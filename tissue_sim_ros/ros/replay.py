@@ -36,6 +36,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from ..cli_config import add_config_arguments, config_from_args
 from ..core.errors import InputError
 from ..core.rollout import Rollout, rollout
 from ..core.simulation import Simulation, StepReport
@@ -301,7 +302,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frame", default=None, help="TF child frame of the tool (for tf2_msgs/TFMessage topics)")
     parser.add_argument("--twist-topic", default=None,
                         help="TwistStamped/Twist topic of the tool velocity (default: derived from poses)")
-    parser.add_argument("--params", default=None, help="parameter YAML (default: the shipped config/tissue_sim.yaml)")
+    add_config_arguments(parser)
     parser.add_argument("--mode", choices=MODES, default="per-message",
                         help="one step per tool message (default, = node lock-step), or steps at 1/dt with "
                              "the pose interpolated")
@@ -328,8 +329,6 @@ def _check_video_support() -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.scene import build_simulation, load_params_file  # noqa: PLC0415
-
     if args.video:
         _check_video_support()
     if args.points_every < 1:
@@ -349,12 +348,12 @@ def run(args: argparse.Namespace) -> int:
     if sum(track.skipped.values()):
         print(f"note: {sum(track.skipped.values())} of {track.n_messages} tool samples skipped "
               f"({', '.join(f'{k}: {v}' for k, v in track.skipped.items() if v)}); --strict makes this an error")
-    params = load_params_file(args.params) if args.params else {}
-    sim = build_simulation(params)
+    cfg = config_from_args(args)
+    sim = Simulation.from_config(cfg)
     # Load the compiled kernels (numba cache, python-fcl) on a throwaway copy of the scene, so the
     # replay's speed is the stepping speed; the replayed simulation itself starts untouched.
     t_warm = time.perf_counter()
-    warm = build_simulation(params, mesh=sim.model.mesh)
+    warm = Simulation.from_config(cfg, mesh=sim.model.mesh)
     warm.step(ToolPose(*map(float, track.pose[0])))
     print(f"warm-up (kernel load) {time.perf_counter() - t_warm:.2f} s, not counted in the replay speed")
     n_steps = track.n if args.mode == "per-message" else int(
@@ -369,14 +368,12 @@ def run(args: argparse.Namespace) -> int:
     if writer is not None:
         import json  # noqa: PLC0415
 
-        from ..core.scene import default_params  # noqa: PLC0415
-
         # what made this bag, so it can be reproduced from the bag alone
         writer.set_custom_data("tissue_sim.source_bag", str(args.bag))
         writer.set_custom_data("tissue_sim.mode", args.mode)
         writer.set_custom_data("tissue_sim.tool_topic", track.topic + (f" frame {track.child_frame}"
                                                                         if track.child_frame else ""))
-        writer.set_custom_data("tissue_sim.params", json.dumps({**default_params(), **params}, default=str))
+        writer.set_custom_data("tissue_sim.params", json.dumps(cfg.flat(), default=str))
     try:
         sink = ReplayBagSink(writer, sim, points_every=args.points_every) if writer is not None else None
         result = replay(sim, track, args.mode, sink=sink, snapshot_every=frame_every, progress=not args.no_progress)

@@ -34,8 +34,9 @@ from rclpy.task import Future
 from rclpy.time import Time
 from std_msgs.msg import Float64
 
+from ..core.config import resolve_config
 from ..core.errors import InputError
-from ..core.scene import default_params, load_params_file, tool_from_mapping
+from ..core.scene import tool_from_mapping
 from ..core.tool import StraightInsertion, Trajectory
 from . import messages, qos
 
@@ -88,13 +89,13 @@ class ToolDriver(Node):
 
     def __init__(self, node_name: str = "tool_driver", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        shipped = default_params()
+        shipped = resolve_config().flat()  # the simulation's dt and tool, as the node resolves them
         self.values: dict[str, Any] = {}
         for name, (default, description) in DRIVER_PARAMETERS.items():
             if name == "preset" and self.values["scene"] != "paper":  # "scene" is declared first
                 from ..resources import scene_params_file  # noqa: PLC0415
 
-                shipped.update(load_params_file(scene_params_file(self.values["scene"])))
+                shipped = resolve_config(params_file=scene_params_file(self.values["scene"])).flat()
             default = shipped.get(name, default) if name == "dt" or name.startswith("tool_") else default
             if isinstance(default, float):
                 default = float(default)

@@ -1,0 +1,62 @@
+"""``tissue-sim config``, and the ``--params``/``--set`` options every command shares.
+
+Every command that builds a simulation takes its configuration the same way,
+through :func:`~tissue_sim_ros.core.config.resolve_config`::
+
+    tissue-sim COMMAND [--params FILE] [--set NAME=VALUE ...]
+
+``tissue-sim config`` prints the resolved configuration as a ROS 2 parameter
+YAML: the node (``--ros-args --params-file``) and every command (``--params``)
+load it identically.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any, Mapping
+
+from .core.config import Config, parse_assignments, resolve_config
+
+HELP = "print the resolved configuration (shipped YAML + --params + --set) as a parameter YAML"
+DESCRIPTION = """Resolve the configuration once, as every command and the node do, and print it.
+
+The shipped config/tissue_sim.yaml, then --params FILE, then each --set NAME=VALUE:
+unknown names are refused (with the closest known one), method aliases are resolved
+(xpbd_substep -> method xpbd, 30 substeps of 1 iteration), every value is checked.
+The output is a ROS 2 parameter file: `tissue_sim_node --ros-args --params-file OUT`
+and `tissue-sim COMMAND --params OUT` load exactly this configuration."""
+
+
+def add_config_arguments(parser: argparse.ArgumentParser) -> None:
+    """The shared configuration options: ``--params FILE`` and repeatable ``--set NAME=VALUE``."""
+    parser.add_argument("--params", metavar="FILE",
+                        help="parameter YAML over the shipped config/tissue_sim.yaml (a ROS 2 parameter file or flat)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="override one parameter, e.g. --set method=xpbd_substep (repeatable; "
+                             "names as in msg_docs/parameters.md)")
+
+
+def config_from_args(args: argparse.Namespace, defaults: Mapping[str, Any] | None = None, **extra: Any) -> Config:
+    """The Config of a command's ``--params`` and ``--set``.
+
+    ``defaults`` are the command's own (under the parameter file); ``extra`` values win over everything.
+    """
+    overrides = parse_assignments(getattr(args, "set", None) or [])
+    overrides.update(extra)
+    return resolve_config(overrides=overrides, params_file=getattr(args, "params", None), defaults=defaults,
+                          source="--set")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_config_arguments(parser)
+    parser.add_argument("--out", metavar="FILE", help="write the YAML here instead of printing it")
+
+
+def run(args: argparse.Namespace) -> int:
+    text = config_from_args(args).to_yaml()
+    if args.out:
+        Path(args.out).write_text(text)
+        print(f"wrote {args.out}")
+    else:
+        print(text, end="")
+    return 0

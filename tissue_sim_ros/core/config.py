@@ -1,0 +1,558 @@
+"""One front door: every parameter declared once, resolved once.
+
+Every parameter of the simulator (the YAML file, the node, every ``tissue-sim``
+command and the library alike) is one row of :data:`PARAMETERS`: its flat name,
+type, default, unit, description, whether it can change while a simulation runs,
+and its group. :func:`resolve_config` is the one path from values to a
+simulation's configuration::
+
+    shipped config/tissue_sim.yaml  <  parameter file(s)  <  overrides (--set, -p, library)
+        -> unknown names refused (with the closest known name)
+        -> values coerced to their type (an integer is accepted for a float)
+        -> method aliases resolved by the one rule below
+        -> a material's own solver settings (neo_hookean: xpbd, 10 x 10 substeps, projection contact)
+        -> every value checked (SimParams, SceneConfig, ToolShape, the node's checks)
+        -> Config (frozen): .sim (SimParams, the Model's record), .scene, .tool, .node
+
+:meth:`Simulation.from_config <tissue_sim_ros.core.simulation.Simulation.from_config>`
+builds a scene from a Config; ``tissue-sim config`` prints one as a parameter YAML
+that the node and every command load identically.
+
+Method aliases (one rule). ``method`` may be an alias of the orthogonal options:
+``pbd_jacobi`` = pbd + jacobi, ``xpbd_jacobi`` = xpbd + jacobi, ``xpbd_substep`` =
+xpbd + gauss_seidel + 30 substeps of 1 iteration (``pbd`` and ``xpbd`` set
+gauss_seidel). The alias sets each of ``scheme``, ``substeps`` and ``iterations``
+whose merged value still equals its shipped default (config/tissue_sim.yaml); a
+value that differs from it was chosen by the user and wins. So ``method:
+xpbd_substep`` gives 30 substeps of 1 iteration; with ``substeps: 10``, 10 of 1.
+To ask for 30 iterations per substep, use ``method: xpbd`` with ``substeps`` and
+``iterations``. The resolved configuration holds only ``pbd`` or ``xpbd``.
+"""
+from __future__ import annotations
+
+import difflib
+import math
+import re
+from dataclasses import dataclass, field, fields, make_dataclass
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, Callable, Iterable, Mapping, Sequence
+
+import yaml
+
+from .errors import InputError
+from .mesh import TissueMesh, load_mesh
+from .model import (
+    AREA_MODES,
+    CONTACT_MODELS,
+    CONTACT_SURFACES,
+    MATERIAL_DEFAULTS,
+    MATERIALS,
+    METHODS,
+    SCHEMES,
+    SimParams,
+)
+from .tool import TOOL_SHAPES, ToolShape
+
+#: The section of a ROS 2 parameter file that holds the node's parameters.
+NODE_NAME = "tissue_sim_node"
+
+#: Method names of the design card, mapped onto the orthogonal options (see the module docstring).
+METHOD_ALIASES: dict[str, dict[str, Any]] = {
+    "pbd": {"method": "pbd", "scheme": "gauss_seidel"},
+    "pbd_jacobi": {"method": "pbd", "scheme": "jacobi"},
+    "xpbd": {"method": "xpbd", "scheme": "gauss_seidel"},
+    "xpbd_jacobi": {"method": "xpbd", "scheme": "jacobi"},
+    "xpbd_substep": {"method": "xpbd", "scheme": "gauss_seidel", "substeps": 30, "iterations": 1},
+}
+
+#: Groups of the configuration, by concern.
+GROUPS = ("scene", "physics", "solver", "contact", "tool", "node")
+
+Check = Callable[[Any], "str | None"]
+"""A check returns None when the value is fine, or what was expected."""
+
+
+def _positive(v: Any) -> str | None:
+    return None if v > 0 else "a value > 0"
+
+
+def _non_negative(v: Any) -> str | None:
+    return None if v >= 0 else "a value >= 0"
+
+
+def _one_of(options: tuple[str, ...]) -> Check:
+    return lambda v: None if v in options else f"one of {', '.join(options)}"
+
+
+_FRAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_/]*$")
+
+
+def _frame(v: Any) -> str | None:
+    return None if _FRAME_RE.match(v) and not v.startswith("/") else "a frame name like 'world' (letters, digits, _, /; no leading /)"
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """Where the mesh comes from and how image pixels map to metres (the ``scene`` group)."""
+
+    image: str = ""
+    """Tissue image (PNG/JPEG/BMP); empty = the shipped default image."""
+    mesh_file: str = ""
+    """A mesh file (.npz, Triangle .node, Gmsh .msh); overrides ``image`` when set."""
+    spacing: float = 0.05
+    """Target edge length of the mesh [m]."""
+    scale: float = 0.002
+    """Image scale [m per pixel]."""
+    origin_x: float = 0.0
+    """World x of the image's left edge [m]."""
+    origin_y: float = 0.0
+    """World y of the image's bottom edge [m]."""
+    threshold: float = -1.0
+    """Grey threshold separating tissue from background; < 0 = automatic (Otsu)."""
+
+    def __post_init__(self) -> None:
+        for k in ("spacing", "scale"):
+            v = getattr(self, k)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise InputError(f"parameter {k}={v!r}: expected a number > 0")
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any]) -> "SceneConfig":
+        """The scene fields of a flat mapping (other names are not the scene's and are skipped)."""
+        names = {f.name for f in fields(cls)}
+        kwargs = {k: v for k, v in values.items() if k in names}
+        for k in ("spacing", "scale", "origin_x", "origin_y", "threshold"):
+            if k in kwargs and isinstance(kwargs[k], int) and not isinstance(kwargs[k], bool):
+                kwargs[k] = float(kwargs[k])
+        return cls(**kwargs)
+
+    def build_mesh(self) -> TissueMesh:
+        """Load the mesh file, or mesh the image (the default image when none is given).
+
+        A relative path that is not a file from the working directory is looked up among the shipped
+        config files (``scenes/liver_probe.png``), so a shipped scene's parameter file works from anywhere.
+        """
+        from ..resources import DEFAULT_IMAGE, config_path, find_data_file  # noqa: PLC0415
+
+        if self.mesh_file:
+            return load_mesh(find_data_file(self.mesh_file))
+        from .mesh import mesh_from_image  # noqa: PLC0415
+
+        image = str(find_data_file(self.image)) if self.image else str(config_path(DEFAULT_IMAGE))
+        return mesh_from_image(image, spacing=self.spacing, scale=self.scale,
+                               origin=(self.origin_x, self.origin_y),
+                               threshold=None if self.threshold < 0 else self.threshold)
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: its declaration, the one place its name, type, unit, range and doc live."""
+
+    name: str
+    kind: type
+    """float, int, str or bool (ints are accepted for floats)."""
+    default: Any
+    """Default when no parameter file sets it (``config/tissue_sim.yaml`` overrides the physics ones)."""
+    unit: str
+    description: str
+    read_only: bool
+    """True: the value defines the scene (a new mesh, dt, masses...): change it by building a new simulation
+    (restart the node). False: tunable while running (:meth:`Simulation.retune`, ``ros2 param set``)."""
+    group: str
+    """scene, physics, solver, contact, tool or node."""
+    check: Check | None = None
+    """Range check of a value whose record does not check it itself (the node's own)."""
+
+
+_SIM = SimParams()
+_SCENE = SceneConfig()
+_TOOL = ToolShape()
+
+PARAMETERS: tuple[ParamSpec, ...] = (
+    # scene: where the mesh comes from (read-only: a new mesh is a new scene)
+    ParamSpec("image", str, _SCENE.image, "path", "Tissue image (PNG/JPEG/BMP) meshed at start; empty = the shipped config/tissue.png.", True, "scene"),
+    ParamSpec("mesh_file", str, _SCENE.mesh_file, "path", "Mesh file (.npz from `tissue-sim mesh`); overrides image when set.", True, "scene"),
+    ParamSpec("spacing", float, _SCENE.spacing, "m", "Target edge length when meshing the image.", True, "scene"),
+    ParamSpec("scale", float, _SCENE.scale, "m/px", "Image scale: metres per pixel.", True, "scene"),
+    ParamSpec("origin_x", float, _SCENE.origin_x, "m", "World x of the image's left edge.", True, "scene"),
+    ParamSpec("origin_y", float, _SCENE.origin_y, "m", "World y of the image's bottom edge.", True, "scene"),
+    ParamSpec("threshold", float, _SCENE.threshold, "grey level", "Grey threshold separating tissue from background; < 0 = automatic (Otsu).", True, "scene"),
+    ParamSpec("boundary_y_top", float, _SIM.boundary_y_top, "m", "Particles at or above this y are pinned (the paper's upper line); NaN = none.", True, "scene"),
+    ParamSpec("boundary_y_bottom", float, _SIM.boundary_y_bottom, "m", "Particles at or below this y are pinned (the paper's lower line); NaN = none.", True, "scene"),
+    # physics (Table I)
+    ParamSpec("mass", float, _SIM.mass, "kg", "Mass of each particle (Table I: 1e-4).", True, "physics"),
+    ParamSpec("mass_per_area", float, _SIM.mass_per_area, "kg/m^2", "Areal density: > 0 lumps a third of each triangle's area times it on its corners (refined or graded meshes keep the same tissue); 0 = every particle has mass (the paper).", True, "physics"),
+    ParamSpec("material", str, _SIM.material, "", f"Tissue model: {', '.join(MATERIALS)} (constraints = the paper's springs and areas; neo_hookean = a plane-stress membrane from young_modulus, poisson_ratio, thickness, density, which brings method xpbd, substeps 10, iterations 10 and contact_model projection unless they are given).", True, "physics"),
+    ParamSpec("young_modulus", float, _SIM.young_modulus, "Pa", "neo_hookean: Young's modulus E (> 0); ignored by constraints.", False, "physics"),
+    ParamSpec("poisson_ratio", float, _SIM.poisson_ratio, "", "neo_hookean: Poisson's ratio nu in [0, 0.5); ignored by constraints.", False, "physics"),
+    ParamSpec("thickness", float, _SIM.thickness, "m", "neo_hookean: membrane thickness (> 0); ignored by constraints.", True, "physics"),
+    ParamSpec("density", float, _SIM.density, "kg/m^3", "neo_hookean: density (> 0); each particle's mass is density x thickness x a third of its triangles' rest area (replaces mass and mass_per_area); ignored by constraints.", True, "physics"),
+    ParamSpec("gravity", float, _SIM.gravity, "m/s^2", "Gravity along world y (Table I: -9.8).", False, "physics"),
+    ParamSpec("dt", float, _SIM.dt, "s", "Time step; the node steps at 1/dt of its clock (Table I: 0.01).", True, "physics"),
+    ParamSpec("damping", float, _SIM.damping, "1/s", "Velocity damping rate; 0 = off (paper).", False, "physics"),
+    # solver
+    ParamSpec("method", str, _SIM.method, "", f"Solver: {', '.join(METHODS)} or an alias ({', '.join(METHOD_ALIASES)}).", False, "solver"),
+    ParamSpec("scheme", str, _SIM.scheme, "", f"Constraint order: {', '.join(SCHEMES)}.", False, "solver"),
+    ParamSpec("iterations", int, _SIM.iterations, "", "Solver iterations per (sub)step (Table I: 30).", False, "solver"),
+    ParamSpec("substeps", int, _SIM.substeps, "", "Substeps per step.", False, "solver"),
+    ParamSpec("relaxation", float, _SIM.relaxation, "", "Jacobi relaxation factor in (0, 1].", False, "solver"),
+    ParamSpec("k_spring", float, _SIM.k_spring, "", "PBD distance stiffness coefficient in [0, 1] (Table I: 0.15).", False, "solver"),
+    ParamSpec("k_area", float, _SIM.k_area, "", "PBD area stiffness coefficient in [0, 1] (Table I: 1).", False, "solver"),
+    ParamSpec("stiffness_spring", float, _SIM.stiffness_spring, "N/m", "XPBD distance stiffness (method xpbd).", False, "solver"),
+    ParamSpec("stiffness_area", float, _SIM.stiffness_area, "N/m^3", "XPBD area stiffness (method xpbd).", False, "solver"),
+    ParamSpec("area_mode", str, _SIM.area_mode, "", f"Area constraint: {', '.join(AREA_MODES)} (abs = the paper's |area| form).", False, "solver"),
+    ParamSpec("sleep_speed", float, _SIM.sleep_speed, "m/s", "Sleeping: particles slower than this and far from any contact for 10 steps are skipped by the solver; 0 = off.", False, "solver"),
+    ParamSpec("sleep_wake_radius", float, _SIM.sleep_wake_radius, "m", "Sleeping: particles within this rest distance of a contact particle stay awake.", False, "solver"),
+    # contact
+    ParamSpec("contact_model", str, _SIM.contact_model, "", f"Contact: {', '.join(CONTACT_MODELS)}.", False, "contact"),
+    ParamSpec("contact_radius", float, _SIM.contact_radius, "m", "Paper contact: radius r of the displaced neighbourhood (Table I: 0.25).", False, "contact"),
+    ParamSpec("contact_threshold", float, _SIM.contact_threshold, "m", "Paper contact: distance alpha below which contact starts (Table I: 0.025).", False, "contact"),
+    ParamSpec("contact_margin", float, _SIM.contact_margin, "m", "Projection contact: the tool inflated by this margin.", False, "contact"),
+    ParamSpec("contact_surface", str, _SIM.contact_surface, "", f"Projection contact keeps out of the tool: {', '.join(CONTACT_SURFACES)} (edges = particles and boundary edges; particles = particles only, a thin tool slips between them).", False, "contact"),
+    # tool shape (read-only: the contact model is built around it)
+    ParamSpec("tool_shape", str, _TOOL.kind, "", f"Tool shape: {', '.join(TOOL_SHAPES)}.", True, "tool"),
+    ParamSpec("tool_length", float, _TOOL.length, "m", "Tool length along its axis (box, capsule).", True, "tool"),
+    ParamSpec("tool_width", float, _TOOL.width, "m", "Full width of a box tool.", True, "tool"),
+    ParamSpec("tool_radius", float, _TOOL.radius, "m", "Radius of a capsule or sphere tool.", True, "tool"),
+    # the node's own
+    ParamSpec("frame_id", str, "world", "", "The one fixed frame of every message in and out; inputs in another frame are dropped.", False, "node", _frame),
+    ParamSpec("lock_step", bool, False, "", "true: one step per received tool pose (exact replay), no timer; false: a timer at 1/dt.", True, "node"),
+    ParamSpec("paused", bool, False, "", "true: no steps (also set by the ~/pause service).", False, "node"),
+    ParamSpec("marker_rate", float, 100.0, "Hz", "Rate of tissue/markers; capped at 1/dt (published every round(1/(dt*rate)) steps).", False, "node", _positive),
+    ParamSpec("points_rate", float, 100.0, "Hz", "Rate of tissue/points; capped at 1/dt.", False, "node", _positive),
+    ParamSpec("diagnostics_rate", float, 1.0, "Hz", "Rate of /diagnostics.", False, "node", _positive),
+    ParamSpec("markers_wireframe", bool, True, "", "Include the wireframe LINE_LIST in tissue/markers.", False, "node"),
+    ParamSpec("strain_color_max", float, 0.2, "", "Strain shown at full colour in the mesh marker (blue -max, red +max).", False, "node", _positive),
+    ParamSpec("wire_width", float, 0.002, "m", "Line width of the wireframe markers.", False, "node", _positive),
+    ParamSpec("max_tool_jump", float, 0.05, "m", "A tool pose farther than this from the last one used is clamped to this distance per step.", False, "node", _positive),
+    ParamSpec("max_stamp_age", float, 0.5, "s", "Timer mode: tool messages stamped older than this are dropped as stale; 0 = no check.", False, "node", _non_negative),
+    ParamSpec("twist_timeout", float, 0.05, "s", "A tool twist received longer ago than this is stale: velocity is derived from poses.", False, "node", _positive),
+    ParamSpec("twist_source", str, "auto", "", "auto: tool/twist when fresh, else from poses; poses: always derived from poses.", False, "node", _one_of(("auto", "poses"))),
+    ParamSpec("warn_period", float, 2.0, "s", "Each kind of warning about bad input is logged at most once per period.", False, "node", _positive),
+    ParamSpec("record_path", str, "", "path", "Record every message in and out (the very bytes published) to this new rosbag2 bag directory; empty = no recording.", True, "node"),
+    ParamSpec("record_storage", str, "mcap", "", "Storage of the recorded bag: mcap (default, as ros2 bag in Jazzy) or sqlite3.", True, "node", _one_of(("mcap", "sqlite3"))),
+)
+
+
+BY_NAME: dict[str, ParamSpec] = {p.name: p for p in PARAMETERS}
+
+#: Where each parameter goes: "sim" (SimParams), "scene" (SceneConfig), "tool" (ToolShape) or "node".
+_SIM_FIELDS = {f.name for f in fields(SimParams)}
+_SCENE_FIELDS = {f.name for f in fields(SceneConfig)}
+TOOL_FIELDS = {"tool_shape": "kind", "tool_length": "length", "tool_width": "width", "tool_radius": "radius"}
+
+
+def _home(spec: ParamSpec) -> str:
+    if spec.name in _SIM_FIELDS:
+        return "sim"
+    if spec.name in _SCENE_FIELDS:
+        return "scene"
+    if spec.name in TOOL_FIELDS:
+        return "tool"
+    if spec.group == "node":
+        return "node"
+    raise RuntimeError(f"parameter {spec.name!r} has no home: add it to SimParams, SceneConfig or the node group")
+
+
+HOME: dict[str, str] = {p.name: _home(p) for p in PARAMETERS}
+
+#: Names the simulation reads (everything but the node's own).
+SIM_NAMES: tuple[str, ...] = tuple(p.name for p in PARAMETERS if HOME[p.name] != "node")
+
+NodeConfig = make_dataclass(
+    "NodeConfig", [(p.name, p.kind, field(default=p.default)) for p in PARAMETERS if HOME[p.name] == "node"],
+    frozen=True)
+NodeConfig.__module__, NodeConfig.__qualname__ = __name__, "NodeConfig"  # picklable (worker processes)
+NodeConfig.__doc__ = "The node's own options (the ``node`` group of :data:`PARAMETERS`); the offline commands ignore them."
+
+#: Prefixes of names a ROS parameter file may hold that rclpy handles (not ours, not unknown).
+FOREIGN_PREFIXES = ("qos_overrides.", "use_sim_time", "start_type_description_service")
+
+
+# --------------------------------------------------------------------------- files and assignments
+
+
+def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, Any]:
+    """Flat parameters from a ROS 2 parameter YAML (``node: ros__parameters: ...``) or a flat YAML.
+
+    Accepts the node's own section, a ``/**`` wildcard section, or a flat mapping.
+    A file that cannot be read or parsed is an InputError of one line.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"parameter file {str(path)!r} does not exist")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or type(exc).__name__
+        raise InputError(f"parameter file {str(path)!r} is not valid YAML{where}: {problem}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"parameter file {str(path)!r} cannot be read: {exc}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise InputError(f"parameter file {str(path)!r}: expected a mapping at the top level")
+    out: dict[str, Any] = {}
+    found_section = False
+    for key in ("/**", node_name, "/" + node_name):
+        section = data.get(key)
+        if isinstance(section, dict) and isinstance(section.get("ros__parameters"), dict):
+            out.update(section["ros__parameters"])
+            found_section = True
+    if not found_section:
+        out.update(data)
+    return out
+
+
+def default_params() -> dict[str, Any]:
+    """The shipped ``config/tissue_sim.yaml`` as flat parameters."""
+    from ..resources import DEFAULT_PARAMS_FILE, config_path  # noqa: PLC0415
+
+    return load_params_file(config_path(DEFAULT_PARAMS_FILE))
+
+
+def parse_assignments(items: Iterable[str]) -> dict[str, Any]:
+    """``NAME=VALUE`` strings (``--set``) -> dict, values parsed as YAML scalars (numbers, booleans, strings)."""
+    out: dict[str, Any] = {}
+    for item in items:
+        if "=" not in item:
+            raise InputError(f"--set {item!r}: expected NAME=VALUE")
+        name, value = item.split("=", 1)
+        try:
+            out[name.strip()] = yaml.safe_load(value) if value.strip() else ""
+        except yaml.YAMLError:
+            raise InputError(f"--set {item!r}: {value!r} is not a number, boolean or string") from None
+    return out
+
+
+# --------------------------------------------------------------------------- resolution
+
+
+def closest_name(name: str) -> str | None:
+    """The known parameter name closest to ``name`` (a typo's likely intent), or None."""
+    match = difflib.get_close_matches(name, BY_NAME, n=1, cutoff=0.6)
+    return match[0] if match else None
+
+
+def _check_known(values: Mapping[str, Any], source: str) -> None:
+    for name in values:
+        if name in BY_NAME or str(name).startswith(FOREIGN_PREFIXES):
+            continue
+        near = closest_name(str(name))
+        hint = f"; did you mean {near!r}?" if near else "; the names are listed in msg_docs/parameters.md"
+        raise InputError(f"unknown parameter {name!r} in {source}{hint}")
+
+
+def _type_name(kind: type) -> str:
+    return {float: "a number", int: "an integer", bool: "a boolean", str: "a string"}[kind]
+
+
+def coerce(spec: ParamSpec, value: Any) -> Any:
+    """The value as the parameter's type (an int for a float is accepted) and its range check, or InputError."""
+    kind = spec.kind
+    ok = (isinstance(value, bool) if kind is bool else
+          isinstance(value, int) and not isinstance(value, bool) if kind is int else
+          isinstance(value, (int, float)) and not isinstance(value, bool) if kind is float else
+          isinstance(value, str))
+    if not ok:
+        raise InputError(f"parameter {spec.name}={value!r}: expected {_type_name(kind)}")
+    value = float(value) if kind is float else value
+    if spec.check is not None:
+        if kind is float and not math.isfinite(value):
+            raise InputError(f"parameter {spec.name}={value!r}: expected a finite number")
+        expected = spec.check(value)
+        if expected is not None:
+            raise InputError(f"parameter {spec.name}={value!r}: expected {expected}")
+    return value
+
+
+def _reference_default(name: str, shipped: Mapping[str, Any]) -> Any:
+    return shipped.get(name, BY_NAME[name].default)
+
+
+def resolve_method_alias(values: dict[str, Any], shipped: Mapping[str, Any]) -> None:
+    """Apply the one alias rule (module docstring) to a merged flat mapping, in place."""
+    method = values.get("method")
+    alias = METHOD_ALIASES.get(method) if isinstance(method, str) else None
+    if alias is None:
+        if isinstance(method, str) and method not in METHODS:
+            raise InputError(f"parameter method={method!r}: expected one of {', '.join(METHOD_ALIASES)}")
+        return
+    for key, value in alias.items():
+        if key == "method" or values.get(key) == _reference_default(key, shipped):
+            values[key] = value
+
+
+def resolve_material_defaults(values: dict[str, Any], shipped: Mapping[str, Any], chosen: Iterable[str]) -> None:
+    """A material's own solver settings (:data:`~tissue_sim_ros.core.model.MATERIAL_DEFAULTS`), in place.
+
+    The shipped file is the paper's scene (``method: pbd``, one step of 30 iterations, the paper's
+    contact); ``material: neo_hookean`` sets ``method: xpbd``, 10 substeps of 10 iterations and
+    projection contact for each of them that was not ``chosen`` (given by a file, the overrides or a
+    command's defaults) and still holds its shipped value (so an alias's own substeps stay).
+    """
+    material = values.get("material")
+    chosen = set(chosen)
+    for key, value in MATERIAL_DEFAULTS.get(material, {}).items() if isinstance(material, str) else ():
+        if key not in chosen and _same(values.get(key), _reference_default(key, shipped)):
+            values[key] = value
+
+
+@dataclass(frozen=True)
+class Config:
+    """A resolved, validated configuration, grouped by concern.
+
+    Build with :func:`resolve_config`; change with :meth:`replace` (re-resolved
+    and re-validated). ``flat()`` is the external interface (the flat names).
+    """
+
+    sim: SimParams
+    """Physics, solver and contact: the Model's parameter record."""
+    scene: SceneConfig
+    """Where the mesh comes from."""
+    tool: ToolShape
+    """The tool's shape."""
+    node: Any
+    """The node's own options (:data:`NodeConfig`)."""
+
+    def flat(self) -> dict[str, Any]:
+        """Every parameter by its flat name, in table order."""
+        out: dict[str, Any] = {}
+        for spec in PARAMETERS:
+            home = HOME[spec.name]
+            if home == "tool":
+                out[spec.name] = getattr(self.tool, TOOL_FIELDS[spec.name])
+            else:
+                out[spec.name] = getattr(getattr(self, home), spec.name)
+        return out
+
+    def group(self, name: str) -> Mapping[str, Any]:
+        """The values of one group (``scene``, ``physics``, ``solver``, ``contact``, ``tool``, ``node``), read-only."""
+        if name not in GROUPS:
+            raise InputError(f"configuration group {name!r}: expected one of {', '.join(GROUPS)}")
+        flat = self.flat()
+        return MappingProxyType({p.name: flat[p.name] for p in PARAMETERS if p.group == name})
+
+    @property
+    def physics(self) -> Mapping[str, Any]:
+        return self.group("physics")
+
+    @property
+    def solver(self) -> Mapping[str, Any]:
+        return self.group("solver")
+
+    @property
+    def contact(self) -> Mapping[str, Any]:
+        return self.group("contact")
+
+    def replace(self, **changes: Any) -> "Config":
+        """A new Config with some flat values changed (unknown names, aliases and values as in resolve_config)."""
+        return resolve_config(overrides=changes, base=self.flat())
+
+    def changed(self, other: "Config") -> list[str]:
+        """Names whose values differ between this and ``other`` (NaN equals NaN)."""
+        a, b = self.flat(), other.flat()
+        return [n for n in a if not _same(a[n], b[n])]
+
+    def to_yaml(self, node_name: str = NODE_NAME) -> str:
+        """The configuration as a ROS 2 parameter file that the node and every command load identically."""
+        flat = self.flat()
+        lines = [f"# resolved by tissue-sim config: every parameter of {node_name} (msg_docs/parameters.md)",
+                 f"{node_name}:", "  ros__parameters:"]
+        for group in GROUPS:
+            lines.append(f"    # {group}")
+            for spec in (p for p in PARAMETERS if p.group == group):
+                value = _yaml_scalar(flat[spec.name])
+                unit = f"  # [{spec.unit}]" if spec.unit and spec.unit not in ("path",) else ""
+                lines.append(f"    {spec.name}: {value}{unit}")
+        return "\n".join(lines) + "\n"
+
+
+def _yaml_scalar(value: Any) -> str:
+    """One value as YAML that reads back to the same value and type (floats keep their dot, NaN is .nan)."""
+    return yaml.safe_dump([value], default_flow_style=True, width=1 << 16).strip()[1:-1]
+
+
+def _same(a: Any, b: Any) -> bool:
+    return a == b or (isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b))
+
+
+def resolve_config(overrides: Mapping[str, Any] | None = None,
+                   params_file: str | Path | Sequence[str | Path] | None = None, *,
+                   defaults: Mapping[str, Any] | None = None, source: str = "the overrides",
+                   base: Mapping[str, Any] | None = None) -> Config:
+    """Merge, resolve and validate: the one path from parameter values to a :class:`Config`.
+
+    Parameters
+    ----------
+    overrides : mapping, optional
+        Flat values that win over everything else (``--set``, the node's ``-p``, a library call).
+    params_file : path or list of paths, optional
+        ROS 2 parameter YAML file(s), applied in order over the shipped ``config/tissue_sim.yaml``.
+    defaults : mapping, optional
+        A command's own defaults, over the shipped file and under the parameter file
+        (experiment b's shorter tool).
+    source : str
+        How to name the overrides in an error message (e.g. ``"--set"``, ``"the node's parameters"``).
+    base : mapping, optional
+        Start from these flat values instead of the shipped file (used by :meth:`Config.replace`).
+
+    Raises
+    ------
+    InputError
+        An unknown name (with the closest known one), a value of the wrong type, or a value out of range.
+    """
+    shipped = default_params()
+    _check_known(shipped, "the shipped config/tissue_sim.yaml")
+    values: dict[str, Any] = {p.name: p.default for p in PARAMETERS}
+    values.update(shipped if base is None else base)
+    chosen: set[str] = set()
+    if defaults:
+        _check_known(defaults, "the command's defaults")
+        values.update(defaults)
+        chosen.update(defaults)
+    files = [] if params_file is None else [params_file] if isinstance(params_file, (str, Path)) else list(params_file)
+    for path in files:
+        data = load_params_file(path)
+        _check_known(data, f"parameter file {str(path)!r}")
+        values.update(data)
+        chosen.update(data)
+    if overrides:
+        _check_known(overrides, source)
+        values.update(overrides)
+        chosen.update(overrides)
+    values = {k: v for k, v in values.items() if k in BY_NAME}
+    resolve_method_alias(values, shipped)
+    if base is None or values.get("material") != base.get("material"):
+        # the material was chosen here (not carried over by Config.replace): its solver settings apply
+        resolve_material_defaults(values, shipped, chosen)
+    values = {name: coerce(BY_NAME[name], value) for name, value in values.items()}
+    return _build(values)
+
+
+def _build(values: Mapping[str, Any]) -> Config:
+    by_home: dict[str, dict[str, Any]] = {"sim": {}, "scene": {}, "tool": {}, "node": {}}
+    for name, value in values.items():
+        home = HOME[name]
+        by_home[home][TOOL_FIELDS.get(name, name)] = value
+    return Config(sim=SimParams(**by_home["sim"]), scene=SceneConfig(**by_home["scene"]),
+                  tool=ToolShape(**by_home["tool"]), node=NodeConfig(**by_home["node"]))
+
+
+def markdown_table() -> str:
+    """The parameter reference as a markdown table (for msg_docs/parameters.md)."""
+    shipped = default_params()
+    lines = ["| name | type | default | unit | read-only | description |", "|---|---|---|---|---|---|"]
+    for group in GROUPS:
+        for p in (p for p in PARAMETERS if p.group == group):
+            default = shipped.get(p.name, p.default)
+            shown = f"`{default!r}`" if not isinstance(default, str) else f"`\"{default}\"`"
+            lines.append(f"| `{p.name}` | {p.kind.__name__} | {shown} | {p.unit} | {'yes' if p.read_only else 'no'} | {p.description} |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(markdown_table())
