@@ -456,6 +456,13 @@ def test_tool_driver_bad_preset_exits_2(start_process: Any) -> None:
     assert "preset" in out and "experiment_a" in out and "Traceback" not in out
 
 
+def test_tool_driver_unknown_scene_exits_2(start_process: Any) -> None:
+    proc = start_process(["tool_driver", "--ros-args", "-p", "scene:=bogus"], name="bad_scene_driver")
+    assert proc.wait(timeout=60) == 2
+    out = proc.output()
+    assert "bogus" in out and "liver_probe" in out and "Traceback" not in out
+
+
 def test_bench_node_command_writes_its_table(ros_env: dict[str, str], tmp_path: Path) -> None:
     """Smoke test of `tissue-sim bench node` (one short lock-step run; no timing is asserted)."""
     import subprocess  # noqa: PLC0415

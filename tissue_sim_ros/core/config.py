@@ -128,13 +128,18 @@ class SceneConfig:
         return cls(**kwargs)
 
     def build_mesh(self) -> TissueMesh:
-        """Load the mesh file, or mesh the image (the default image when none is given)."""
+        """Load the mesh file, or mesh the image (the default image when none is given).
+
+        A relative path that is not a file from the working directory is looked up among the shipped
+        config files (``scenes/liver_probe.png``), so a shipped scene's parameter file works from anywhere.
+        """
+        from ..resources import DEFAULT_IMAGE, config_path, find_data_file  # noqa: PLC0415
+
         if self.mesh_file:
-            return load_mesh(self.mesh_file)
-        from ..resources import DEFAULT_IMAGE, config_path  # noqa: PLC0415
+            return load_mesh(find_data_file(self.mesh_file))
         from .mesh import mesh_from_image  # noqa: PLC0415
 
-        image = self.image or str(config_path(DEFAULT_IMAGE))
+        image = str(find_data_file(self.image)) if self.image else str(config_path(DEFAULT_IMAGE))
         return mesh_from_image(image, spacing=self.spacing, scale=self.scale,
                                origin=(self.origin_x, self.origin_y),
                                threshold=None if self.threshold < 0 else self.threshold)

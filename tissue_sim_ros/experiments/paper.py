@@ -105,16 +105,22 @@ def summarise(run: Rollout, wall: float, dt: float) -> dict[str, Any]:
     }
 
 
-def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None = None, steps: int = tr.A_STEPS,
-                 snapshot_steps: Sequence[int] = tr.A_SNAPSHOTS, progress: bool = True,
-                 prefix: str = "experiment_a") -> ExperimentResult:
-    """Run experiment a and write ``{prefix}_snapshots.png``, ``{prefix}_energy.png``, ``{prefix}_energy.csv``."""
+def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None = None, steps: int | None = None,
+                 snapshot_steps: Sequence[int] | None = None, progress: bool = True,
+                 prefix: str = "experiment_a", scene: tr.SceneExperiments = tr.PAPER) -> ExperimentResult:
+    """Run experiment a and write ``{prefix}_snapshots.png``, ``{prefix}_energy.png``, ``{prefix}_energy.csv``.
+
+    ``scene`` places the tool (:data:`~.trajectories.SCENE_EXPERIMENTS`); ``params`` must describe the same
+    scene (e.g. its parameter file). ``steps`` and ``snapshot_steps`` default to the scene's.
+    """
+    steps = scene.a_steps if steps is None else steps
+    snapshot_steps = scene.a_snapshots if snapshot_steps is None else snapshot_steps
     from ..render import plot_energy, save_snapshots  # noqa: PLC0415  (matplotlib only when drawing)
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     sim = build_simulation(params)
-    traj = tr.experiment_a(sim.tool, sim.params.dt, steps=steps)
+    traj = tr.experiment_a(sim.tool, sim.params.dt, steps=steps, scene=scene)
     snaps = [s for s in snapshot_steps if s <= steps]
     run, wall = run_trajectory(sim, traj, snapshot_steps=snaps, progress="experiment a" if progress else False)
     res = ExperimentResult("a", rollouts={"a": run})
@@ -124,7 +130,7 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None =
     res.summary["particles"] = sim.model.n_particles
     shots = [(s, run.snapshots[s], _pose_at_step(run, s)) for s in snaps if s in run.snapshots]
     res.files.append(save_snapshots(out / f"{prefix}_snapshots.png", sim.model, shots, tool=sim.tool,
-                                    title=f"Experiment a: the tool approaches the bottom tissue "
+                                    title=f"Experiment a: the tool approaches the tissue "
                                           f"({sim.params.contact_model} contact)"))
     res.files.append(plot_energy(out / f"{prefix}_energy.png", run.steps,
                                  {"inertial": run.inertial, "spring": run.spring, "area": run.area},
@@ -137,17 +143,27 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None =
 
 
 def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None = None,
-                 angles_deg: Sequence[float] = tr.B_ANGLES_DEG, target: tuple[float, float] = tr.B_TARGET,
-                 speed: float = tr.B_SPEED, distance: float = tr.B_DISTANCE, progress: bool = True,
-                 prefix: str = "experiment_b") -> ExperimentResult:
-    """Run experiment b: the same target from each angle; figure of final states and energy curves."""
+                 angles_deg: Sequence[float] | None = None, target: tuple[float, float] | None = None,
+                 speed: float | None = None, distance: float | None = None, progress: bool = True,
+                 prefix: str = "experiment_b", scene: tr.SceneExperiments = tr.PAPER) -> ExperimentResult:
+    """Run experiment b: the same target from each angle; figure of final states and energy curves.
+
+    Unset arguments come from ``scene`` (:data:`~.trajectories.SCENE_EXPERIMENTS`), whose tool (if it names
+    one) is the command's default tool, under a parameter file's, as the paper's 0.3 m box is.
+    """
+    angles_deg = scene.b_angles_deg if angles_deg is None else angles_deg
+    target = scene.b_target if target is None else target
+    speed = scene.b_speed if speed is None else speed
+    distance = scene.b_distance if distance is None else distance
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
     from ..render import TERM_STYLES, draw_scene  # noqa: PLC0415
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    values = params if isinstance(params, Config) else resolve_config(dict(params or {}), defaults=B_TOOL_VALUES)
+    tool_values = ({"tool_shape": scene.b_tool.kind, "tool_length": scene.b_tool.length,
+                    "tool_width": scene.b_tool.width} if scene.b_tool is not None else {})
+    values = params if isinstance(params, Config) else resolve_config(dict(params or {}), defaults=tool_values)
     res = ExperimentResult("b")
     runs: list[tuple[float, Rollout, Simulation, float]] = []
     baseline: Rollout | None = None

@@ -42,6 +42,7 @@ from . import messages, qos
 
 #: name -> (default, description); defaults of the tool and dt come from config/tissue_sim.yaml.
 DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
+    "scene": ("paper", "Shipped scene (tissue_sim_ros.experiments.trajectories.SCENE_EXPERIMENTS: paper, liver_probe) whose experiments the presets play; its parameter file (config/scenes/NAME.yaml) gives the defaults of dt and the tool."),
     "preset": ("experiment_a", "An experiment's trajectory (tissue_sim_ros.experiments.trajectories.PRESETS: experiment_a, experiment_b_shallow, experiment_b_steep), or 'straight' for the straight insertion the parameters below describe."),
     "target_x": (0.5, "Tip position at the end of the insertion, x [m]."),
     "target_y": (0.5, "Tip position at the end of the insertion, y [m]."),
@@ -49,7 +50,7 @@ DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
     "distance": (0.3, "Distance the tip travels [m]."),
     "speed": (0.1, "Tip speed [m/s]."),
     "hold": (0.5, "Time held at the target after arriving [s]."),
-    "dt": (0.01, "Publishing period [s] (default: dt of config/tissue_sim.yaml)."),
+    "dt": (0.01, "Publishing period [s] (default: dt of the scene's parameter file, config/tissue_sim.yaml for the paper's)."),
     "frame_id": ("world", "frame_id of the published messages."),
     "tool_shape": ("box", "Tool shape (the tip is length/2 ahead of the centre for box and capsule)."),
     "tool_length": (0.8, "Tool length [m]."),
@@ -76,7 +77,7 @@ def _trajectory(values: dict[str, Any]) -> Trajectory:
             raise InputError(f"parameter preset={values['preset']!r}: experiment presets are not available in this "
                              f"build ({exc}); use preset 'straight'") from None
         try:
-            return preset(values["preset"], tool, values["dt"])
+            return preset(values["preset"], tool, values["dt"], scene=values["scene"])
         except InputError as exc:
             raise InputError(f"parameter preset: {exc}; or 'straight'") from None
     return StraightInsertion.from_angle(tool, (values["target_x"], values["target_y"]), math.radians(values["angle"]),
@@ -91,6 +92,10 @@ class ToolDriver(Node):
         shipped = resolve_config().flat()  # the simulation's dt and tool, as the node resolves them
         self.values: dict[str, Any] = {}
         for name, (default, description) in DRIVER_PARAMETERS.items():
+            if name == "preset" and self.values["scene"] != "paper":  # "scene" is declared first
+                from ..resources import scene_params_file  # noqa: PLC0415
+
+                shipped = resolve_config(params_file=scene_params_file(self.values["scene"])).flat()
             default = shipped.get(name, default) if name == "dt" or name.startswith("tool_") else default
             if isinstance(default, float):
                 default = float(default)
