@@ -32,12 +32,12 @@ setup(
     # mapping it into the package makes it importable data after `pip install .`
     # while ament's share/ copy (data_files) serves `ros2 launch` users.
     package_dir={f"{package_name}.config": "config"},
-    package_data={f"{package_name}.config": ["*.yaml", "*.png", "*.rviz", "*.xml", "scenes/*.yaml"]},
+    package_data={f"{package_name}.config": ["*.yaml", "*.png", "*.rviz", "*.xml", "scenes/*.yaml", "scenes/*.png"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{package_name}"]),
         (f"share/{package_name}", ["package.xml"]),
         (f"share/{package_name}/config", glob("config/*.yaml") + glob("config/*.png") + glob("config/*.rviz")),
-        (f"share/{package_name}/config/scenes", glob("config/scenes/*.yaml")),
+        (f"share/{package_name}/config/scenes", glob("config/scenes/*.yaml") + glob("config/scenes/*.png")),
         (f"share/{package_name}/launch", glob("launch/*.py")),
         (f"share/{package_name}/msg_docs", glob("msg_docs/*.md")),
     ],
@@ -55,7 +55,9 @@ setup(
     ],
     extras_require={
         "ros": ROS_WHEELS,
-        "test": ["pytest>=7", "ruff>=0.6", "mcap>=1.1", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5"],
+        "test": ["pytest>=7", "ruff>=0.6", "mcap>=1.1", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5", "scikit-fem>=10"],
+        # the independent static plane-stress FEM reference (bench/fem_reference.py)
+        "fem": ["scikit-fem>=10"],
         "video": ["imageio>=2.30", "imageio-ffmpeg>=0.4"],
         "peers": ["mujoco>=4.0", "taichi>=1.7"],  # flexcomp dof="2d" is not in older MuJoCo (measured: 4.0.0, taichi 1.7.4)
     },

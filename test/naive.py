@@ -682,3 +682,191 @@ def authors_forward(x, v, rest_length, triangles, rest_area, masses, actuation, 
         x = apply_walls(x, wall_bottom, wall_top)                       # collision_check
     v = (x - old_x) / dt                                                # updata_velosity
     return x, v, star_x
+
+
+# ----------------------------------------------------------------------------- material (core/material.py)
+#
+# Written from the continuum form with 2x2 matrices: F = D_s D_m^-1, a scalar phi(F) with
+# dphi/dF = P has gradient P D_m^-T per vertex (columns: vertices b, c; vertex a minus their sum).
+
+def material_lame(young_modulus, poisson_ratio):
+    """(mu, lambda') with lambda' = E nu / (1 - nu^2) + mu (the shifted plane-stress lambda)."""
+    mu = young_modulus / (2.0 * (1.0 + poisson_ratio))
+    return mu, young_modulus * poisson_ratio / (1.0 - poisson_ratio ** 2) + mu
+
+
+def material_rest(q0, tri):
+    """(D_m^-1, A0) of one triangle, or (None, A0) when it has no area."""
+    dm = np.column_stack([q0[tri[1]] - q0[tri[0]], q0[tri[2]] - q0[tri[0]]])
+    a0 = 0.5 * np.linalg.det(dm)
+    if abs(a0) < 1e-300:
+        return None, a0
+    return np.linalg.inv(dm), a0
+
+
+def elastic_table(q0, tris, young_modulus, poisson_ratio, thickness, rel_eps=1e-12):
+    """Packed rows [D_m^-1 (row-major), 1/(mu V0), 1/(lambda' V0)]; zero for degenerate triangles."""
+    mu, lam = material_lame(young_modulus, poisson_ratio)
+    areas = [abs(material_rest(q0, t)[1]) for t in tris]
+    scale = np.mean(areas) if areas else 0.0
+    out = np.zeros((len(tris), 6))
+    for k, t in enumerate(tris):
+        dinv, a0 = material_rest(q0, t)
+        if dinv is None or abs(a0) <= rel_eps * scale:
+            continue
+        v0 = abs(a0) * thickness
+        out[k] = [*dinv.ravel(), 1.0 / (mu * v0), 1.0 / (lam * v0)]
+    return out
+
+
+def _grads(P, dinv):
+    """Per-vertex gradients (a, b, c) of phi with dphi/dF = P."""
+    h = P @ dinv.T
+    return [-(h[:, 0] + h[:, 1]), h[:, 0], h[:, 1]]
+
+
+def element_constraints(x, tri, row):
+    """[(C, grads) for g_0, g_1, C_H] of one element at x."""
+    dinv = row[:4].reshape(2, 2)
+    ds = np.column_stack([x[tri[1]] - x[tri[0]], x[tri[2]] - x[tri[0]]])
+    F = ds @ dinv
+    cof = np.array([[F[1, 1], -F[1, 0]], [-F[0, 1], F[0, 0]]])
+    return [(F[0, 0] - F[1, 1], _grads(np.array([[1.0, 0.0], [0.0, -1.0]]), dinv)),
+            (F[0, 1] + F[1, 0], _grads(np.array([[0.0, 1.0], [1.0, 0.0]]), dinv)),
+            (np.linalg.det(F) - 1.0, _grads(cof, dinv))]
+
+
+def _element_step(x, w, tri, row, inv_h2, lam, rows):
+    """XPBD increments of constraint ``rows`` from the same x: list of (dlam, dx per vertex) or None."""
+    out = []
+    cons = element_constraints(x, tri, row)
+    for r in rows:
+        C, grads = cons[r]
+        s = sum(w[p] * g @ g for p, g in zip(tri, grads))
+        if s <= 1e-300:
+            out.append(None)
+            continue
+        alpha = row[4 if r < 2 else 5] * inv_h2
+        dl = (-C - alpha * lam[r]) / (s + alpha)
+        out.append((dl, [w[p] * dl * g for p, g in zip(tri, grads)]))
+    return out
+
+
+def solve_elements(x, inv_mass, tris, elastic, inv_h2, lam):
+    """Gauss-Seidel sweep in array order: per element the pair (g_0, g_1) jointly, then C_H; returns (x, lam)."""
+    x = x.copy()
+    lam = lam.copy()
+    for t, tri in enumerate(tris):
+        if inv_mass[tri].sum() == 0 or not elastic[t, :4].any():
+            continue
+        for rows in ((0, 1), (2,)):
+            steps = _element_step(x, inv_mass, tri, elastic[t], inv_h2, lam[t], rows)
+            for r, st in zip(rows, steps):
+                if st is None:
+                    continue
+                lam[t, r] += st[0]
+                for p, d in zip(tri, st[1]):
+                    x[p] += d
+    return x, lam
+
+
+def jacobi_elements(x, inv_mass, tris, elastic, inv_h2, lam, omega):
+    """Jacobi pass: (summed corrections (N, 2), new lam); increments scaled by omega[t, 0] (pair), omega[t, 1] (C_H)."""
+    dx = np.zeros_like(x)
+    lam = lam.copy()
+    for t, tri in enumerate(tris):
+        if inv_mass[tri].sum() == 0 or not elastic[t, :4].any():
+            continue
+        for r, st in zip((0, 1, 2), _element_step(x, inv_mass, tri, elastic[t], inv_h2, lam[t], (0, 1, 2))):
+            if st is None:
+                continue
+            om = omega[t, 0 if r < 2 else 1]
+            lam[t, r] += om * st[0]
+            for p, d in zip(tri, st[1]):
+                dx[p] += om * d
+    return dx, lam
+
+
+def jacobi_relaxation_elements(x, inv_mass, tris, elastic, inv_h2, scale):
+    """omega (T, 2) = scale / r per row group, r the Gershgorin bound (rows: g_0, g_1, C_H; the pair shares omega)."""
+    n = x.shape[0]
+    rows = []  # (element, group, vertices, gradient norms, alpha)
+    for t, tri in enumerate(tris):
+        cons = element_constraints(x, tri, elastic[t])
+        for r, (_, grads) in enumerate(cons):
+            rows.append((t, 0 if r < 2 else 1, tri, [np.linalg.norm(g) for g in grads],
+                         elastic[t, 4 if r < 2 else 5] * inv_h2))
+    D = []
+    for _, _, tri, norms, al in rows:
+        s = sum(inv_mass[p] * g * g for p, g in zip(tri, norms))
+        D.append(s + al if s > 1e-300 else 0.0)
+    G = np.zeros(n)
+    for (_, _, tri, norms, _), d in zip(rows, D):
+        if d > 0:
+            for p, g in zip(tri, norms):
+                G[p] += g / math.sqrt(d)
+    omega = np.zeros((len(tris), 2))
+    for (t, grp, tri, norms, al), d in zip(rows, D):
+        if d <= 0:
+            continue
+        r = al / d + sum(inv_mass[p] * g * G[p] for p, g in zip(tri, norms)) / math.sqrt(d)
+        omega[t, grp] = scale / r if r > 0 else scale
+    return omega
+
+
+def strain_energy(x, q0, tris, tri_body, n_bodies, young_modulus, poisson_ratio, thickness):
+    """Per body sum_t |A0| t [mu/2 (|F|^2 - 2 det F) + lambda'/2 (det F - 1)^2] [J], from E and nu directly."""
+    mu, lam = material_lame(young_modulus, poisson_ratio)
+    out = np.zeros(n_bodies)
+    scale = np.mean([abs(material_rest(q0, t)[1]) for t in tris]) if len(tris) else 0.0
+    for t, tri in enumerate(tris):
+        dinv, a0 = material_rest(q0, tri)
+        if dinv is None or abs(a0) <= 1e-12 * scale:  # degenerate at rest: no element (as the kernels)
+            continue
+        F = np.column_stack([x[tri[1]] - x[tri[0]], x[tri[2]] - x[tri[0]]]) @ dinv
+        J = np.linalg.det(F)
+        out[tri_body[t]] += abs(a0) * thickness * (0.5 * mu * (np.sum(F * F) - 2.0 * J) + 0.5 * lam * (J - 1.0) ** 2)
+    return out
+
+
+def tool_checks(x0, x1, shape0, shape1, tris, inside_tol=1e-9, samples=4001):
+    """(n_inside, deepest, deepest particle, n_tunnelled, buried) of core/tool_checks.py, by brute force.
+
+    Tunnelling: the chord in the tool frame sampled at ``samples`` points; it tunnels when it has a point
+    deeper than ``inside_tol`` and the outward normals where it enters and leaves (bisected) point apart.
+    Buried: 9 points along the tool's axis (1 for a sphere) tested against every triangle by barycentric signs.
+    """
+    hx, hy, r = shape1[4], shape1[5], shape1[6]
+    d1 = rounded_box_sdf(x1, shape1)
+    d0 = rounded_box_sdf(x0, shape0)
+    inside = d1 < -inside_tol
+    n_inside = int(inside.sum())
+    deepest, arg = (float(-d1[inside].min()), int(np.flatnonzero(inside)[np.argmin(d1[inside])])) if n_inside else (0.0, -1)
+    n_tunnel = 0
+    s = np.linspace(0.0, 1.0, samples)
+    for i in np.flatnonzero(~inside & (d0 >= -inside_tol)):
+        a, b = tool_local(x0[i], shape0), tool_local(x1[i], shape1)
+        pts = a + s[:, None] * (b - a)
+        sd = np.array([rounded_box_sdf_local(p, hx, hy, r) for p in pts])
+        if not (sd < -inside_tol).any():
+            continue
+        k_in = np.flatnonzero(sd < 0)[0]
+        k_out = np.flatnonzero(sd < 0)[-1]
+        f = lambda t: rounded_box_sdf_local(a + t * (b - a), hx, hy, r)  # noqa: E731
+        t_in = _bisect_root(f, s[max(k_in - 1, 0)], s[k_in])
+        t_out = _bisect_root(f, s[k_out], s[min(k_out + 1, samples - 1)])
+        n_in = rounded_box_normal_local(a + t_in * (b - a), hx, hy)
+        n_out = rounded_box_normal_local(a + t_out * (b - a), hx, hy)
+        if n_in @ n_out < 0:
+            n_tunnel += 1
+    axis = np.array([shape1[2], shape1[3]])
+    ks = np.linspace(-hx, hx, 9) if hx > 0 else np.array([0.0])
+    buried = False
+    for sk in ks:
+        p = shape1[:2] + sk * axis
+        for ta, tb, tc in tris:
+            signs = [cross2(x1[tb] - x1[ta], p - x1[ta]), cross2(x1[tc] - x1[tb], p - x1[tb]),
+                     cross2(x1[ta] - x1[tc], p - x1[tc])]
+            if all(v >= 0 for v in signs) or all(v <= 0 for v in signs):  # on an edge or corner counts
+                buried = True
+    return n_inside, deepest, arg, n_tunnel, buried

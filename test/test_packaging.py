@@ -48,6 +48,8 @@ def test_wheel_carries_config_and_entry_points(tmp_path):
     assert "tissue_sim_ros/config/tissue_sim.yaml" in names
     assert "tissue_sim_ros/config/tissue.png" in names
     assert "tissue_sim_ros/config/scenes/authors.yaml" in names
+    assert "tissue_sim_ros/config/scenes/liver_probe.yaml" in names  # the real-size scene and its image
+    assert "tissue_sim_ros/config/scenes/liver_probe.png" in names
     assert any(n.endswith("share/tissue_sim_ros/package.xml") for n in names)
     for script in ("tissue-sim", "tissue_sim_node", "tool_driver"):
         assert script in entry_points
@@ -75,6 +77,8 @@ def test_colcon_build_installs_ament_layout(tmp_path):
     assert (prefix / "share" / "ament_index" / "resource_index" / "packages" / "tissue_sim_ros").is_file()
     assert (prefix / "share" / "tissue_sim_ros" / "config" / "tissue_sim.yaml").is_file()
     assert (prefix / "share" / "tissue_sim_ros" / "config" / "tissue.png").is_file()
+    assert (prefix / "share" / "tissue_sim_ros" / "config" / "scenes" / "liver_probe.yaml").is_file()
+    assert (prefix / "share" / "tissue_sim_ros" / "config" / "scenes" / "liver_probe.png").is_file()
     assert (prefix / "lib" / "tissue_sim_ros" / "tissue_sim_node").is_file()  # where `ros2 run` looks
     # the colcon-installed package finds its config through the ament share directory as well
     site = next(prefix.glob("lib/python3*/site-packages"))

@@ -255,6 +255,12 @@ def test_parameters_are_validated_at_runtime(node: Node) -> None:
     assert not bad.successful and "iterations" in bad.reason
     read_only = node.set_param("dt", 0.02)
     assert not read_only.successful and "read-only" in read_only.reason
+    bad = node.set_param("young_modulus", -1.0)  # checked whatever the material (here constraints)
+    assert not bad.successful and "young_modulus" in bad.reason and "> 0 Pa" in bad.reason
+    bad = node.set_param("poisson_ratio", 0.5)
+    assert not bad.successful and "poisson_ratio" in bad.reason
+    read_only = node.set_param("density", 900.0)
+    assert not read_only.successful and "read-only" in read_only.reason
     ok = node.set_param("iterations", 10)
     assert ok.successful, ok.reason
     ok = node.set_param("contact_radius", 0.06)
@@ -468,6 +474,13 @@ def test_tool_driver_bad_preset_exits_2(start_process: Any) -> None:
     assert proc.wait(timeout=60) == 2
     out = proc.output()
     assert "preset" in out and "experiment_a" in out and "Traceback" not in out
+
+
+def test_tool_driver_unknown_scene_exits_2(start_process: Any) -> None:
+    proc = start_process(["tool_driver", "--ros-args", "-p", "scene:=bogus"], name="bad_scene_driver")
+    assert proc.wait(timeout=60) == 2
+    out = proc.output()
+    assert "bogus" in out and "liver_probe" in out and "Traceback" not in out
 
 
 def test_bench_node_command_writes_its_table(ros_env: dict[str, str], tmp_path: Path) -> None:

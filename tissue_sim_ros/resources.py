@@ -18,6 +18,8 @@ from .core.errors import InputError
 
 DEFAULT_PARAMS_FILE = "tissue_sim.yaml"
 DEFAULT_IMAGE = "tissue.png"
+#: Shipped scenes: ``config/scenes/<name>.yaml`` (``tissue-sim demo --scene NAME``).
+SCENES_DIR = "scenes"
 
 
 def config_dirs() -> list[Path]:
@@ -50,3 +52,33 @@ def config_path(name: str) -> Path:
         if (d / name).is_file():
             return d / name
     raise InputError(f"config file {name!r} not found in {', '.join(map(str, dirs)) or 'any config directory'}")
+
+
+def find_data_file(path: str | Path) -> Path:
+    """A file a parameter names: as given when it exists (relative to the working directory), else a
+    relative path among the config directories (``scenes/liver_probe.png``); else the path as given,
+    so the caller's own "does not exist" message names what the user wrote."""
+    p = Path(path)
+    if p.is_file() or p.is_absolute():
+        return p
+    for d in config_dirs():
+        if (d / p).is_file():
+            return d / p
+    return p
+
+
+def scene_names() -> list[str]:
+    """Names of the shipped scenes (``config/scenes/*.yaml``), sorted; ``paper`` is the default file."""
+    names = {"paper"}
+    for d in config_dirs():
+        names.update(f.stem for f in (d / SCENES_DIR).glob("*.yaml"))
+    return sorted(names)
+
+
+def scene_params_file(name: str) -> Path:
+    """The parameter file of a shipped scene: ``paper`` is config/tissue_sim.yaml, others config/scenes/NAME.yaml."""
+    if name == "paper":
+        return config_path(DEFAULT_PARAMS_FILE)
+    if name not in scene_names():
+        raise InputError(f"--scene {name!r}: expected one of {', '.join(scene_names())}")
+    return config_path(f"{SCENES_DIR}/{name}.yaml")

@@ -10,6 +10,7 @@ simulation's configuration::
         -> unknown names refused (with the closest known name)
         -> values coerced to their type (an integer is accepted for a float)
         -> method aliases resolved by the one rule below
+        -> a material's own solver settings (neo_hookean: xpbd, 10 x 10 substeps, projection contact)
         -> every value checked (SimParams, SceneConfig, ToolShape, the node's checks)
         -> Config (frozen): .sim (SimParams, the Model's record), .scene, .tool, .node
 
@@ -47,6 +48,8 @@ from .model import (
     CONTACT_SURFACES,
     DAMPING_MODES,
     JACOBI_AVERAGINGS,
+    MATERIAL_DEFAULTS,
+    MATERIALS,
     METHODS,
     SCHEMES,
     SimParams,
@@ -143,13 +146,19 @@ class SceneConfig:
         return cls(**kwargs)
 
     def build_mesh(self) -> TissueMesh:
-        """Load the mesh file, or mesh the image (the default image when none is given)."""
+        """Load the mesh file, or mesh the image (the default image when none is given).
+
+        A relative path that is not a file from the working directory is looked up among the shipped
+        config files (``scenes/liver_probe.png``), so a shipped scene's parameter file works from anywhere.
+        """
+        from ..resources import DEFAULT_IMAGE, config_path, find_data_file  # noqa: PLC0415
+
         if self.mesh_file:
-            return load_meshes(self.mesh_file)
-        from ..resources import DEFAULT_IMAGE, config_path  # noqa: PLC0415
+            files = [self.mesh_file] if isinstance(self.mesh_file, str) else list(self.mesh_file)
+            return load_meshes([find_data_file(f) for f in files])
         from .mesh import mesh_from_image  # noqa: PLC0415
 
-        image = self.image or str(config_path(DEFAULT_IMAGE))
+        image = str(find_data_file(self.image)) if self.image else str(config_path(DEFAULT_IMAGE))
         return mesh_from_image(image, spacing=self.spacing, scale=self.scale,
                                origin=(self.origin_x, self.origin_y),
                                threshold=None if self.threshold < 0 else self.threshold,
@@ -199,6 +208,11 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     # physics (Table I)
     ParamSpec("mass", float, _SIM.mass, "kg", "Mass of each particle (Table I: 1e-4).", True, "physics"),
     ParamSpec("mass_per_area", float, _SIM.mass_per_area, "kg/m^2", "Areal density: > 0 lumps a third of each triangle's area times it on its corners (refined or graded meshes keep the same tissue); 0 = every particle has mass (the paper).", True, "physics"),
+    ParamSpec("material", str, _SIM.material, "", f"Tissue model: {', '.join(MATERIALS)} (constraints = the paper's springs and areas; neo_hookean = a plane-stress membrane from young_modulus, poisson_ratio, thickness, density, which brings method xpbd, substeps 10, iterations 10 and contact_model projection unless they are given).", True, "physics"),
+    ParamSpec("young_modulus", float, _SIM.young_modulus, "Pa", "neo_hookean: Young's modulus E (> 0); ignored by constraints.", False, "physics"),
+    ParamSpec("poisson_ratio", float, _SIM.poisson_ratio, "", "neo_hookean: Poisson's ratio nu in [0, 0.5); ignored by constraints.", False, "physics"),
+    ParamSpec("thickness", float, _SIM.thickness, "m", "neo_hookean: membrane thickness (> 0); ignored by constraints.", True, "physics"),
+    ParamSpec("density", float, _SIM.density, "kg/m^3", "neo_hookean: density (> 0); each particle's mass is density x thickness x a third of its triangles' rest area (replaces mass and mass_per_area); ignored by constraints.", True, "physics"),
     ParamSpec("gravity", float, _SIM.gravity, "m/s^2", "Gravity along world y (Table I: -9.8).", False, "physics"),
     ParamSpec("dt", float, _SIM.dt, "s", "Time step; the node steps at 1/dt of its clock (Table I: 0.01).", True, "physics"),
     ParamSpec("damping", float, _SIM.damping, "1/s", "Velocity damping rate c, applied before each prediction (damping_mode); 0 = off (paper; the authors' code: 8).", False, "physics"),
@@ -403,6 +417,21 @@ def resolve_method_alias(values: dict[str, Any], shipped: Mapping[str, Any]) -> 
             values[key] = value
 
 
+def resolve_material_defaults(values: dict[str, Any], shipped: Mapping[str, Any], chosen: Iterable[str]) -> None:
+    """A material's own solver settings (:data:`~tissue_sim_ros.core.model.MATERIAL_DEFAULTS`), in place.
+
+    The shipped file is the paper's scene (``method: pbd``, one step of 30 iterations, the paper's
+    contact); ``material: neo_hookean`` sets ``method: xpbd``, 10 substeps of 10 iterations and
+    projection contact for each of them that was not ``chosen`` (given by a file, the overrides or a
+    command's defaults) and still holds its shipped value (so an alias's own substeps stay).
+    """
+    material = values.get("material")
+    chosen = set(chosen)
+    for key, value in MATERIAL_DEFAULTS.get(material, {}).items() if isinstance(material, str) else ():
+        if key not in chosen and _same(values.get(key), _reference_default(key, shipped)):
+            values[key] = value
+
+
 @dataclass(frozen=True)
 class Config:
     """A resolved, validated configuration, grouped by concern.
@@ -512,19 +541,26 @@ def resolve_config(overrides: Mapping[str, Any] | None = None,
     _check_known(shipped, "the shipped config/tissue_sim.yaml")
     values: dict[str, Any] = {p.name: p.default for p in PARAMETERS}
     values.update(shipped if base is None else base)
+    chosen: set[str] = set()
     if defaults:
         _check_known(defaults, "the command's defaults")
         values.update(defaults)
+        chosen.update(defaults)
     files = [] if params_file is None else [params_file] if isinstance(params_file, (str, Path)) else list(params_file)
     for path in files:
         data = load_params_file(path)
         _check_known(data, f"parameter file {str(path)!r}")
         values.update(data)
+        chosen.update(data)
     if overrides:
         _check_known(overrides, source)
         values.update(overrides)
+        chosen.update(overrides)
     values = {k: v for k, v in values.items() if k in BY_NAME}
     resolve_method_alias(values, shipped)
+    if base is None or values.get("material") != base.get("material"):
+        # the material was chosen here (not carried over by Config.replace): its solver settings apply
+        resolve_material_defaults(values, shipped, chosen)
     values = {name: coerce(BY_NAME[name], value) for name, value in values.items()}
     return _build(values)
 

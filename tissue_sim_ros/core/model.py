@@ -23,6 +23,19 @@ CONTACT_MODELS = ("paper", "projection", "none")
 CONTACT_SURFACES = ("edges", "particles")
 DAMPING_MODES = ("linear", "exponential")
 JACOBI_AVERAGINGS = ("violated", "all")
+#: ``constraints``: the paper's springs and areas (per-constraint stiffnesses); ``neo_hookean``: a
+#: plane-stress membrane with Young's modulus, Poisson's ratio, thickness and density (core/material.py).
+MATERIALS = ("constraints", "neo_hookean")
+#: Parameters only ``material: neo_hookean`` reads (ignored with ``constraints``).
+MATERIAL_PARAMETERS = ("young_modulus", "poisson_ratio", "thickness", "density")
+#: What a material sets when the caller does not: the shipped YAML's values are the paper's (constraints)
+#: and do not apply to it. Substeps: one 2 ms step of 100 Gauss-Seidel iterations stops short of
+#: equilibrium on a 2 mm mesh, while 10 substeps of 10 iterations reach a static FEM (issue 16); contact:
+#: the projection model (the paper's eq. 3 stays selectable with ``contact_model: paper``).
+MATERIAL_DEFAULTS: dict[str, dict[str, Any]] = {
+    "constraints": {},
+    "neo_hookean": {"method": "xpbd", "contact_model": "projection", "substeps": 10, "iterations": 10},
+}
 
 @dataclass(frozen=True)
 class SimParams:
@@ -131,6 +144,19 @@ class SimParams:
     """Projection contact: what is kept out of the tool. ``edges`` (default): particles and boundary edges,
     so a tool thinner than the mesh spacing indents the surface instead of slipping between particles;
     ``particles``: particles only (such a tool pierces the tissue between them)."""
+    # material (issue 16): constraints (the paper) or a plane-stress neo-Hookean membrane
+    material: str = "constraints"
+    """``constraints`` (the paper's springs and areas; the default, so the paper reproduces) or
+    ``neo_hookean`` (plane-stress membrane in SI units, core/material.py; XPBD, so ``method`` must be xpbd)."""
+    young_modulus: float = 10e3
+    """Neo-Hookean: Young's modulus E [Pa] (ignored by ``constraints``). Soft tissue: 1-100 kPa."""
+    poisson_ratio: float = 0.45
+    """Neo-Hookean: Poisson's ratio nu in [0, 0.5) [-] (ignored by ``constraints``)."""
+    thickness: float = 0.005
+    """Neo-Hookean: membrane thickness [m] (ignored by ``constraints``)."""
+    density: float = 1000.0
+    """Neo-Hookean: density [kg/m^3]; each particle's mass is a third of its triangles' rest area times
+    density x thickness (lumped), replacing ``mass`` and ``mass_per_area`` (ignored by ``constraints``)."""
 
     def __post_init__(self) -> None:
         self.validate()
@@ -154,7 +180,8 @@ class SimParams:
         for name in ("mass", "mass_per_area", "gravity", "dt", "damping", "relaxation", "k_spring", "k_area",
                      "stiffness_spring", "stiffness_area", "contact_radius", "contact_threshold",
                      "contact_margin", "sleep_speed", "sleep_wake_radius", "jacobi_spring_tolerance",
-                     "jacobi_area_tolerance"):
+                     "jacobi_area_tolerance", "young_modulus", "poisson_ratio",
+                     "thickness", "density"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise bad(name, "a finite number")
@@ -193,6 +220,18 @@ class SimParams:
                 raise bad(name, "a tolerance >= 0")
         if self.contact_surface not in CONTACT_SURFACES:
             raise bad("contact_surface", f"one of {', '.join(CONTACT_SURFACES)}")
+        if self.material not in MATERIALS:
+            raise bad("material", f"one of {', '.join(MATERIALS)}")
+        if self.young_modulus <= 0:
+            raise bad("young_modulus", "a Young's modulus > 0 Pa")
+        if not 0.0 <= self.poisson_ratio < 0.5:
+            raise bad("poisson_ratio", "a Poisson's ratio in [0, 0.5)")
+        if self.thickness <= 0:
+            raise bad("thickness", "a thickness > 0 m")
+        if self.density <= 0:
+            raise bad("density", "a density > 0 kg/m^3")
+        if self.material == "neo_hookean" and self.method != "xpbd":
+            raise bad("method", "xpbd with material neo_hookean (the material is solved with compliance)")
         for name in ("k_spring", "k_area"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise bad(name, "a PBD stiffness coefficient in [0, 1]")
@@ -272,6 +311,15 @@ class Model:
     """Number of separate tissue bodies."""
     mesh: TissueMesh | None = field(default=None, repr=False)
     """The mesh the model was built from (for rendering and collision)."""
+    tri_elastic: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)), repr=False)
+    """``material: neo_hookean``: packed rest data of each triangle's element, shape (T, 6), float64
+    (:func:`~tissue_sim_ros.core.material.elastic_table`: D_m^-1 and the compliances 1/(mu V0), 1/(lambda' V0)
+    [1/J]); shape (0, 6) for ``constraints``."""
+
+    @property
+    def is_material(self) -> bool:
+        """True for ``material: neo_hookean`` (elements instead of springs and areas)."""
+        return self.params.material == "neo_hookean"
 
     @property
     def n_particles(self) -> int:
@@ -344,6 +392,15 @@ class Model:
             # lumped mass: a third of each triangle's area to each of its corners
             lumped = np.bincount(tris.ravel(), weights=np.repeat(np.abs(rest_area) / 3.0, 3), minlength=n)
             mass = np.where(lumped > 0, params.mass_per_area * lumped, params.mass)  # a lone vertex keeps `mass`
+        elastic = np.zeros((0, 6))
+        if params.material == "neo_hookean":
+            from .material import elastic_table, lumped_mass  # noqa: PLC0415  (material -> collision -> model)
+
+            # mass lumped from density x thickness x area (replaces mass and mass_per_area); a vertex of no
+            # triangle (it feels no elasticity either) keeps `mass`
+            lumped = lumped_mass(q0, tris, params.density, params.thickness)
+            mass = np.where(lumped > 0, lumped, params.mass)
+            elastic = elastic_table(q0, tris, params.young_modulus, params.poisson_ratio, params.thickness)
         inv_mass = np.where(pin, 0.0, 1.0 / mass)
         body = np.ascontiguousarray(mesh.body, dtype=np.int32)
         arrays = dict(
@@ -351,6 +408,7 @@ class Model:
             particle_pinned=pin, edge_indices=edges, edge_rest_length=rest_len, tri_indices=tris,
             tri_rest_area=rest_area, tri_body=np.ascontiguousarray(body[tris[:, 0]]) if len(tris) else np.zeros(0, np.int32),
             edge_body=np.ascontiguousarray(body[edges[:, 0]]) if len(edges) else np.zeros(0, np.int32),
+            tri_elastic=np.ascontiguousarray(elastic),
         )
         for arr in arrays.values():
             arr.setflags(write=False)

@@ -43,11 +43,14 @@ class Rollout:
     """Steps whose solve diverged (state restored), shape (S,), bool."""
     snapshots: dict[int, np.ndarray] = field(default_factory=dict)
     """Particle positions at chosen steps (0 = the initial state), step -> (N, 2)."""
+    strain: np.ndarray | None = None
+    """dt^2-scaled strain energy per body, shape (S, B) (``material: neo_hookean``; None for constraints)."""
 
     @property
     def total(self) -> np.ndarray:
         """Total energy per body, shape (S, B)."""
-        return self.inertial + self.spring + self.area
+        total = self.inertial + self.spring + self.area
+        return total if self.strain is None else total + self.strain
 
     @property
     def scene_total(self) -> np.ndarray:
@@ -55,11 +58,12 @@ class Rollout:
         return self.total.sum(axis=1)
 
     def energy_table(self) -> tuple[list[str], np.ndarray]:
-        """Column names and a (S, C) array: step, time, total, then per body total/inertial/spring/area."""
+        """Column names and a (S, C) array: step, time, total, then per body total/inertial/spring/area(/strain)."""
         names = ["step", "time", "energy_total"]
         cols = [self.steps.astype(float), self.time, self.scene_total]
         for b in range(self.inertial.shape[1]):
-            for term, arr in (("total", self.total), ("inertial", self.inertial), ("spring", self.spring), ("area", self.area)):
+            terms = [("total", self.total), ("inertial", self.inertial), ("spring", self.spring), ("area", self.area)]
+            for term, arr in terms + ([("strain", self.strain)] if self.strain is not None else []):
                 names.append(f"body{b}_{term}")
                 cols.append(arr[:, b])
         names += ["contact_any", "reaction_fx", "reaction_fy"]
@@ -119,4 +123,5 @@ def rollout(sim: Simulation, poses: Iterable[tuple[ToolPose | None, ToolTwist | 
         step_time=np.array([r.timings.get("total", np.nan) for r in rows]),
         diverged=np.array([r.diverged for r in rows], dtype=bool),
         snapshots=snaps,
+        strain=np.array([r.energy.strain for r in rows]).reshape(len(rows), nb) if sim.model.is_material else None,
     )

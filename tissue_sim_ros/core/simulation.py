@@ -22,7 +22,8 @@ from .errors import InputError
 from .kernels import count_inverted
 from .model import Model, State
 from .solvers import Solver
-from .tool import ToolPose, ToolShape, ToolTwist, twist_from_poses
+from .tool import ToolPose, ToolShape, ToolTwist, tool_shape_array, twist_from_poses
+from .tool_checks import INSIDE_TOL, tool_checks
 
 if TYPE_CHECKING:
     from .mesh import TissueMesh
@@ -61,7 +62,8 @@ class StepReport:
     contact_particles: np.ndarray
     """Indices of the particles moved by the contact model this step, int32."""
     reaction_force: np.ndarray
-    """Tissue's reaction on the tool [N], shape (2,): - sum m dx / dt^2 over contact corrections."""
+    """Tissue's reaction on the tool [N], shape (2,): - sum m dx / (dt h) over projection contact corrections
+    (h = dt / substeps: the mean over the substeps), - sum m dx / dt^2 over the paper contact's held displacements."""
     reaction_torque: float
     """Torque of the reaction about the tool centre [N m] (about +z)."""
     n_inverted: int
@@ -70,6 +72,23 @@ class StepReport:
     """True if the solve produced NaN/inf and the previous state was restored."""
     timings: dict[str, float] = field(default_factory=dict)
     """Wall time of each phase [s]: contact, solve, energy, total."""
+    x_pred: np.ndarray | None = None
+    """The step's prediction x* [m], shape (N, 2) (the paper contact's held displacements included): with the
+    published positions x it gives the energy, E = 1/2 sum m |x - x*|^2 + dt^2 E_p(x)."""
+    held_idx: np.ndarray | None = None
+    """Paper contact: the particles displaced and held this step, int32 (empty for projection)."""
+    held_dx: np.ndarray | None = None
+    """Paper contact: their displacements [m], shape (K, 2) (x* = free prediction + held_dx there)."""
+    n_penetrating: int = 0
+    """Particles inside the tool's shape (no margin) after the step."""
+    penetration_depth: float = 0.0
+    """Depth of the deepest of them inside the tool [m] (0 when none)."""
+    deepest_particle: int = -1
+    """Index of that particle (-1 when none)."""
+    n_tunnelled: int = 0
+    """Particles whose path relative to the tool ran through it within the step (``core/tool_checks.py``)."""
+    tool_buried: bool = False
+    """True when a point of the tool's axis lies inside a triangle of the deformed tissue (the tool is buried in it)."""
 
 
 class Simulation:
@@ -199,6 +218,7 @@ class Simulation:
         else:
             energy = energy_terms(model, out.particle_q, info.x_pred)
             force, torque = self._reaction(info.contact_dx, tool_pose, p.dt, contacts, out.particle_q)
+        checks = self._tool_checks(self.state.particle_q, out.particle_q, self.tool_pose or tool_pose, tool_pose)
         t_energy = time.perf_counter()
 
         self.state, self._state_out = out, self.state
@@ -216,14 +236,31 @@ class Simulation:
             reaction_force=force, reaction_torque=torque, n_inverted=self.count_inverted(), diverged=diverged,
             timings={"contact": t_contact - t_start, "solve": t_solve - t_contact,
                      "energy": t_energy - t_solve, "total": time.perf_counter() - t_start},
+            x_pred=info.x_pred.copy(), held_idx=np.asarray(contacts.held_idx, dtype=np.int32).copy(),
+            held_dx=np.asarray(contacts.held_dx, dtype=np.float64).reshape(-1, 2).copy(),
+            n_penetrating=checks[0], penetration_depth=checks[1], deepest_particle=checks[2],
+            n_tunnelled=checks[3], tool_buried=checks[4],
         )
+
+    def _tool_checks(self, x0: np.ndarray, x1: np.ndarray, pose0: ToolPose | None,
+                     pose1: ToolPose | None) -> tuple[int, float, int, int, bool]:
+        """Penetration, tunnelling and a buried tool after a step (``core/tool_checks.py``); zeros without a tool."""
+        if self.tool is None or pose1 is None:
+            return 0, 0.0, -1, 0, False
+        n_in, depth, arg, n_tunnel, buried = tool_checks(
+            x0, x1, tool_shape_array(self.tool, pose0 or pose1), tool_shape_array(self.tool, pose1),
+            self.model.tri_indices, INSIDE_TOL)
+        return int(n_in), float(depth), int(arg), int(n_tunnel), bool(buried)
 
     def _reaction(self, contact_dx: np.ndarray | None, tool_pose: ToolPose | None, dt: float,
                   contacts: Contacts | None = None, x: np.ndarray | None = None) -> tuple[np.ndarray, float]:
-        """Reaction on the tool: the tool pushed particles by dx, so they push back with -m dx / dt^2.
+        """Reaction on the tool: the tool pushed particles by dx, so they push back with -m dx / h^2.
 
-        ``contact_dx`` (N, 2) are the projection model's summed corrections; without
-        them the paper model's held displacements (``contacts.held_dx``) are used.
+        ``contact_dx`` (N, 2) are the projection model's corrections summed over the step's
+        n = ``substeps`` substeps of h = dt / n: a correction dx in a substep is a force m dx / h^2
+        acting for h, so the step's mean force is m sum(dx) / (n h^2) = m sum(dx) / (dt h) (dividing
+        by dt^2 made the force n times too small). Without them the paper model's held displacements
+        (``contacts.held_dx``, prescribed over the whole step) give m dx / dt^2.
         The torque is about the tool's centre, with the particles at ``x`` (their
         positions after the step; default: the current state).
         """
@@ -233,11 +270,13 @@ class Simulation:
         if contact_dx is not None:
             idx = np.flatnonzero(contact_dx.any(axis=1))
             dx = contact_dx[idx]
+            denominator = dt * (dt / self.params.substeps)
         elif contacts is not None and contacts.held_idx.size:
             idx, dx = contacts.held_idx, contacts.held_dx
+            denominator = dt * dt
         else:
             return np.zeros(2), 0.0
-        f_particles = -m[idx, None] * dx / (dt * dt)
+        f_particles = -m[idx, None] * dx / denominator
         force = f_particles.sum(axis=0)
         x = self.state.particle_q if x is None else x
         r = x[idx] - np.array([tool_pose.x, tool_pose.y])

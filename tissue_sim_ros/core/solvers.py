@@ -12,6 +12,7 @@ One step (the paper's Algorithm 1, with Macklin's multipliers for XPBD)::
         predict from the substep's start (h), reset multipliers
         (held particles: the fraction (s+1)/substeps of their way from x_t to x*)
         `iterations` sweeps: edges, triangles, tool (projection contact), walls
+            (material: neo_hookean: the triangles' elements instead of edges and areas, core/material.py)
         v = (x - x_start) / h; boundary lines clamp and stop particles
     residual = RMS(C / rest size)
 
@@ -43,7 +44,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from . import kernels
+from . import kernels, material
 from .collision import Contacts
 from .errors import InputError
 from .model import Model, State
@@ -278,6 +279,13 @@ class Solver:
             edges, rest = np.ascontiguousarray(edges[perm_e]), np.ascontiguousarray(rest[perm_e])
             tris, area0 = np.ascontiguousarray(tris[perm_t]), np.ascontiguousarray(area0[perm_t])
         self.edges, self.rest, self.tris, self.area0 = edges, rest, tris, area0
+        # material: one element per triangle, in the triangles' solve order (core/material.py)
+        self.is_material = model.is_material
+        elastic = np.ascontiguousarray(model.tri_elastic, dtype=np.float64)
+        self.elastic = np.ascontiguousarray(elastic[perm_t]) if (self.is_material and perm_t is not None) else elastic
+        self.lam_m = np.zeros((tris.shape[0] if self.is_material else 0, 3))
+        """Multipliers (g_0, g_1, C_H) of each element (solve order) of the current substep, (T, 3)."""
+        self.omega_m = np.ones((self.lam_m.shape[0], 2))
         self._no_edges = np.zeros((0, 2), dtype=np.int32)
         self._no_tris = np.zeros((0, 3), dtype=np.int32)
         self._no_float = np.zeros(0, dtype=np.float64)
@@ -322,6 +330,8 @@ class Solver:
     def n_projections_per_step(self) -> int:
         """Constraint projections in one step (iterations x substeps x active constraints)."""
         p = self.params
+        if self.is_material:
+            return self.tris.shape[0] * p.iterations * p.substeps
         n_c = (self.edges.shape[0] if self._k_alpha(p.k_spring, p.stiffness_spring, 1.0)[2] else 0) \
             + (self.tris.shape[0] if self._k_alpha(p.k_area, p.stiffness_area, 1.0)[2] else 0)
         return n_c * p.iterations * p.substeps
@@ -349,6 +359,26 @@ class Solver:
             out[3] /= norm
         else:  # half a turn within one step: take the end orientation
             out[2], out[3] = s1[2], s1[3]
+
+    def _material_iterations(self, x: np.ndarray, w: np.ndarray, h: float, cand: np.ndarray, surf: np.ndarray,
+                             edge_side_tol: float) -> None:
+        """One substep's iterations of the material elements (and the tool), Gauss-Seidel or Jacobi."""
+        p = self.params
+        inv_h2 = 1.0 / (h * h)
+        if self.jacobi:
+            if self.jacobi_relaxation == "stiffness":
+                material.jacobi_relaxation_elements(x, w, self.tris, self.elastic, inv_h2, self.relaxation_scale,
+                                                    self._node_sum, self.omega_m)
+            else:
+                self.omega_m[:] = p.relaxation
+            material.material_jacobi(x, w, self.tris, self.elastic, inv_h2, self.lam_m, self.omega_m, p.iterations,
+                                     self._dx_acc, self.x_start, cand, self._shape0, self._shape1, self.contact_dx,
+                                     surf, edge_side_tol)
+        else:
+            # a parallel colour order runs serially here (the elements have no coloured kernel)
+            material.material_gauss_seidel(x, w, self.tris, self.elastic, inv_h2, self.lam_m, self.tri_offsets,
+                                           self.gs_mode == kernels.GS_PARTITIONED, p.iterations, self.x_start,
+                                           cand, self._shape0, self._shape1, self.contact_dx, surf, edge_side_tol)
 
     def step(self, state_in: State, state_out: State, contacts: Contacts, dt: float) -> SolveInfo:
         """Advance ``state_in`` by ``dt`` into ``state_out`` (which must not alias ``state_in``).
@@ -403,6 +433,8 @@ class Solver:
 
         k_e, alpha_e, use_e = self._k_alpha(p.k_spring, p.stiffness_spring, h)
         k_t, alpha_t, use_t = self._k_alpha(p.k_area, p.stiffness_area, h)
+        if self.is_material:
+            use_e = use_t = False
         edges, rest = (self.edges, self.rest) if use_e else (self._no_edges, self._no_float)
         tris, area0 = (self.tris, self.area0) if use_t else (self._no_tris, self._no_float)
 
@@ -419,13 +451,18 @@ class Solver:
                     apply_walls(x, p.wall_y_bottom, p.wall_y_top)
             self.lam_e.fill(0.0)
             self.lam_t.fill(0.0)
+            self.lam_m.fill(0.0)
             if projection:
                 self._interpolate_shape(s0, s1, sub / n_sub, self._shape0)
                 self._interpolate_shape(s0, s1, (sub + 1) / n_sub, self._shape1)
                 cand, surf = candidates, surface_edges
             else:
                 cand, surf = self._no_index, self._no_edges
-            if self.violated:
+            if self.is_material:
+                self._material_iterations(x, w, h, cand, surf, float(contacts.edge_side_tol))
+                if self.walls:
+                    apply_walls(x, p.wall_y_bottom, p.wall_y_top)
+            elif self.violated:
                 # the authors' Jacobi: weights from the model's inverse masses (held particles keep theirs), only
                 # particles free this step move; walls after every iteration (inside the kernel)
                 violated_jacobi_iterations(x, inv_mass, w, edges, rest, k_e, p.jacobi_spring_tolerance,

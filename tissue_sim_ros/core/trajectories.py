@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import csv
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -66,21 +67,76 @@ B_ANGLES_DEG = (-10.0, -30.0)
 B_TOOL = ToolShape(kind="box", length=0.3, width=0.005)
 
 
-def experiment_a(tool: ToolShape, dt: float, speed: float = A_SPEED, steps: int = A_STEPS) -> StraightInsertion:
-    """Experiment a's insertion: ``steps`` steps of ``speed`` m from A_START along A_ANGLE_DEG."""
-    a = math.radians(A_ANGLE_DEG)
+@dataclass(frozen=True)
+class SceneExperiments:
+    """Where a scene's experiments a and b put the tool (speeds in m per step, as the paper's)."""
+
+    a_start: tuple[float, float]
+    """Experiment a: the tool tip's start [m]."""
+    a_angle_deg: float
+    """Experiment a: direction of the tip's motion [deg]."""
+    a_speed: float
+    """Experiment a: tip speed [m per step]."""
+    a_steps: int
+    """Experiment a: steps."""
+    a_snapshots: tuple[int, ...]
+    """Experiment a: the steps drawn."""
+    b_target: tuple[float, float]
+    """Experiment b: the common target of the tool tip [m]."""
+    b_distance: float
+    """Experiment b: insertion distance [m]."""
+    b_speed: float
+    """Experiment b: tip speed [m per step]."""
+    b_angles_deg: tuple[float, float]
+    """Experiment b: the shallow and the steep insertion angle [deg]."""
+    b_tool: ToolShape | None
+    """Experiment b: the tool (None: the scene's own)."""
+
+
+PAPER = SceneExperiments(A_START, A_ANGLE_DEG, A_SPEED, A_STEPS, A_SNAPSHOTS,
+                         B_TARGET, B_DISTANCE, B_SPEED, B_ANGLES_DEG, B_TOOL)
+
+#: The real-size scene (config/scenes/liver_probe.yaml, dt 10 ms): the 5 mm instrument comes down at 40 degrees
+#: at 4 mm/s (4e-5 m per step) onto the slab's dome (surface at y = 33.4-33.8 mm around x = 28-34 mm), touches
+#: it near step 150 and presses its tip about 4 mm in by step 400; experiment b reaches a point 3 mm under the
+#: surface at x = 40 mm from 20 and 50 degrees below horizontal.
+LIVER_PROBE = SceneExperiments((0.022, 0.040), -40.0, 4e-5, 400, (0, 150, 280, 400),
+                               (0.040, 0.031), 0.012, 4e-5, (-20.0, -50.0), None)
+
+#: Experiments per shipped scene (``tissue-sim experiment a --scene NAME``; the tool driver's ``scene``).
+#: ``authors`` (config/scenes/authors.yaml) is the paper's 1 m scene with the authors' code as parameters.
+SCENE_EXPERIMENTS: dict[str, SceneExperiments] = {"paper": PAPER, "liver_probe": LIVER_PROBE, "authors": PAPER}
+
+
+def scene_experiments(name: str) -> SceneExperiments:
+    """The experiments of a shipped scene by name; InputError naming the known ones."""
+    try:
+        return SCENE_EXPERIMENTS[name]
+    except KeyError:
+        raise InputError(f"scene {name!r}: expected one of {', '.join(SCENE_EXPERIMENTS)}") from None
+
+
+def experiment_a(tool: ToolShape, dt: float, speed: float | None = None, steps: int | None = None,
+                 scene: SceneExperiments = PAPER) -> StraightInsertion:
+    """Experiment a's insertion: ``steps`` steps of ``speed`` m from the scene's start along its angle."""
+    speed = scene.a_speed if speed is None else speed
+    steps = scene.a_steps if steps is None else steps
+    a = math.radians(scene.a_angle_deg)
     travel = speed * steps
-    target = (A_START[0] + travel * math.cos(a), A_START[1] + travel * math.sin(a))
-    return StraightInsertion.from_tool(tool, A_START, target, speed, dt=dt)
+    target = (scene.a_start[0] + travel * math.cos(a), scene.a_start[1] + travel * math.sin(a))
+    return StraightInsertion.from_tool(tool, scene.a_start, target, speed, dt=dt)
 
 
-def experiment_b(tool: ToolShape, dt: float, angle_deg: float, speed: float = B_SPEED,
-                 target: tuple[float, float] = B_TARGET, distance: float = B_DISTANCE) -> StraightInsertion:
+def experiment_b(tool: ToolShape, dt: float, angle_deg: float, speed: float | None = None,
+                 target: tuple[float, float] | None = None, distance: float | None = None,
+                 scene: SceneExperiments = PAPER) -> StraightInsertion:
     """An insertion at ``angle_deg`` (direction of the tip's motion) ending at ``target``."""
+    speed = scene.b_speed if speed is None else speed
+    target = scene.b_target if target is None else target
+    distance = scene.b_distance if distance is None else distance
     return StraightInsertion.from_angle(tool, target, math.radians(angle_deg), distance, speed, dt=dt)
 
 
-#: The authors' run: the box centre at the start [m], yaw [rad], direction of motion [deg], m per step, steps.
 AUTHORS_START = (0.15, 0.5008)
 AUTHORS_YAW = 0.0
 AUTHORS_DIRECTION_DEG = -90.0
@@ -123,14 +179,16 @@ def authors_run(tool: ToolShape, dt: float) -> WaypointTrajectory:
 PRESETS = ("experiment_a", "experiment_b_shallow", "experiment_b_steep", "authors")
 
 
-def preset(name: str, tool: ToolShape, dt: float) -> Trajectory:
-    """A named trajectory: one of :data:`PRESETS`."""
+def preset(name: str, tool: ToolShape, dt: float, scene: str = "paper") -> Trajectory:
+    """A named trajectory: one of :data:`PRESETS`; the experiments' on the shipped ``scene``
+    (:data:`SCENE_EXPERIMENTS`); ``authors`` is the authors' run on the paper's scene."""
+    sc = scene_experiments(scene)
     if name == "experiment_a":
-        return experiment_a(tool, dt)
+        return experiment_a(tool, dt, scene=sc)
     if name == "experiment_b_shallow":
-        return experiment_b(tool, dt, B_ANGLES_DEG[0])
+        return experiment_b(tool, dt, sc.b_angles_deg[0], scene=sc)
     if name == "experiment_b_steep":
-        return experiment_b(tool, dt, B_ANGLES_DEG[1])
+        return experiment_b(tool, dt, sc.b_angles_deg[1], scene=sc)
     if name == "authors":
         return authors_run(tool, dt)
     raise InputError(f"trajectory preset {name!r}: expected one of {', '.join(PRESETS)} or a .csv/.yaml file")
@@ -139,12 +197,12 @@ def preset(name: str, tool: ToolShape, dt: float) -> Trajectory:
 TRAJECTORY_SUFFIXES = (".csv", ".yaml", ".yml")
 
 
-def resolve_trajectory(spec: str, tool: ToolShape, dt: float) -> Trajectory:
-    """``spec`` as a preset name (:data:`PRESETS`) or a trajectory file (.csv, .yaml, .yml)."""
+def resolve_trajectory(spec: str, tool: ToolShape, dt: float, scene: str = "paper") -> Trajectory:
+    """``spec`` as a preset name (:data:`PRESETS`, on the shipped ``scene``) or a trajectory file (.csv, .yaml, .yml)."""
     if not isinstance(spec, str) or not spec:
         raise InputError(f"trajectory {spec!r}: expected a preset ({', '.join(PRESETS)}) or a .csv/.yaml file")
     if spec in PRESETS:
-        return preset(spec, tool, dt)
+        return preset(spec, tool, dt, scene)
     path = Path(spec)
     if path.suffix.lower() not in TRAJECTORY_SUFFIXES:
         raise InputError(f"trajectory {spec!r}: expected a preset ({', '.join(PRESETS)}) or a .csv/.yaml file")

@@ -3,14 +3,17 @@ from __future__ import annotations
 
 import argparse
 
-from ..cli_config import add_config_arguments, config_from_args
+from ..cli_config import add_config_arguments
 from ..core import trajectories as tr
+from ..core.config import parse_assignments, resolve_config
 from ..core.errors import InputError
 from ..core.tool import ToolShape
+from ..resources import scene_names, scene_params_file
 from . import paper
 
 HELP = "run the paper's experiment a or b offline and write its figures"
-DESCRIPTION = """Run one of the paper's experiments on the default scene (Table I parameters), offline.
+DESCRIPTION = """Run one of the paper's experiments offline, on the paper's scene (Table I parameters) or
+another shipped scene (--scene liver_probe: a real-size liver slab under a 5 mm instrument).
 
   a  the tool approaches and pushes the bottom tissue (Fig. 2): snapshots at
      steps 0, 150, 220, 270 and the energy of each tissue with its terms.
@@ -29,9 +32,13 @@ Figures (PNG) and the energy series (CSV) are written to --out."""
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("which", choices=["a", "b"], help="experiment a (approach) or b (two insertion angles)")
     parser.add_argument("--out", default="out", help="output directory (default: out)")
+    parser.add_argument("--scene", default="paper", choices=scene_names(),
+                        help="shipped scene: its parameter file (config/scenes/NAME.yaml, under --params; paper: "
+                             "config/tissue_sim.yaml) and where its experiments put the tool (default: paper)")
     add_config_arguments(parser)
     parser.add_argument("--steps", type=int, default=None,
-                        help=f"experiment a: steps (default {tr.A_STEPS}, or all of --trajectory)")
+                        help=f"experiment a: steps (default: the scene's, {tr.A_STEPS} for the paper's; or all of "
+                             "--trajectory)")
     parser.add_argument("--trajectory", action="append", default=None, metavar="PRESET|FILE",
                         help=f"tool trajectory: a preset ({', '.join(tr.PRESETS)}) or a file (.csv: time,x,y,yaw; "
                              ".yaml: waypoints or start, direction_deg, speed, steps). Experiment a: one (default "
@@ -39,37 +46,45 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--settle", type=int, default=0, metavar="N",
                         help="experiment a: N steps under gravity alone before the run, not recorded (the authors' "
                              "saved run started after 29)")
-    parser.add_argument("--angles", type=float, nargs="+", default=list(tr.B_ANGLES_DEG),
-                        help="experiment b: insertion angles in degrees (default: %(default)s)")
+    parser.add_argument("--angles", type=float, nargs="+", default=None,
+                        help=f"experiment b: insertion angles in degrees (default: the scene's, "
+                             f"{' '.join(map(str, tr.B_ANGLES_DEG))} for the paper's)")
     parser.add_argument("--contact", nargs="+", choices=["paper", "projection"], default=None,
                         help="contact model(s) to run, each writing its own figures (default: both for experiment a, "
-                             "the parameter file's for b); the paper's eq. (3) lets the tool pass into the tissue "
+                             "the parameter file's for b and for scenes other than the paper's); the paper's eq. (3) "
+                             "lets the tool pass into the tissue "
                              "once it touches, projection keeps it out")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def run(args: argparse.Namespace) -> int:
-    cfg = config_from_args(args, defaults=paper.B_TOOL_VALUES if args.which == "b" else None)
+    scene = tr.scene_experiments(args.scene)
+    files = ([scene_params_file(args.scene)] if args.scene != "paper" else []) + ([args.params] if args.params else [])
+    tool = scene.b_tool
+    defaults = ({"tool_shape": tool.kind, "tool_length": tool.length, "tool_width": tool.width}
+                if args.which == "b" and tool is not None else None)
+    cfg = resolve_config(overrides=parse_assignments(args.set), params_file=files or None, defaults=defaults,
+                         source="--set")
     if args.which == "a" and args.steps is not None and args.steps < 1:
         raise InputError(f"--steps {args.steps}: expected at least 1 step")
     if args.which == "a" and args.trajectory and len(args.trajectory) > 1:
         raise InputError(f"--trajectory given {len(args.trajectory)} times: experiment a runs one trajectory")
     for spec in args.trajectory or []:  # a bad name or file fails before anything runs
-        tr.resolve_trajectory(spec, ToolShape(), 0.01)
-    models = args.contact or (["paper", "projection"] if args.which == "a" else [None])
+        tr.resolve_trajectory(spec, ToolShape(), 0.01, args.scene)
+    models = args.contact or (["paper", "projection"] if args.which == "a" and args.scene == "paper" else [None])
     finite = True
     for model in models:
         values = cfg.replace(contact_model=model) if model else cfg
         tag = f"_{model}" if model else ""
         if args.which == "a":
             result = paper.experiment_a(args.out, params=values, steps=args.steps, progress=not args.no_progress,
-                                        prefix=f"experiment_a{tag}",
+                                        prefix=f"experiment_a{tag}", scene=scene,
                                         trajectory=args.trajectory[0] if args.trajectory else "experiment_a",
                                         settle=args.settle)
         else:
             result = paper.experiment_b(args.out, params=values, angles_deg=args.angles,
                                         progress=not args.no_progress, prefix=f"experiment_b{tag}",
-                                        trajectories=args.trajectory)
+                                        trajectories=args.trajectory, scene=scene)
         print(f"experiment {args.which}" + (f" ({model} contact)" if model else "") + ":")
         print(result.summary_text())
         print("wrote:")

@@ -28,6 +28,7 @@ from tqdm import tqdm
 from ..core.errors import InputError
 from ..core.stamps import stamp_to_ns
 from ..core.tool import yaw_from_quaternion
+from ..resources import scene_names, scene_params_file
 from . import trajectories as tr
 
 HELP = "the main job: node + tool driver on a private ROS domain, experiment a, recorded to a bag"
@@ -36,7 +37,11 @@ DESCRIPTION = __doc__
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="out", help="output directory for the bag, figures and logs (default: out)")
-    parser.add_argument("--params", help="parameter YAML for the node, over the shipped config/tissue_sim.yaml")
+    parser.add_argument("--scene", default="paper", choices=scene_names(),
+                        help="shipped scene: the node's parameter file (config/scenes/NAME.yaml; paper: "
+                             "config/tissue_sim.yaml) and the driver's experiment a for it (default: paper)")
+    parser.add_argument("--params", help="parameter YAML for the node, over the shipped config/tissue_sim.yaml "
+                                         "(default: the scene's)")
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID to use (default: a free-looking one derived from the process id)")
     parser.add_argument("--timeout", type=float, default=120.0, help="give up after this many seconds (default 120)")
@@ -247,18 +252,18 @@ def run(args: argparse.Namespace) -> int:
     from ..core.model import Model  # noqa: PLC0415
     from ..core.tool import ToolPose  # noqa: PLC0415
     from ..render import plot_energy, save_snapshots  # noqa: PLC0415
-    from ..resources import DEFAULT_PARAMS_FILE, config_path  # noqa: PLC0415
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    params_file = Path(args.params) if args.params else config_path(DEFAULT_PARAMS_FILE)
+    params_file = Path(args.params) if args.params else scene_params_file(args.scene)
+    scene = tr.scene_experiments(args.scene)
     # the node resolves the same file and -p contact_model through the same front door
     cfg = resolve_config({"contact_model": args.contact_model}, params_file=params_file, source="--contact-model")
     params, tool = cfg.sim, cfg.tool
     spec = args.trajectory
     if spec not in tr.PRESETS:
         spec = str(Path(spec).resolve())  # the driver runs in another directory
-    n_steps = tr.resolve_trajectory(spec, tool, params.dt).n_steps(params.dt)
+    n_steps = tr.resolve_trajectory(spec, tool, params.dt, args.scene).n_steps(params.dt)
     domain = args.domain_id if args.domain_id is not None else 120 + os.getpid() % 100
     if not 0 <= domain <= 232:
         raise InputError(f"--domain-id {domain}: expected 0..232")
@@ -299,6 +304,9 @@ def run(args: argparse.Namespace) -> int:
                                       "/tissue/markers": 1, "/tool/pose": 2, "/tool/twist": 2},
                                      timeout=args.timeout)
         driver = _Process("tool_driver", [_script("tool_driver"), "--ros-args", "-p", f"trajectory:={spec}",
+                                          "-p", f"scene:={args.scene}", "-p", f"dt:={params.dt!r}",
+                                          "-p", f"tool_shape:={tool.kind}", "-p", f"tool_length:={tool.length!r}",
+                                          "-p", f"tool_width:={tool.width!r}", "-p", f"tool_radius:={tool.radius!r}",
                                           "-p", "lock_step:=true", "-p", "exit_when_done:=true",
                                           "-p", "min_subscribers:=2"], env,
                           out / "driver.log")
@@ -333,7 +341,7 @@ def run(args: argparse.Namespace) -> int:
                          f"messages of {n_steps} steps: the recorder lost messages (see {out}/record.log)")
     model = Model.from_mesh(cfg.scene.build_mesh(), params)
     snaps = []
-    for s in tr.A_SNAPSHOTS:
+    for s in scene.a_snapshots:
         x = model.particle_q0 if s == 0 else run_["points"].get(s)
         if x is None:
             continue
@@ -345,7 +353,7 @@ def run(args: argparse.Namespace) -> int:
         plot_energy(out / "demo_energy.png", run_["steps"],
                     {"inertial": run_["inertial"], "spring": run_["spring"], "area": run_["area"]},
                     body_names=model.body_names,
-                    markers=[s for s in tr.A_SNAPSHOTS if s > 0],
+                    markers=[s for s in scene.a_snapshots if s > 0],
                     contact=run_["contact"],
                     title="Demo: implicit Euler energy per tissue, recorded through ROS"),
     ]

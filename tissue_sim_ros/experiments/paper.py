@@ -111,18 +111,22 @@ def summarise(run: Rollout, wall: float, dt: float, body_names: Sequence[str] | 
 
 
 def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None = None, steps: int | None = None,
-                 snapshot_steps: Sequence[int] = tr.A_SNAPSHOTS, progress: bool = True,
+                 snapshot_steps: Sequence[int] | None = None, progress: bool = True,
                  prefix: str = "experiment_a", trajectory: str = "experiment_a",
-                 settle: int = 0) -> ExperimentResult:
+                 settle: int = 0, scene: tr.SceneExperiments = tr.PAPER) -> ExperimentResult:
     """Run experiment a and write ``{prefix}_snapshots.png``, ``{prefix}_energy.png``, ``{prefix}_energy.csv``.
 
-    ``trajectory``: a preset or a trajectory file (:func:`~tissue_sim_ros.core.trajectories.resolve_trajectory`);
-    ``steps``: experiment a's insertion of that many steps (default 300), or the first ``steps`` of another
-    trajectory (default: all of it). ``{prefix}_trajectory.csv`` records the poses run.
+    ``scene`` places the tool of experiment a (:data:`~tissue_sim_ros.core.trajectories.SCENE_EXPERIMENTS`);
+    ``params`` must describe the same scene (e.g. its parameter file); ``snapshot_steps`` default to the scene's.
+    ``trajectory``: ``experiment_a`` (the scene's insertion), another preset or a trajectory file
+    (:func:`~tissue_sim_ros.core.trajectories.resolve_trajectory`);
+    ``steps``: experiment a's insertion of that many steps (default: the scene's), or the first ``steps`` of
+    another trajectory (default: all of it). ``{prefix}_trajectory.csv`` records the poses run.
     ``settle``: steps under gravity alone (no tool) before the run, not recorded: the run starts from the
     settled state (velocities kept) at step 0, as the authors' recording started after their tissue had
     hung for a while (29 steps: README "Reproducing the authors' run").
     """
+    snapshot_steps = scene.a_snapshots if snapshot_steps is None else snapshot_steps
     from ..render import plot_energy, save_snapshots  # noqa: PLC0415  (matplotlib only when drawing)
 
     out = Path(out)
@@ -137,7 +141,7 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None =
         sim.reset()
         sim.set_state(settled)
     if trajectory == "experiment_a":
-        traj = tr.experiment_a(sim.tool, sim.params.dt, steps=tr.A_STEPS if steps is None else steps)
+        traj = tr.experiment_a(sim.tool, sim.params.dt, steps=steps, scene=scene)
     else:
         traj = tr.resolve_trajectory(trajectory, sim.tool, sim.params.dt)
     n = traj.n_steps(sim.params.dt) if steps is None else min(steps, traj.n_steps(sim.params.dt))
@@ -189,21 +193,30 @@ class _Truncated(Trajectory):
 
 
 def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None = None,
-                 angles_deg: Sequence[float] = tr.B_ANGLES_DEG, target: tuple[float, float] = tr.B_TARGET,
-                 speed: float = tr.B_SPEED, distance: float = tr.B_DISTANCE, progress: bool = True,
-                 prefix: str = "experiment_b", trajectories: Sequence[str] | None = None) -> ExperimentResult:
+                 angles_deg: Sequence[float] | None = None, target: tuple[float, float] | None = None,
+                 speed: float | None = None, distance: float | None = None, progress: bool = True,
+                 prefix: str = "experiment_b", trajectories: Sequence[str] | None = None,
+                 scene: tr.SceneExperiments = tr.PAPER) -> ExperimentResult:
     """Run experiment b: the same target from each angle; figure of final states and energy curves.
 
+    Unset arguments come from ``scene`` (:data:`~tissue_sim_ros.core.trajectories.SCENE_EXPERIMENTS`), whose
+    tool (if it names one) is the command's default tool, under a parameter file's, as the paper's 0.3 m box is.
     ``trajectories`` (presets or trajectory files) replace the angles: one run each, labelled by its name,
     compared by the same cost.
     """
+    angles_deg = scene.b_angles_deg if angles_deg is None else angles_deg
+    target = scene.b_target if target is None else target
+    speed = scene.b_speed if speed is None else speed
+    distance = scene.b_distance if distance is None else distance
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
     from ..render import TERM_STYLES, draw_scene  # noqa: PLC0415
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    values = params if isinstance(params, Config) else resolve_config(dict(params or {}), defaults=B_TOOL_VALUES)
+    tool_values = ({"tool_shape": scene.b_tool.kind, "tool_length": scene.b_tool.length,
+                    "tool_width": scene.b_tool.width} if scene.b_tool is not None else {})
+    values = params if isinstance(params, Config) else resolve_config(dict(params or {}), defaults=tool_values)
     res = ExperimentResult("b")
     runs: list[tuple[Any, Rollout, Simulation, float]] = []
     baseline: Rollout | None = None

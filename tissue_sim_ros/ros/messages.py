@@ -660,6 +660,8 @@ STEP_TOPICS: dict[str, str] = {
     "tissue/energy/inertial": "std_msgs/msg/Float64",
     "tissue/energy/spring": "std_msgs/msg/Float64",
     "tissue/energy/area": "std_msgs/msg/Float64",
+    "tissue/energy/strain": "std_msgs/msg/Float64",
+    "tissue/energy/potential": "std_msgs/msg/Float64",
     "tissue/energy/bodies": "std_msgs/msg/Float64MultiArray",
     "tool/wrench": "geometry_msgs/msg/WrenchStamped",
     "tissue/points": "sensor_msgs/msg/PointCloud2",
@@ -727,10 +729,13 @@ class StepEncoder:
         e = report.energy
         if not report.diverged:
             terms = np.stack([e.inertial, e.spring, e.area, e.total], axis=1)  # (B, 4)
-            if np.isfinite(terms).all():
+            if np.isfinite(terms).all() and np.isfinite(e.potential).all():
                 out.messages["tissue/energy"] = encode_float64(float(terms[:, 3].sum()))
                 for i, term in enumerate(ENERGY_TERMS[:3]):
                     out.messages[f"tissue/energy/{term}"] = encode_float64(float(terms[:, i].sum()))
+                # material: dt^2 E_strain (a term of the total) and the potential energy itself [J]
+                out.messages["tissue/energy/strain"] = encode_float64(float(e.strain.sum()))
+                out.messages["tissue/energy/potential"] = encode_float64(e.scene_potential)
                 out.messages["tissue/energy/bodies"] = encode_float64_multiarray(
                     terms, [self.body_label, "term:" + ",".join(ENERGY_TERMS)])
             else:

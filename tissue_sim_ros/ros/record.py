@@ -34,7 +34,8 @@ from .bags import BagWriter, recover_bag, typestore
 DEFAULT_TOPICS = (
     "tool/pose", "tool/twist",
     "tissue/markers", "tissue/points", "tissue/rest_mesh",
-    "tissue/energy", "tissue/energy/inertial", "tissue/energy/spring", "tissue/energy/area", "tissue/energy/bodies",
+    "tissue/energy", "tissue/energy/inertial", "tissue/energy/spring", "tissue/energy/area", "tissue/energy/strain",
+    "tissue/energy/potential", "tissue/energy/bodies",
     "tool/wrench",
 )
 _PREFIXES = ("tissue/", "tool/")

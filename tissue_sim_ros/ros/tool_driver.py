@@ -47,6 +47,7 @@ from . import messages, qos
 
 #: name -> (default, description); defaults of the tool and dt come from config/tissue_sim.yaml.
 DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
+    "scene": ("paper", "Shipped scene (tissue_sim_ros.core.trajectories.SCENE_EXPERIMENTS: paper, liver_probe) whose experiments the presets play; its parameter file (config/scenes/NAME.yaml) gives the defaults of dt and the tool."),
     "trajectory": ("", "A trajectory preset (experiment_a, experiment_b_shallow, experiment_b_steep, authors) or a trajectory file (.csv of time,x,y,yaw; .yaml waypoints or a straight motion); set, it replaces preset."),
     "preset": ("experiment_a", "A trajectory preset (tissue_sim_ros.core.trajectories.PRESETS: experiment_a, experiment_b_shallow, experiment_b_steep, authors), or 'straight' for the straight insertion the parameters below describe."),
     "target_x": (0.5, "Tip position at the end of the insertion, x [m]."),
@@ -55,7 +56,7 @@ DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
     "distance": (0.3, "Distance the tip travels [m]."),
     "speed": (0.1, "Tip speed [m/s]."),
     "hold": (0.5, "Time held at the target after arriving [s]."),
-    "dt": (0.01, "Publishing period [s] (default: dt of config/tissue_sim.yaml)."),
+    "dt": (0.01, "Publishing period [s] (default: dt of the scene's parameter file, config/tissue_sim.yaml for the paper's)."),
     "frame_id": ("world", "frame_id of the published messages."),
     "tool_shape": ("box", "Tool shape (the tip is length/2 ahead of the centre for box and capsule)."),
     "tool_length": (0.8, "Tool length [m]."),
@@ -77,12 +78,12 @@ def _trajectory(values: dict[str, Any]) -> Trajectory:
     tool = tool_from_mapping({k: values[k] for k in ("tool_shape", "tool_length", "tool_width", "tool_radius")})
     if values.get("trajectory"):
         try:
-            return resolve_trajectory(values["trajectory"], tool, values["dt"])
+            return resolve_trajectory(values["trajectory"], tool, values["dt"], values["scene"])
         except InputError as exc:
             raise InputError(f"parameter trajectory: {exc}") from None
     if values["preset"] != "straight":
         try:
-            return preset(values["preset"], tool, values["dt"])
+            return preset(values["preset"], tool, values["dt"], scene=values["scene"])
         except InputError as exc:
             raise InputError(f"parameter preset: {exc}; or 'straight'") from None
     return StraightInsertion.from_angle(tool, (values["target_x"], values["target_y"]), math.radians(values["angle"]),
@@ -97,6 +98,10 @@ class ToolDriver(Node):
         shipped = resolve_config().flat()  # the simulation's dt and tool, as the node resolves them
         self.values: dict[str, Any] = {}
         for name, (default, description) in DRIVER_PARAMETERS.items():
+            if name == "trajectory" and self.values["scene"] != "paper":  # "scene" is declared first
+                from ..resources import scene_params_file  # noqa: PLC0415
+
+                shipped = resolve_config(params_file=scene_params_file(self.values["scene"])).flat()
             default = shipped.get(name, default) if name == "dt" or name.startswith("tool_") else default
             if isinstance(default, float):
                 default = float(default)
