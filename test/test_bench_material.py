@@ -135,3 +135,18 @@ def test_bench_refinement_quick(tmp_path, capsys):
 def test_bench_bad_input_exits_2(argv, tmp_path, capsys):
     assert main(argv + ["--out", str(tmp_path)]) == 2
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_bench_peers_fem_quick(tmp_path, capsys):
+    # ours always; MuJoCo's flex membrane when installed (the peers extra): both converge to the FEM
+    from tissue_sim_ros.bench.peers import available
+
+    assert main(["bench", "peers", "--fem", "--quick", "--out", str(tmp_path)]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "peers_fem.csv")))
+    ours = [abs(float(r["err_mean_sag"])) for r in rows if r["peer"] == "ours"]
+    assert ours[1] < ours[0] < 0.1
+    if available("mujoco"):
+        mj = [r for r in rows if r["peer"] == "mujoco"]
+        assert all(r["at_rest"] == "True" for r in mj)
+        assert abs(float(mj[1]["err_mean_sag"])) < 0.05  # the membrane has stiffness (elastic2d is not none)
+    assert "run to rest" in capsys.readouterr().out
