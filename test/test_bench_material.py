@@ -150,3 +150,44 @@ def test_bench_peers_fem_quick(tmp_path, capsys):
         assert all(r["at_rest"] == "True" for r in mj)
         assert abs(float(mj[1]["err_mean_sag"])) < 0.05  # the membrane has stiffness (elastic2d is not none)
     assert "run to rest" in capsys.readouterr().out
+
+
+def test_bench_stability_material_quick(tmp_path):
+    # a gentle press is stable; a 1 m/s tool at dt 20 ms moves 2 cm per step, 4x its own 5 mm width:
+    # it passes through the tissue and the run says so
+    assert main(["bench", "stability", "--material", "--quick", "--out", str(tmp_path)]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "material_stability.csv")))
+    assert [r["outcome"] for r in rows] == ["stable", "tunnelling"]
+    assert (tmp_path / "material_stability.png").stat().st_size > 0
+
+
+def test_material_stability_poses_press_a_third_deep():
+    from tissue_sim_ros.bench import material_stability as ms
+
+    ps = ms.poses(0.01, 0.1)
+    tip = [p.y - 0.5 * ms.TOOL.length for p in ps]
+    assert tip[0] == pytest.approx(ms.HEIGHT + 0.002)
+    assert tip[-1] == pytest.approx(ms.HEIGHT - ms.HEIGHT / 3)
+    assert ps[-1] == ps[-20]  # held at the end
+
+
+def test_tune_material_quick_writes_a_loadable_choice(tmp_path, capsys):
+    # the real-size scene: mesh error (vs a finer converged mesh) + solver error (vs converged on the same mesh)
+    from tissue_sim_ros.resources import scene_params_file
+
+    out = tmp_path / "tuned.yaml"
+    csv_path = tmp_path / "tune.csv"
+    code = main(["tune", "--params", str(scene_params_file("liver_probe")), "--tolerance", "0.3", "--budget-ms", "1e6",
+                 "--quick", "--out", str(out), "--csv", str(csv_path)])
+    assert code == 0
+    rows = list(csv.DictReader(open(csv_path)))
+    # errors fall with refinement at the converged setting, and the converged solver has ~no solver error
+    conv = [r for r in rows if (r["substeps"], r["iterations"]) == ("10", "10")]
+    assert float(conv[1]["err_mesh"]) < float(conv[0]["err_mesh"])
+    assert all(float(r["err_solver"]) < 1e-3 for r in conv)
+    cfg = resolve_config(params_file=out)
+    chosen = [r for r in rows if float(r["spacing"]) == cfg.scene.spacing and int(r["substeps"]) == cfg.sim.substeps
+              and int(r["iterations"]) == cfg.sim.iterations]
+    assert len(chosen) == 1 and float(chosen[0]["error"]) <= 0.3
+    assert cfg.sim.material == "neo_hookean" and cfg.sim.young_modulus == 4000.0
+    assert "chosen:" in capsys.readouterr().out
