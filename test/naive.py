@@ -712,3 +712,46 @@ def strain_energy(x, q0, tris, tri_body, n_bodies, young_modulus, poisson_ratio,
         J = np.linalg.det(F)
         out[tri_body[t]] += abs(a0) * thickness * (0.5 * mu * (np.sum(F * F) - 2.0 * J) + 0.5 * lam * (J - 1.0) ** 2)
     return out
+
+
+def tool_checks(x0, x1, shape0, shape1, tris, inside_tol=1e-9, samples=4001):
+    """(n_inside, deepest, deepest particle, n_tunnelled, buried) of core/tool_checks.py, by brute force.
+
+    Tunnelling: the chord in the tool frame sampled at ``samples`` points; it tunnels when it has a point
+    deeper than ``inside_tol`` and the outward normals where it enters and leaves (bisected) point apart.
+    Buried: 9 points along the tool's axis (1 for a sphere) tested against every triangle by barycentric signs.
+    """
+    hx, hy, r = shape1[4], shape1[5], shape1[6]
+    d1 = rounded_box_sdf(x1, shape1)
+    d0 = rounded_box_sdf(x0, shape0)
+    inside = d1 < -inside_tol
+    n_inside = int(inside.sum())
+    deepest, arg = (float(-d1[inside].min()), int(np.flatnonzero(inside)[np.argmin(d1[inside])])) if n_inside else (0.0, -1)
+    n_tunnel = 0
+    s = np.linspace(0.0, 1.0, samples)
+    for i in np.flatnonzero(~inside & (d0 >= -inside_tol)):
+        a, b = tool_local(x0[i], shape0), tool_local(x1[i], shape1)
+        pts = a + s[:, None] * (b - a)
+        sd = np.array([rounded_box_sdf_local(p, hx, hy, r) for p in pts])
+        if not (sd < -inside_tol).any():
+            continue
+        k_in = np.flatnonzero(sd < 0)[0]
+        k_out = np.flatnonzero(sd < 0)[-1]
+        f = lambda t: rounded_box_sdf_local(a + t * (b - a), hx, hy, r)  # noqa: E731
+        t_in = _bisect_root(f, s[max(k_in - 1, 0)], s[k_in])
+        t_out = _bisect_root(f, s[k_out], s[min(k_out + 1, samples - 1)])
+        n_in = rounded_box_normal_local(a + t_in * (b - a), hx, hy)
+        n_out = rounded_box_normal_local(a + t_out * (b - a), hx, hy)
+        if n_in @ n_out < 0:
+            n_tunnel += 1
+    axis = np.array([shape1[2], shape1[3]])
+    ks = np.linspace(-hx, hx, 9) if hx > 0 else np.array([0.0])
+    buried = False
+    for sk in ks:
+        p = shape1[:2] + sk * axis
+        for ta, tb, tc in tris:
+            signs = [cross2(x1[tb] - x1[ta], p - x1[ta]), cross2(x1[tc] - x1[tb], p - x1[tb]),
+                     cross2(x1[ta] - x1[tc], p - x1[tc])]
+            if all(v >= 0 for v in signs) or all(v <= 0 for v in signs):  # on an edge or corner counts
+                buried = True
+    return n_inside, deepest, arg, n_tunnel, buried

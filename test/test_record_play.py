@@ -186,7 +186,7 @@ def test_offline_replay_equals_node_in_lock_step(tmp_path, ros_client, start_pro
     assert types["/tissue/rest_mesh"] == "visualization_msgs/msg/MarkerArray"  # latched: recorded though sent before
     assert types["/tool/wrench"] == "geometry_msgs/msg/WrenchStamped"
     assert types["/tool/pose"] == "geometry_msgs/msg/PoseStamped"
-    for term in ("inertial", "spring", "area", "bodies"):
+    for term in ("inertial", "spring", "area", "strain", "potential", "bodies"):
         assert counts[f"/tissue/energy/{term}"] == 40
     assert counts["/tool/pose"] == 40 and counts["/tissue/rest_mesh"] == 1
     np.testing.assert_array_equal(recorded, offline.rollout.scene_total)

@@ -250,6 +250,12 @@ def test_parameters_are_validated_at_runtime(node: Node) -> None:
     assert not bad.successful and "iterations" in bad.reason
     read_only = node.set_param("dt", 0.02)
     assert not read_only.successful and "read-only" in read_only.reason
+    bad = node.set_param("young_modulus", -1.0)  # checked whatever the material (here constraints)
+    assert not bad.successful and "young_modulus" in bad.reason and "> 0 Pa" in bad.reason
+    bad = node.set_param("poisson_ratio", 0.5)
+    assert not bad.successful and "poisson_ratio" in bad.reason
+    read_only = node.set_param("density", 900.0)
+    assert not read_only.successful and "read-only" in read_only.reason
     ok = node.set_param("iterations", 10)
     assert ok.successful, ok.reason
     ok = node.set_param("contact_radius", 0.06)

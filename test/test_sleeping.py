@@ -76,3 +76,21 @@ def test_a_scene_asks_for_sleeping_by_parameter() -> None:
         report = sim.step()
         assert np.isfinite(report.energy.total).all()
     assert sim.solver.sleeping[~sim.model.particle_pinned].all()
+
+
+def test_the_reduced_model_keeps_the_lumped_masses() -> None:
+    """With lumped masses (material or mass_per_area) a particle at the sleeping border keeps its full mass."""
+    from tissue_sim_ros.core.model import MATERIAL_DEFAULTS  # noqa: PLC0415
+
+    for params in (SimParams(method="xpbd", mass_per_area=0.05),
+                   SimParams(**MATERIAL_DEFAULTS["neo_hookean"], material="neo_hookean")):
+        model = Model.from_mesh(mesh_rectangle(0.4, 0.2, 0.05), params)
+        sleepy = SleepingSolver(model, sleep_speed=1.0)
+        sleepy.sleeping = model.particle_q0[:, 0] < 0.2  # the left half asleep
+        sleepy._rebuild()
+        reduced = sleepy._reduced
+        assert reduced.n_triangles < model.n_triangles
+        np.testing.assert_array_equal(reduced.particle_mass, model.particle_mass)
+        awake = ~sleepy.sleeping & ~np.asarray(model.particle_pinned)
+        np.testing.assert_array_equal(reduced.particle_inv_mass[awake], 1.0 / model.particle_mass[awake])
+        assert (reduced.particle_inv_mass[sleepy.sleeping] == 0).all()

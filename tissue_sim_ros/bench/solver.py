@@ -6,7 +6,10 @@ steps (``Solver.step``: prediction, constraint solve, velocity, boundary,
 residual; 30 iterations unless ``--iterations``) and reports the median:
 
 * ms per step and steps per second;
-* ns per constraint projection (step time / (constraints x iterations x substeps));
+* ns per constraint projection (step time / (constraints x iterations x substeps)); for the
+  neo-Hookean material (``material_*`` rows) a projection is one element's (its three rows: the
+  deviatoric pair and the hydrostatic one), and ``xpbd_distance`` / ``xpbd_area`` time each
+  constraint kernel alone, so the three kernels stand side by side;
 * the real-time factor at dt = 0.01 s (simulated time per wall time);
 * ``x_numpy``: how many times faster per projection than the vectorised NumPy
   Jacobi baseline (:mod:`~tissue_sim_ros.bench.numpy_baseline`) measured in the
@@ -57,6 +60,12 @@ QUICK_SIZES = (150, 500)
 DT = 0.01
 
 
+#: The material rows' tissue: a stiff membrane (1 MPa) so the 1 m strip sags little under gravity;
+#: one substep, so that its iterations equal the constraint rows' (the cost comparison of issue 16).
+MATERIAL = dict(method="xpbd", material="neo_hookean", young_modulus=1e6, poisson_ratio=0.45, thickness=0.005,
+                density=1000.0)
+
+
 @dataclass(frozen=True)
 class Method:
     """One row kind of the table: parameters and solver options."""
@@ -85,6 +94,16 @@ METHODS = (
     Method("xpbd_jacobi", "XPBD Jacobi (stiffness-aware relaxation)", dict(method="xpbd", scheme="jacobi")),
     Method("xpbd_substep", "XPBD, 30 substeps x 1 iteration", dict(method="xpbd", substeps=30, iterations=1)),
     Method("numpy_jacobi", "NumPy XPBD Jacobi (baseline)", dict(method="xpbd", scheme="jacobi"), numpy=True),
+    # each kernel on its own (the other constraint type off), and the material's elements
+    Method("xpbd_distance", "XPBD GS serial, distance constraints only", dict(method="xpbd", stiffness_area=0.0),
+           dict(parallel=False)),
+    Method("xpbd_area", "XPBD GS serial, area constraints only", dict(method="xpbd", stiffness_spring=0.0),
+           dict(parallel=False)),
+    Method("material_gs", "neo-Hookean elements, GS serial (one projection = 3 rows of an element)",
+           dict(MATERIAL, substeps=1), dict(parallel=False)),
+    Method("material_gs_parallel", "neo-Hookean elements, GS partitioned, all threads", dict(MATERIAL, substeps=1),
+           dict(parallel=True)),
+    Method("material_jacobi", "neo-Hookean elements, Jacobi", dict(MATERIAL, substeps=1, scheme="jacobi")),
 )
 
 COLUMNS = ("scene", "particles", "constraints", "method", "iterations", "substeps", "threads", "steps_timed",
@@ -209,7 +228,7 @@ def run(args: argparse.Namespace) -> int:
             med, n_proj, threads = time_solver(model, method, n_steps)
             progress.update(1)
             size_rows.append(dict(scene="strip", particles=model.n_particles, load_1min=os.getloadavg()[0],
-                                  constraints=model.n_edges + model.n_triangles, method=method.name,
+                                  constraints=n_proj // (model.params.iterations * model.params.substeps), method=method.name,
                                   iterations=model.params.iterations, substeps=model.params.substeps, threads=threads,
                                   steps_timed=n_steps, ms_per_step=1e3 * med, steps_per_s=1.0 / med,
                                   ns_per_projection=1e9 * med / n_proj, realtime_factor=DT / med))
@@ -282,6 +301,12 @@ def print_summary(rows: list[dict[str, Any]]) -> None:
                   f"(plain mesh-order loop {stored['ns_per_projection']:.2f}); all threads: parts "
                   f"x{serial['ms_per_step'] / par['ms_per_step']:.2f}, colours x{serial['ms_per_step'] / par_c['ms_per_step']:.2f} "
                   f"vs serial; default uses {auto['threads']} thread(s); serial x{serial['x_numpy']:.1f} NumPy")
+        dist, area, mat = by.get((n, "xpbd_distance")), by.get((n, "xpbd_area")), by.get((n, "material_gs"))
+        if serial and dist and area and mat:
+            print(f"  {n:>6} particles: ns per projection: distance {dist['ns_per_projection']:.2f}, area "
+                  f"{area['ns_per_projection']:.2f}, material element {mat['ns_per_projection']:.2f}; a material step "
+                  f"costs x{mat['ms_per_step'] / serial['ms_per_step']:.2f} the constraints' (serial GS, "
+                  f"{mat['iterations']} iterations each)")
     for r in rows:
         if r["scene"].startswith("paper") and "ms_per_step" in r:
             print(f"  paper scene {r['method']:<20} solve {r['ms_per_step']:.3f} ms, step {r['total_ms']:.3f} ms "

@@ -89,7 +89,7 @@ class StepReport:
     n_tunnelled: int = 0
     """Particles whose path relative to the tool ran through it within the step (``core/tool_checks.py``)."""
     tool_buried: bool = False
-    """True when the tool's centre lies inside the deformed tissue (the mesh closed over the tool)."""
+    """True when a point of the tool's axis lies inside a triangle of the deformed tissue (the tool is buried in it)."""
 
 
 class Simulation:

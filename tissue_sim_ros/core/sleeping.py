@@ -19,6 +19,8 @@ The error it costs is measured by ``tissue-sim bench accuracy`` (``accuracy_slee
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .collision import Contacts
@@ -96,7 +98,14 @@ class SleepingSolver:
         mesh = model.mesh
         sub = TissueMesh(vertices=mesh.vertices, triangles=kept, edges=edges_from_triangles(kept),
                          boundary=mesh.boundary, body=mesh.body)
-        self._reduced = Model.from_mesh(sub, model.params, pinned=np.asarray(model.particle_pinned) | self.sleeping)
+        reduced = Model.from_mesh(sub, model.params, pinned=np.asarray(model.particle_pinned) | self.sleeping)
+        # the full model's masses: lumped ones (mass_per_area, material) recomputed from the awake triangles
+        # alone would make the particles at the sleeping region's border lighter than they are
+        mass = np.array(model.particle_mass)
+        inv_mass = np.where(reduced.particle_inv_mass > 0, 1.0 / mass, 0.0)
+        for arr in (mass, inv_mass):
+            arr.setflags(write=False)
+        self._reduced = replace(reduced, particle_mass=mass, particle_inv_mass=inv_mass)
         self._solver = Solver(self._reduced)
         total = model.n_edges + model.n_triangles
         self.awake_constraint_fraction = (self._reduced.n_edges + self._reduced.n_triangles) / total if total else 1.0

@@ -12,6 +12,7 @@ One step (the paper's Algorithm 1, with Macklin's multipliers for XPBD)::
         predict from the substep's start (h), reset multipliers
         (held particles: the fraction (s+1)/substeps of their way from x_t to x*)
         `iterations` sweeps: edges, triangles, tool (projection contact)
+            (material: neo_hookean: the triangles' elements instead of edges and areas, core/material.py)
         v = (x - x_start) / h; boundary lines clamp and stop particles
     residual = RMS(C / rest size)
 

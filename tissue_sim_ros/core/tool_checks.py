@@ -11,8 +11,8 @@ All against the tool's own shape (no contact margin), posed at the step's start
   opposite sides (outward normals at entry and exit with a negative dot product,
   so a particle the projection slid around a corner does not count): the tool
   passed through them within the step, which no end-of-step check sees;
-- a buried tool: the tool's centre lies inside a triangle of the deformed
-  tissue. Projection contact keeps particles out of the tool, but the triangles
+- a buried tool: a point of the tool's axis (9 from end to end; the centre of a
+  sphere) lies inside a triangle of the deformed tissue. Projection contact keeps particles out of the tool, but the triangles
   can still close over it (a deep, fast push folds the mesh over the tool), and
   then the tool is inside the tissue while no particle is.
 """
@@ -25,6 +25,8 @@ from .collision import _line_interval, _rounded_box_sdf, _sdf_local, _to_local
 
 #: A particle this far inside the tool [m] counts as penetrating (round-off on the surface does not).
 INSIDE_TOL = 1e-9
+#: Points along the tool's axis tested for lying inside the tissue (a buried tool).
+BURIED_SAMPLES = 9
 
 
 @njit(cache=True)
@@ -63,18 +65,33 @@ def tool_checks(x0: np.ndarray, x1: np.ndarray, shape0: np.ndarray, shape1: np.n
             _, nx1, ny1 = _sdf_local(ax + s_out * dx, ay + s_out * dy, shape1[4], shape1[5], shape1[6])
             if depth < -inside_tol and nx0 * nx1 + ny0 * ny1 < 0.0:
                 n_tunnel += 1
+    # buried: a point of the tool's axis (BURIED_SAMPLES points from end to end, the centre for a sphere)
+    # inside a triangle of the deformed tissue; triangles off the tool's bounding box are skipped
     buried = False
-    cx = shape1[0]
-    cy = shape1[1]
+    cs, sn, hx, hy, rr = shape1[2], shape1[3], shape1[4], shape1[5], shape1[6]
+    ext = abs(cs) * hx + abs(sn) * hy + rr
+    eyt = abs(sn) * hx + abs(cs) * hy + rr
+    lox, hix = shape1[0] - ext, shape1[0] + ext
+    loy, hiy = shape1[1] - eyt, shape1[1] + eyt
+    n_s = BURIED_SAMPLES if hx > 0.0 else 1
     for t in range(tris.shape[0]):
         a = tris[t, 0]
         b = tris[t, 1]
         c = tris[t, 2]
-        d1 = (x1[b, 0] - x1[a, 0]) * (cy - x1[a, 1]) - (x1[b, 1] - x1[a, 1]) * (cx - x1[a, 0])
-        d2 = (x1[c, 0] - x1[b, 0]) * (cy - x1[b, 1]) - (x1[c, 1] - x1[b, 1]) * (cx - x1[b, 0])
-        d3 = (x1[a, 0] - x1[c, 0]) * (cy - x1[c, 1]) - (x1[a, 1] - x1[c, 1]) * (cx - x1[c, 0])
-        if (d1 > 0.0 and d2 > 0.0 and d3 > 0.0) or (d1 < 0.0 and d2 < 0.0 and d3 < 0.0):
-            buried = True
+        if (max(x1[a, 0], x1[b, 0], x1[c, 0]) < lox or min(x1[a, 0], x1[b, 0], x1[c, 0]) > hix
+                or max(x1[a, 1], x1[b, 1], x1[c, 1]) < loy or min(x1[a, 1], x1[b, 1], x1[c, 1]) > hiy):
+            continue
+        for k in range(n_s):
+            s_k = 0.0 if n_s == 1 else -hx + 2.0 * hx * k / (n_s - 1)
+            px = shape1[0] + cs * s_k
+            py = shape1[1] + sn * s_k
+            d1 = (x1[b, 0] - x1[a, 0]) * (py - x1[a, 1]) - (x1[b, 1] - x1[a, 1]) * (px - x1[a, 0])
+            d2 = (x1[c, 0] - x1[b, 0]) * (py - x1[b, 1]) - (x1[c, 1] - x1[b, 1]) * (px - x1[b, 0])
+            d3 = (x1[a, 0] - x1[c, 0]) * (py - x1[c, 1]) - (x1[a, 1] - x1[c, 1]) * (px - x1[c, 0])
+            if (d1 >= 0.0 and d2 >= 0.0 and d3 >= 0.0) or (d1 <= 0.0 and d2 <= 0.0 and d3 <= 0.0):  # edges count
+                buried = True
+                break
+        if buried:
             break
     return n_inside, deepest, arg, n_tunnel, buried
 

@@ -130,6 +130,9 @@ class TissueSimNode(Node):
         self.pub_energy_terms = {term: self.create_publisher(Float64, f"tissue/energy/{term}", qos.energy())
                                  for term in ENERGY_TERMS[:3]}
         self.pub_energy_bodies = self.create_publisher(Float64MultiArray, "tissue/energy/bodies", qos.energy())
+        # material: dt^2 E_strain (a term of the total) and the potential energy itself in J (msg_docs/topics.md)
+        self.pub_energy_terms.update({term: self.create_publisher(Float64, f"tissue/energy/{term}", qos.energy())
+                                      for term in ("strain", "potential")})
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", qos.diagnostics())
         lock_step = self._values["lock_step"]
         self.sub_pose = self.create_subscription(PoseStamped, "tool/pose", self._on_pose, qos.tool_input(lock_step))
@@ -411,10 +414,12 @@ class TissueSimNode(Node):
         e = report.energy
         if not report.diverged:
             terms = np.stack([e.inertial, e.spring, e.area, e.total], axis=1)  # (B, 4)
-            if np.isfinite(terms).all():
+            if np.isfinite(terms).all() and np.isfinite(e.potential).all():
                 self.pub_energy.publish(messages.encode_float64(float(terms[:, 3].sum())))
                 for i, term in enumerate(ENERGY_TERMS[:3]):
                     self.pub_energy_terms[term].publish(messages.encode_float64(float(terms[:, i].sum())))
+                self.pub_energy_terms["strain"].publish(messages.encode_float64(float(e.strain.sum())))
+                self.pub_energy_terms["potential"].publish(messages.encode_float64(e.scene_potential))
                 self.pub_energy_bodies.publish(messages.encode_float64_multiarray(
                     terms, ["body", "term:" + ",".join(ENERGY_TERMS)]))
             else:
@@ -514,7 +519,15 @@ class TissueSimNode(Node):
                 "residual": r.residual,
                 "inverted_triangles": r.n_inverted,
                 "energy_total": r.energy.scene_total,
+                "energy_potential_j": r.energy.scene_potential,
+                "material": self.sim.params.material,
+                "tool_penetrating_particles": r.n_penetrating,
+                "tool_penetration_depth_m": r.penetration_depth,
+                "tool_tunnelled_particles": r.n_tunnelled,
+                "tool_buried_in_tissue": r.tool_buried,
             })
+            if r.tool_buried and level == DiagnosticStatus.OK:
+                level, message = DiagnosticStatus.WARN, f"{message}; the tool is buried in the tissue"
         status = DiagnosticStatus(level=level, name=f"{self.get_fully_qualified_name()}: simulation",
                                   message=message, hardware_id="tissue_sim",
                                   values=[KeyValue(key=k, value=f"{v:.6g}" if isinstance(v, float) else str(v).lower()

@@ -39,7 +39,8 @@ DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP
 DEFAULT_TOPICS = (
     "tool/pose", "tool/twist",
     "tissue/markers", "tissue/points", "tissue/rest_mesh",
-    "tissue/energy", "tissue/energy/inertial", "tissue/energy/spring", "tissue/energy/area", "tissue/energy/bodies",
+    "tissue/energy", "tissue/energy/inertial", "tissue/energy/spring", "tissue/energy/area", "tissue/energy/strain",
+    "tissue/energy/potential", "tissue/energy/bodies",
     "tool/wrench",
 )
 _PREFIXES = ("tissue/", "tool/")
