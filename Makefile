@@ -41,6 +41,7 @@ figures: $(STAMP)
 	$(VENV)/bin/tissue-sim experiment b --out $(OUT)/figures --contact paper --no-progress
 	$(VENV)/bin/tissue-sim plan --out $(OUT)/figures --set contact_model=projection --no-progress
 	$(VENV)/bin/tissue-sim mesh --out $(OUT)/figures/mesh.npz --png $(OUT)/figures/mesh.png
+	$(VENV)/bin/tissue-sim bench refinement --out $(OUT)/figures
 	cp $(OUT)/figures/*.png docs/img/
 
 clean:

@@ -19,6 +19,9 @@ row, falling under gravity from rest, 30 iterations, XPBD stiffnesses of
   constraints on edge lengths (no area constraint), its own constraint
   solver and integrator; only the cost per step is comparable.
 
+With ``--fem``: the peers on the same FEM problem instead, run to rest, errors against the scikit-fem
+reference and wall time to rest (:mod:`~tissue_sim_ros.bench.peers_fem`).
+
 Peers are imported only when installed; missing ones are reported and
 skipped. Writes ``peers.csv`` and ``peers.png`` and prints ms per step and
 each peer's time relative to ours (> 1: ours is faster), all from this run.
@@ -258,6 +261,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="bench_out/peers", help="output directory (CSV, PNG)")
     parser.add_argument("--quick", action="store_true", help="the smallest mesh, few steps (smoke test)")
     parser.add_argument("--steps", type=int, default=30, help="timed steps per measurement (median)")
+    parser.add_argument("--fem", action="store_true",
+                        help="instead: the material model and MuJoCo's flex membrane run to rest on the hanging strip, "
+                             "errors against the scikit-fem reference and wall time to rest (bench/peers_fem.py)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -269,6 +275,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--steps={args.steps}: expected at least 1 timed step")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.fem:
+        from .peers_fem import run_fem  # noqa: PLC0415
+
+        if not available("mujoco"):
+            print("mujoco is not installed: ours only (pip install '.[peers]')")
+        return run_fem(out, args.quick, available("mujoco"))
     sizes = {"500": SIZES["500"]} if args.quick else SIZES
     n_steps = min(args.steps, 5) if args.quick else args.steps
     have = {name: available(name) for name in ("taichi", "mujoco")}

@@ -330,14 +330,21 @@ def inversion_rows(n_steps: int) -> list[dict[str, Any]]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="bench_out/stability", help="output directory (CSV, PNG)")
     parser.add_argument("--quick", action="store_true", help="a few runs (smoke test)")
+    parser.add_argument("--material", action="store_true",
+                        help="instead: the neo_hookean material over dt, E 1 kPa-1 MPa, tool speed and mesh quality "
+                             "on a real-size strip (bench/material_stability.py)")
 
 
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm  # noqa: PLC0415
 
-    sweep = make_sweep(args.quick)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.material:
+        from .material_stability import run_material  # noqa: PLC0415
+
+        return run_material(out, args.quick)
+    sweep = make_sweep(args.quick)
     meshes = {q: make_mesh(q) for q in sweep.mesh_qualities}
     configs = [RunConfig(m, c, dt, s, v, q, n_steps=sweep.n_steps)
                for m in sweep.methods for c in sweep.contact_models for dt in sweep.dts

@@ -15,6 +15,10 @@ The cheapest setting (median solve time per step) with error <= tolerance and
 time <= budget is written as a parameter file in the format of
 ``config/tissue_sim.yaml``. Everything is measured in this run; nothing is
 extrapolated.
+
+With ``material: neo_hookean`` (e.g. ``--params config/scenes/liver_probe.yaml``) the error is the
+material's physical one instead, mesh plus solver error at rest under the scene's instrument, over
+spacings, substeps and iterations (:mod:`~tissue_sim_ros.bench.tune_material`).
 """
 from __future__ import annotations
 
@@ -58,6 +62,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=int, default=30, help="trajectory length in steps")
     parser.add_argument("--csv", default="", help="also write every measured setting to this CSV")
     parser.add_argument("--quick", action="store_true", help="two coarse spacings, few counts (smoke test)")
+    parser.add_argument("--material-spacings", default="0.005,0.0035,0.0025",
+                        help="material neo_hookean: candidate spacings [m] (the reference mesh is half the finest)")
+    parser.add_argument("--depth", type=float, default=0.003,
+                        help="material neo_hookean: how far the instrument presses into the tissue [m]")
 
 
 def _parse_spacings(text: str) -> list[float]:
@@ -118,7 +126,15 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--budget-ms={args.budget_ms}: expected a time > 0 ms")
     if args.steps < 1:
         raise InputError(f"--steps={args.steps}: expected at least 1 step")
-    values = resolve_config(params_file=args.params or None).flat()
+    cfg = resolve_config(params_file=args.params or None)
+    if cfg.sim.material == "neo_hookean":
+        # a physical material: mesh + solver error at rest under the instrument (bench/tune_material.py)
+        from .tune_material import run_tune_material  # noqa: PLC0415
+
+        if not (math.isfinite(args.depth) and args.depth > 0):
+            raise InputError(f"--depth={args.depth}: expected a depth > 0 m")
+        return run_tune_material(args, cfg)
+    values = cfg.flat()
     spacings = [0.1, 0.05] if args.quick else _parse_spacings(args.spacings)
     counts = (1, 10) if args.quick else COUNTS
     n_steps = min(args.steps, 4) if args.quick else args.steps

@@ -1,0 +1,194 @@
+"""The material benchmarks (tiny versions) and the exact membrane energy they measure against."""
+from __future__ import annotations
+
+import csv
+import math
+
+import numpy as np
+import pytest
+
+from tissue_sim_ros.bench import material_accuracy as ma
+from tissue_sim_ros.bench import refinement
+from tissue_sim_ros.bench.material_reference import MembraneEnergy, lame
+from tissue_sim_ros.bench.reference import minimize_step
+from tissue_sim_ros.cli import main
+from tissue_sim_ros.core.config import resolve_config
+from tissue_sim_ros.core.mesh import mesh_rectangle
+from tissue_sim_ros.core.simulation import Simulation
+
+pytest.importorskip("skfem")
+
+STRIP = {"material": "neo_hookean", "young_modulus": 50e3, "poisson_ratio": 0.45, "thickness": 1e-3,
+         "density": 1000.0, "dt": 0.002, "boundary_y_top": 0.04 - 1e-9, "boundary_y_bottom": math.nan,
+         "contact_model": "none"}
+
+
+@pytest.fixture(scope="module")
+def stepped():
+    sim = Simulation.from_config(resolve_config(STRIP), mesh=mesh_rectangle(0.1, 0.04, 0.01))
+    for _ in range(4):
+        report = sim.step()
+    return sim, report
+
+
+def test_lame_and_shift():
+    # plane stress lambda = E nu / (1 - nu^2), mu = E / (2 (1 + nu)); the form's lambda' = lambda + mu
+    lam, mu, shifted = lame(1000.0, 0.25)
+    assert (lam, mu, shifted) == pytest.approx((266.6666666666667, 400.0, 666.6666666666667), rel=1e-14)
+
+
+def test_membrane_energy_is_the_simulators(stepped):
+    # two codes, one energy: the simulator's published potential and total equal this module's
+    sim, report = stepped
+    e = MembraneEnergy(sim.model, report.x_pred, sim.params.dt)
+    x = sim.state.particle_q
+    assert e.strain_energy(x) == pytest.approx(report.energy.scene_potential, rel=1e-10)
+    assert e.value(x) == pytest.approx(report.energy.scene_total, rel=1e-10)
+
+
+def test_membrane_energy_vanishes_at_rest_and_under_rotation(stepped):
+    sim, _ = stepped
+    q0 = sim.model.particle_q0
+    e = MembraneEnergy(sim.model, q0, 0.002)
+    c, s = math.cos(0.7), math.sin(0.7)
+    rotated = q0 @ np.array([[c, s], [-s, c]]) + np.array([0.3, -0.1])
+    # round-off scale: mu V (1e-16)^2 per element for F = I + O(1e-16)
+    scale = 50e3 * e.volume.sum()
+    assert e.strain_energy(q0) <= 1e-24 * scale
+    assert e.strain_energy(rotated) <= 1e-24 * scale
+    stretched = q0 * np.array([1.01, 1.0])  # and not under a stretch
+    assert e.strain_energy(stretched) > 1e-6 * scale
+
+
+def test_gradient_and_hessian_match_finite_differences(stepped):
+    # central differences, step 1e-7 m on a 1e-3 m perturbation: truncation O(eps^2), round-off O(1e-16/eps)
+    sim, report = stepped
+    e = MembraneEnergy(sim.model, report.x_pred, 0.002)
+    rng = np.random.default_rng(3)
+    y = sim.state.particle_q + rng.normal(0, 1e-3, sim.state.particle_q.shape)
+    d = rng.normal(size=y.shape)
+    eps = 1e-7
+    fd = (e.value(y + eps * d) - e.value(y - eps * d)) / (2 * eps)
+    assert float(e.gradient(y).ravel() @ d.ravel()) == pytest.approx(fd, rel=1e-6)
+    hd = e.hessian(y) @ d.ravel()
+    fd2 = (e.gradient(y + eps * d) - e.gradient(y - eps * d)).ravel() / (2 * eps)
+    assert np.abs(hd - fd2).max() <= 1e-6 * np.abs(hd).max()
+    # projection only removes negative curvature
+    hp = e.hessian(y, project=True)
+    assert float(d.ravel() @ (hp @ d.ravel())) > 0
+
+
+def test_more_iterations_approach_the_exact_step(stepped):
+    # the exact minimiser is what the solve approaches: 10 x 10 closer to it than 1 x 5
+    cfg = resolve_config(STRIP)
+    mesh = mesh_rectangle(0.1, 0.04, 0.01)
+    coarse = ma.measure(cfg, mesh, "gauss_seidel", 1, 5, 2)
+    fine = ma.measure(cfg, mesh, "gauss_seidel", 10, 10, 2)
+    assert fine["err_response_max"] < 0.1 * coarse["err_response_max"]
+    assert coarse["err_response_median"] <= coarse["err_response_max"]
+    assert fine["reference_rel_grad_max"] < 1e-5
+
+
+def test_exact_step_is_a_fixed_point_at_equilibrium():
+    # a state at rest that is the static equilibrium stays there: Newton from x* = x + h^2 g returns x
+    sim = Simulation.from_config(resolve_config({**STRIP, "damping": 50.0}), mesh=mesh_rectangle(0.1, 0.04, 0.02))
+    refinement.run_to_rest(sim, None, 1e-9, 5000)
+    start = sim.state.copy()
+    x = ma.exact_step(sim, start)
+    fixed = sim.model.particle_inv_mass == 0
+    e = MembraneEnergy(sim.model, start.particle_q, sim.params.dt)
+    assert np.abs(x - start.particle_q).max() < 1e-3 * np.abs(start.particle_q - sim.model.particle_q0).max()
+    assert minimize_step(e, fixed)[1]["converged"]
+
+
+def test_pareto_front():
+    rows = [{"solve_ms_median": 1.0, "err_response_max": 0.5}, {"solve_ms_median": 2.0, "err_response_max": 0.1},
+            {"solve_ms_median": 3.0, "err_response_max": 0.2}, {"solve_ms_median": 0.5, "err_response_max": 0.9}]
+    assert ma.pareto(rows) == [3, 0, 1]
+
+
+def test_bench_material_quick(tmp_path, capsys):
+    assert main(["bench", "material", "--quick", "--out", str(tmp_path)]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "material_accuracy.csv")))
+    assert len(rows) == len(ma.QUICK_SETTINGS)
+    assert (tmp_path / "material_accuracy.png").stat().st_size > 0
+    assert "Pareto front" in capsys.readouterr().out
+
+
+def test_bench_refinement_quick(tmp_path, capsys):
+    # 20 mm and 10 mm only: the errors against the FEM fall with refinement (strip sag, punch force)
+    assert main(["bench", "refinement", "--quick", "--out", str(tmp_path)]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "refinement.csv")))
+    spacing = [r for r in rows if r["study"] == "spacing"]
+    strip = [abs(float(r["err_mean_sag"])) for r in spacing if r["problem"] == "hanging_strip"]
+    punch = [abs(float(r["err_force"])) for r in spacing if r["problem"] == "flat_punch"]
+    assert strip[1] < strip[0] and punch[1] < punch[0]
+    assert all(r["at_rest"] == "True" for r in spacing)
+    dyn = [float(r["err_dynamic"]) for r in rows if r["study"] == "dt_dynamic"]
+    assert dyn[1] < dyn[0]  # the dynamics converge in dt
+    assert (tmp_path / "refinement.png").stat().st_size > 0
+    assert "flat punch" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv", [["bench", "refinement", "--spacings", "a,b"], ["bench", "refinement", "--dts", "-1"],
+                                  ["bench", "material", "--steps", "0"], ["bench", "material", "--scenes", "moon"]])
+def test_bench_bad_input_exits_2(argv, tmp_path, capsys):
+    assert main(argv + ["--out", str(tmp_path)]) == 2
+    assert "Traceback" not in capsys.readouterr().err
+
+
+def test_bench_peers_fem_quick(tmp_path, capsys):
+    # ours always; MuJoCo's flex membrane when installed (the peers extra): both converge to the FEM
+    from tissue_sim_ros.bench.peers import available
+
+    assert main(["bench", "peers", "--fem", "--quick", "--out", str(tmp_path)]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "peers_fem.csv")))
+    ours = [abs(float(r["err_mean_sag"])) for r in rows if r["peer"] == "ours"]
+    assert ours[1] < ours[0] < 0.1
+    if available("mujoco"):
+        mj = [r for r in rows if r["peer"] == "mujoco"]
+        assert all(r["at_rest"] == "True" for r in mj)
+        assert abs(float(mj[1]["err_mean_sag"])) < 0.05  # the membrane has stiffness (elastic2d is not none)
+    assert "run to rest" in capsys.readouterr().out
+
+
+def test_bench_stability_material_quick(tmp_path):
+    # a gentle press is clean; a 1 m/s tool at dt 20 ms jumps 2 cm per step (4x its own width) into a sliver
+    # mesh of a 1 MPa tissue and ends inside it: the run names that (buried, tunnelling or penetrating)
+    assert main(["bench", "stability", "--material", "--quick", "--out", str(tmp_path)]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "material_stability.csv")))
+    assert rows[0]["outcome"] == "stable"
+    assert rows[1]["outcome"] in ("buried", "tunnelling", "penetrating")
+    assert (tmp_path / "material_stability.png").stat().st_size > 0
+
+
+def test_material_stability_poses_press_a_third_deep():
+    from tissue_sim_ros.bench import material_stability as ms
+
+    ps = ms.poses(0.01, 0.1)
+    tip = [p.y - 0.5 * ms.TOOL.length for p in ps]
+    assert tip[0] == pytest.approx(ms.HEIGHT + 0.002)
+    assert tip[-1] == pytest.approx(ms.HEIGHT - ms.HEIGHT / 3)
+    assert ps[-1] == ps[-20]  # held at the end
+
+
+def test_tune_material_quick_writes_a_loadable_choice(tmp_path, capsys):
+    # the real-size scene: mesh error (vs a finer converged mesh) + solver error (vs converged on the same mesh)
+    from tissue_sim_ros.resources import scene_params_file
+
+    out = tmp_path / "tuned.yaml"
+    csv_path = tmp_path / "tune.csv"
+    code = main(["tune", "--params", str(scene_params_file("liver_probe")), "--tolerance", "0.3", "--budget-ms", "1e6",
+                 "--quick", "--out", str(out), "--csv", str(csv_path)])
+    assert code == 0
+    rows = list(csv.DictReader(open(csv_path)))
+    # errors fall with refinement at the converged setting, and the converged solver has ~no solver error
+    conv = [r for r in rows if (r["substeps"], r["iterations"]) == ("10", "10")]
+    assert float(conv[1]["err_mesh"]) < float(conv[0]["err_mesh"])
+    assert all(float(r["err_solver"]) < 1e-3 for r in conv)
+    cfg = resolve_config(params_file=out)
+    chosen = [r for r in rows if float(r["spacing"]) == cfg.scene.spacing and int(r["substeps"]) == cfg.sim.substeps
+              and int(r["iterations"]) == cfg.sim.iterations]
+    assert len(chosen) == 1 and float(chosen[0]["error"]) <= 0.3
+    assert cfg.sim.material == "neo_hookean" and cfg.sim.young_modulus == 4000.0
+    assert "chosen:" in capsys.readouterr().out
