@@ -62,9 +62,9 @@ class NodeStats:
     missed_ticks: int = 0
     """Timer ticks skipped because the previous one ran late."""
     divergences: int = 0
-    clamped_jumps: int = 0
     dropped: dict[str, int] = field(default_factory=lambda: {
-        "nonfinite": 0, "frame": 0, "stale": 0, "out_of_order": 0, "unpublished_nonfinite": 0})
+        "nonfinite": 0, "frame": 0, "stale": 0, "future": 0, "out_of_order": 0, "tool_jump": 0,
+        "unpublished_nonfinite": 0})
     window_steps: int = 0
     window_step_time_sum: float = 0.0
     window_step_time_max: float = 0.0
@@ -268,12 +268,18 @@ class TissueSimNode(Node):
             return False
         if stamp == (0, 0):
             return True  # unstamped: no order or age to check
-        max_age = self._values["max_stamp_age"]
-        if not self._values["lock_step"] and max_age > 0:
+        max_age, max_future = self._values["max_stamp_age"], self._values["max_stamp_future"]
+        if not self._values["lock_step"] and (max_age > 0 or max_future > 0):
             age = (self.get_clock().now() - Time(seconds=stamp[0], nanoseconds=stamp[1],
                                                  clock_type=self.get_clock().clock_type)).nanoseconds * 1e-9
-            if age > max_age:
+            if max_age > 0 and age > max_age:
                 self._drop("stale", f"{topic} is {age:.3f} s old (max_stamp_age {max_age} s)")
+                return False
+            # a stamp from the future would make every later message look out of order until
+            # the clock catches up: the tool would freeze, so it is the message that goes
+            if max_future > 0 and -age > max_future:
+                self._drop("future", f"{topic} is stamped {-age:.3f} s in the future (max_stamp_future "
+                                     f"{max_future} s)")
                 return False
         if last != (0, 0) and stamp <= last:
             self._drop("out_of_order", f"{topic} stamped {messages.stamp_to_seconds(stamp):.6f} s, not after the "
@@ -291,6 +297,8 @@ class TissueSimNode(Node):
             return
         stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
         if not self._check_header("tool/pose", stamp, msg.header.frame_id, self.tool.pose_stamp):
+            return
+        if not self._check_jump(p.x, p.y):
             return
         self.tool.pose = ToolPose(p.x, p.y, yaw)
         self.tool.pose_stamp = stamp
@@ -313,22 +321,29 @@ class TissueSimNode(Node):
         self.tool.twist_stamp = stamp
         self.tool.twist_received = self.get_clock().now().nanoseconds * 1e-9
 
+    def _check_jump(self, x: float, y: float) -> bool:
+        """False (and counted) when a pose lies farther than max_tool_jump from the tool's last accepted pose.
+
+        The tool then holds its pose; it follows again once a pose within
+        max_tool_jump of it arrives, or after ~/reset (when any pose is accepted).
+        """
+        last = self.tool.pose if self.tool.pose is not None else self.sim.tool_pose
+        if last is None:
+            return True
+        dist = math.hypot(x - last.x, y - last.y)
+        max_jump = self._values["max_tool_jump"]
+        if dist <= max_jump:
+            return True
+        self._drop("tool_jump", f"tool/pose ({x:.4g}, {y:.4g}) is {dist:.3f} m from the tool at ({last.x:.4g}, "
+                                f"{last.y:.4g}) (max_tool_jump {max_jump} m): the tool holds its pose until a pose "
+                                "within max_tool_jump of it arrives, or ~/reset")
+        return False
+
     def _tool_for_step(self) -> tuple[ToolPose | None, ToolTwist | None]:
-        """The pose to use this step (clamped if it jumps) and the twist (None: derive from poses)."""
+        """The pose to use this step and the twist (None: derive from poses)."""
         pose = self.tool.pose
         if pose is None:
             return None, None
-        last = self.sim.tool_pose
-        if last is not None:
-            dx, dy = pose.x - last.x, pose.y - last.y
-            dist = math.hypot(dx, dy)
-            max_jump = self._values["max_tool_jump"]
-            if dist > max_jump:
-                self.stats.clamped_jumps += 1
-                self._warn("jump", f"tool/pose jumps {dist:.3f} m in one step (max_tool_jump {max_jump} m): "
-                                   f"moving {max_jump} m toward it ({self.stats.clamped_jumps} clamped so far)")
-                s = max_jump / dist
-                return ToolPose(last.x + s * dx, last.y + s * dy, pose.yaw), None
         twist = None
         if self._values["twist_source"] == "auto" and self.tool.twist is not None:
             age = self.get_clock().now().nanoseconds * 1e-9 - self.tool.twist_received
@@ -358,8 +373,7 @@ class TissueSimNode(Node):
         if from_timer:
             pose, twist = self._tool_for_step()
         else:
-            pose, clamped_twist = self._tool_for_step()
-            twist = twist if pose == self.tool.pose else clamped_twist
+            pose = self.tool.pose
         report = self.sim.step(pose, twist)
         self.last_report = report
         self.stats.steps += 1
@@ -495,7 +509,6 @@ class TissueSimNode(Node):
             "overruns": s.overruns,
             "missed_ticks": s.missed_ticks,
             "divergences": s.divergences,
-            "clamped_tool_jumps": s.clamped_jumps,
             **{f"dropped_{k}": v for k, v in s.dropped.items()},
             "paused": self.paused,
             "lock_step": self._values["lock_step"],
