@@ -553,8 +553,8 @@ def test_record_path_writes_every_message_in_and_out(ros_client: RosClient, star
 
     bag_path = tmp_path / "node_bag"
     proc = start_process(["tissue_sim_node", "--ros-args", "-r", "__ns:=/rec", "--params-file",
-                          str(scene_files["params"]), "-p", "lock_step:=true", "-p", f"record_path:={bag_path}"],
-                         name="recording")
+                          str(scene_files["params"]), "-p", "lock_step:=true", "-p", f"record_path:={bag_path}",
+                          "-p", "marker_rate:=100.0"], name="recording")
     rec = Node(proc, ros_client, ns="/rec")
     ros_client.wait_for_subscriber(rec.pose_pub, TIMEOUT, proc)
     ros_client.wait_for_publisher("/rec/tissue/energy", TIMEOUT, proc)
@@ -565,8 +565,10 @@ def test_record_path_writes_every_message_in_and_out(ros_client: RosClient, star
         rec.pose_pub.publish(rec.pose(0.2, -0.06 + 0.005 * k, stamp=(t0 + rclpy_duration(k * DT)).to_msg()))
         ros_client.spin_until(lambda k=k: len(rec.energy.messages) > k, TIMEOUT, proc, f"step {k}")
     live = [M.decode_float64(m) for m in rec.energy.messages]
-    # energy goes out first in a step, the markers last: stop once the last step is fully out
-    ros_client.spin_until(lambda: len(rec.markers.messages) >= n, TIMEOUT, proc, "the last step's markers")
+    # markers go out from their own thread, newest state only: stop once the last step's are out
+    last = (t0 + rclpy_duration((n - 1) * DT)).seconds_nanoseconds()
+    ros_client.spin_until(lambda: rec.markers.messages and M.decode_marker_array(rec.markers.messages[-1])[1].stamp
+                          == tuple(last), TIMEOUT, proc, "the last step's markers")
     assert proc.stop(signal.SIGTERM) == 0
     with Bag(bag_path) as bag:
         counts = bag.message_counts
@@ -574,11 +576,73 @@ def test_record_path_writes_every_message_in_and_out(ros_client: RosClient, star
         recorded = [M.decode_float64(raw) for t, _, _, raw in bag.messages(["/rec/tissue/energy"])]
     assert topics["/rec/tissue/markers"] == "visualization_msgs/msg/MarkerArray"
     assert topics["/rec/tool/pose"] == "geometry_msgs/msg/PoseStamped"
-    for topic in ("/rec/tissue/energy", "/rec/tissue/points", "/rec/tissue/markers", "/rec/tool/wrench",
-                  "/rec/tissue/energy/bodies", "/rec/tool/pose"):
+    for topic in ("/rec/tissue/energy", "/rec/tissue/points", "/rec/tool/wrench", "/rec/tissue/energy/bodies",
+                  "/rec/tool/pose", "/rec/tool/applied_pose", "/rec/tool/applied_twist"):
         assert counts[topic] == n, (topic, counts)
+    # a marker snapshot replaced before the worker took it is skipped by design (never the newest)
+    assert 1 <= counts["/rec/tissue/markers"] <= n, counts
     assert counts["/rec/tissue/rest_mesh"] == 1
     assert recorded == live  # the same bytes the subscribers got
+
+
+def test_replay_of_a_timer_mode_recording_is_bit_for_bit(ros_client: RosClient, start_process: Any,
+                                                         scene_files: dict[str, Any], tmp_path: Path) -> None:
+    """A live timer-mode run (poses, some twists, tool-free steps first) replayed offline from the node's own bag.
+
+    ``tissue-sim replay --mode applied`` steps with the tool/applied_* the node recorded: the energy series, the
+    wrenches and the particle positions equal the live run's to the bit.
+    """
+    import subprocess  # noqa: PLC0415
+
+    from tissue_sim_ros.ros.bags import Bag  # noqa: PLC0415
+
+    from ros_env import console_script  # noqa: PLC0415
+
+    bag_path = tmp_path / "live"
+    proc = start_process(["tissue_sim_node", "--ros-args", "-r", "__ns:=/live", "--params-file",
+                          str(scene_files["params"]), "-p", f"record_path:={bag_path}"], name="live")
+    live = Node(proc, ros_client, ns="/live")
+    live.wait_ready()
+    c = ros_client
+    for k, y in enumerate(np.linspace(-0.06, 0.02, 50)):
+        pose = live.pose(0.2 + 0.02 * math.sin(k / 7.0), y, yaw=0.1 * math.sin(k / 5.0))
+        live.pose_pub.publish(pose)
+        if k % 3 == 0:  # a twist with the pose's stamp now and then: the node uses it while fresh
+            twist = TwistStamped()
+            twist.header = pose.header
+            twist.twist.linear.y = 0.16
+            live.twist_pub.publish(twist)
+        c.spin_for(DT)
+    c.spin_for(0.2)
+    assert proc.stop(signal.SIGINT) == 0, proc.output()[-2000:]
+    out = tmp_path / "replay"
+    run = subprocess.run([console_script("tissue-sim"), "replay", str(bag_path), "--mode", "applied", "--out",
+                          str(out), "--no-progress", "--frame-every", "-1"],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stdout + run.stderr
+
+    def series(path: Path, ns: str) -> tuple[list[float], list[bytes], bytes]:
+        with Bag(path) as bag:
+            energy = [M.decode_float64(raw) for _, _, _, raw in bag.messages([f"{ns}/tissue/energy"])]
+            wrench = [bytes(raw) for _, _, _, raw in bag.messages([f"{ns}/tool/wrench"])]
+            points = [bytes(raw) for _, _, _, raw in bag.messages([f"{ns}/tissue/points"])]
+        return energy, wrench, points[-1]
+
+    e_live, w_live, p_live = series(bag_path, "/live")
+    e_off, w_off, p_off = series(out / "replay_bag", "")
+    assert len(e_live) > 50 and len(e_off) == len(e_live)
+    assert e_off == e_live  # float64, every step
+    def wrenches(raw: list[bytes]) -> tuple[list[Any], np.ndarray]:
+        decoded = [M.decode_wrench_stamped(w) for w in raw]
+        return [d[0] for d in decoded], np.array([np.concatenate([d[2], d[3]]) for d in decoded])
+
+    (stamps_off, w_off_values), (stamps_live, w_live_values) = wrenches(w_off), wrenches(w_live)
+    assert stamps_off == stamps_live
+    np.testing.assert_array_equal(w_off_values, w_live_values)
+    assert np.abs(w_live_values).max() > 0
+    _, _, cloud_live = M.decode_point_cloud(p_live)
+    _, _, cloud_off = M.decode_point_cloud(p_off)
+    np.testing.assert_array_equal(cloud_off[["x", "y"]], cloud_live[["x", "y"]])
 
 
 def test_record_path_that_exists_is_refused(start_process: Any, scene_files: dict[str, Any], tmp_path: Path) -> None:

@@ -19,6 +19,7 @@ reports them on ``/diagnostics``.
 from __future__ import annotations
 
 import gc
+import json
 import math
 import os
 import sys
@@ -45,7 +46,8 @@ from ..core.config import FOREIGN_PREFIXES, METHOD_ALIASES, Config, load_params_
 from ..core.errors import InputError
 from ..core.simulation import Simulation, StepReport
 from ..core.tool import ToolPose, ToolTwist, yaw_from_quaternion
-from . import messages, qos
+from . import messages, qos, tool_applied
+from .marker_publisher import MarkerPublisher, MarkerSnapshot
 from .node_recording import NodeRecorder
 from .parameters import BY_NAME, PARAMETERS, SIM_NAMES, descriptor, parameter_value
 
@@ -79,6 +81,8 @@ class ToolInput:
 
     pose: ToolPose | None = None
     pose_stamp: tuple[int, int] = (0, 0)
+    quaternion: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+    """The orientation the pose's yaw was computed from (published on tool/applied_pose)."""
     twist: ToolTwist | None = None
     twist_stamp: tuple[int, int] = (0, 0)
     twist_received: float = -math.inf
@@ -131,12 +135,18 @@ class TissueSimNode(Node):
                                  for term in ENERGY_TERMS[:3]}
         self.pub_energy_bodies = self.create_publisher(Float64MultiArray, "tissue/energy/bodies", qos.energy())
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", qos.diagnostics())
+        self.pub_applied_pose = self.create_publisher(PoseStamped, "tool/applied_pose", qos.state_stream())
+        self.pub_applied_twist = self.create_publisher(TwistStamped, "tool/applied_twist", qos.state_stream())
         lock_step = self._values["lock_step"]
         self.sub_pose = self.create_subscription(PoseStamped, "tool/pose", self._on_pose, qos.tool_input(lock_step))
         self.sub_twist = self.create_subscription(TwistStamped, "tool/twist", self._on_twist, qos.tool_input(lock_step))
         self.recorder: NodeRecorder | None = None
         if self._values["record_path"]:
             self._start_recording(self._values["record_path"], self._values["record_storage"])
+        # markers are encoded and published on their own thread: the step thread never waits for 1 MB of DDS
+        self.marker_worker = MarkerPublisher(
+            lambda data: self.pub_markers.publish(data),
+            on_error=lambda exc: self._warn("markers", f"tissue/markers not published: {exc}"))
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         self.step_timer = None if lock_step else self.create_timer(self.sim.params.dt, self._on_tick)
@@ -302,6 +312,7 @@ class TissueSimNode(Node):
             return
         self.tool.pose = ToolPose(p.x, p.y, yaw)
         self.tool.pose_stamp = stamp
+        self.tool.quaternion = (o.x, o.y, o.z, o.w)
         if self._values["lock_step"] and not self.paused:
             twist = self.tool.twist if (self._values["twist_source"] == "auto" and stamp != (0, 0)
                                         and self.tool.twist_stamp == stamp) else None
@@ -374,7 +385,18 @@ class TissueSimNode(Node):
             pose, twist = self._tool_for_step()
         else:
             pose = self.tool.pose
+        if pose is None:
+            twist = ToolTwist()
+        elif twist is None:
+            # derived here, by the Simulation's own formula, so the twist used can be published and replayed
+            twist = Simulation._twist_from_poses(self.sim.tool_pose, pose, self.sim.params.dt)
+        quaternion = self.tool.quaternion
         report = self.sim.step(pose, twist)
+        # what this step used, for an exact offline replay (tool_applied.py)
+        self.pub_applied_twist.publish(tool_applied.encode_applied_twist(stamp, self.frame_id, twist))
+        if pose is not None:
+            self.pub_applied_pose.publish(tool_applied.encode_applied_pose(stamp, self.frame_id, pose.x, pose.y,
+                                                                           quaternion))
         self.last_report = report
         self.stats.steps += 1
         if report.diverged:
@@ -402,8 +424,10 @@ class TissueSimNode(Node):
         if os.path.exists(path):
             raise InputError(f"parameter record_path={path!r}: that path exists; expected a new bag directory")
         self.recorder = NodeRecorder(self, path, storage)
+        # what `tissue-sim replay --mode applied` needs to rebuild this very Simulation from the bag alone
+        self.recorder.writer.set_custom_data("tissue_sim.params", json.dumps(self.config.flat(), default=str))
         for name in ("pub_markers", "pub_points", "pub_rest", "pub_wrench", "pub_energy", "pub_energy_bodies",
-                     "pub_diagnostics"):
+                     "pub_diagnostics", "pub_applied_pose", "pub_applied_twist"):
             setattr(self, name, self.recorder.wrap(getattr(self, name)))
         self.pub_energy_terms = {k: self.recorder.wrap(p) for k, p in self.pub_energy_terms.items()}
         for sub in (self.sub_pose, self.sub_twist):
@@ -411,6 +435,7 @@ class TissueSimNode(Node):
         self.get_logger().info(f"recording every message in and out to {path} ({storage})")
 
     def destroy_node(self) -> None:
+        self.marker_worker.close()  # before the bag closes: its last markers go in
         if self.recorder is not None:
             self.recorder.close()  # a closed bag, whatever ended the node
         super().destroy_node()
@@ -443,18 +468,20 @@ class TissueSimNode(Node):
         publish_markers = self._steps_since_markers >= self._every(self._values["marker_rate"])
         if not (publish_points or publish_markers):
             return
-        strain = self._encoder.vertex_strain(q)
+        strain = None
         if publish_points:
             self._steps_since_points = 0
+            strain = self._encoder.vertex_strain(q)
             self.pub_points.publish(self._encoder.point_cloud(stamp, frame, q, strain))
         if publish_markers:
             self._steps_since_markers = 0
             pose = self.sim.tool_pose
-            self.pub_markers.publish(self._encoder.markers(
-                stamp, frame, q, strain,
+            contact = report.contact_particles
+            self.marker_worker.submit(MarkerSnapshot(
+                self._encoder, stamp, frame, q.copy(),
                 tool_pose=None if pose is None else (pose.x, pose.y, pose.yaw),
                 tool_stamp=self.tool.pose_stamp if pose is not None else None,
-                contact_particles=report.contact_particles))
+                contact_particles=None if contact is None else np.array(contact), strain=strain))
 
     def _publish_rest_mesh(self) -> None:
         m = self.sim.model
@@ -467,7 +494,7 @@ class TissueSimNode(Node):
         stamp = _stamp_of(self.get_clock().now())
         strain = self._encoder.vertex_strain(q)
         self.pub_points.publish(self._encoder.point_cloud(stamp, self.frame_id, q, strain))
-        self.pub_markers.publish(self._encoder.markers(stamp, self.frame_id, q, strain))
+        self.marker_worker.submit(MarkerSnapshot(self._encoder, stamp, self.frame_id, q.copy(), strain=strain))
 
     # ------------------------------------------------------------------ services
 
@@ -490,7 +517,7 @@ class TissueSimNode(Node):
     # ------------------------------------------------------------------ diagnostics
 
     def _publish_diagnostics(self) -> None:
-        s = self.stats
+        s, w = self.stats, self.marker_worker
         now = time.monotonic()
         window = max(now - s.window_start, 1e-9)
         r = self.last_report
@@ -509,6 +536,9 @@ class TissueSimNode(Node):
             "overruns": s.overruns,
             "missed_ticks": s.missed_ticks,
             "divergences": s.divergences,
+            "markers_published": w.published,
+            "markers_skipped": w.skipped,
+            "marker_encode_ms_mean": 1e3 * w.encode_seconds / max(w.published + w.errors, 1),
             **{f"dropped_{k}": v for k, v in s.dropped.items()},
             "paused": self.paused,
             "lock_step": self._values["lock_step"],

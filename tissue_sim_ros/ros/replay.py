@@ -11,14 +11,19 @@ machine allows, and writes into ``--out``:
 * ``energy.png``: the energy plot; ``frames/frame_NNNNN.png`` every k steps;
 * ``replay.mp4`` (or ``.gif``) with ``--video`` (needs the ``video`` extra).
 
-Two modes, chosen with ``--mode``:
+Three modes, chosen with ``--mode``:
 
 ``per-message`` (default)
     one step of dt per tool message, with that message's pose: exactly what
     the node does in lock-step, so the two give the same energy series;
 ``fixed-rate``
     steps at the simulation rate 1/dt over the bag's time span, the pose
-    linearly interpolated (yaw the short way round) at each step's time.
+    linearly interpolated (yaw the short way round) at each step's time;
+``applied``
+    a bag the node recorded itself (``record_path``): one step per message on
+    ``tool/applied_twist`` with the pose of ``tool/applied_pose`` of the same
+    stamp (no tool where there is none) and that very twist, i.e. exactly
+    what the node stepped with, so a timer-mode run is reproduced bit for bit.
 
 Messages with repeated or out-of-order times, non-finite poses or invalid
 quaternions are skipped, counted and reported (``--strict``: an error).
@@ -32,7 +37,7 @@ import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -47,7 +52,7 @@ from .bags import BagWriter, ToolTrack, read_tool_track
 HELP = "run the simulation offline on a bag's tool trajectory; write a bag, CSV, plots, frames"
 DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP
 
-MODES = ("per-message", "fixed-rate")
+MODES = ("per-message", "fixed-rate", "applied")
 TERMS = ("inertial", "spring", "area", "total")
 
 #: Output topics of the replay bag: the node's names and types (msg_docs/topics.md).
@@ -200,13 +205,14 @@ class ReplayBagSink:
         self._points["body"] = model.particle_body
         self._strain = VertexStrain(model)
 
-    def __call__(self, report: StepReport, t_ns: int, pose: ToolPose) -> None:
+    def __call__(self, report: StepReport, t_ns: int, pose: ToolPose | None) -> None:
         stamp, e = _stamp(t_ns), report.energy
         # the node's layout: (B, 4) rows of inertial, spring, area, total
         table = np.column_stack([e.inertial, e.spring, e.area, e.total])
         f = report.reaction_force
-        items = [
-            ("/tool/pose", msgs.encode_pose_stamped(stamp, self.frame_id, pose.x, pose.y, pose.yaw), t_ns),
+        items = [] if pose is None else [
+            ("/tool/pose", msgs.encode_pose_stamped(stamp, self.frame_id, pose.x, pose.y, pose.yaw), t_ns)]
+        items += [
             ("/tissue/energy", msgs.encode_float64(e.scene_total), t_ns),
             ("/tissue/energy/inertial", msgs.encode_float64(float(e.inertial.sum())), t_ns),
             ("/tissue/energy/spring", msgs.encode_float64(float(e.spring.sum())), t_ns),
@@ -244,18 +250,25 @@ def replay(sim: Simulation, track: ToolTrack, mode: str = "per-message", *, sink
         Show a tqdm progress bar on stderr.
     """
     t_ns, poses, twists = schedule(track, sim.params.dt, mode)
-    n = int(t_ns.shape[0])
+    items: list[tuple[ToolPose | None, ToolTwist | None]] = []
+    for i in range(int(t_ns.shape[0])):
+        tw = None
+        if twists is not None and np.isfinite(twists[i]).all():
+            tw = ToolTwist(float(twists[i, 0]), float(twists[i, 1]), float(twists[i, 2]))
+        items.append((ToolPose(float(poses[i, 0]), float(poses[i, 1]), float(poses[i, 2])), tw))
+    return replay_steps(sim, t_ns, items, sink=sink, snapshot_every=snapshot_every, progress=progress,
+                        track_duration=track.duration)
+
+
+def replay_steps(sim: Simulation, t_ns: np.ndarray, items: list[tuple[ToolPose | None, ToolTwist | None]], *,
+                 sink: Any = None, snapshot_every: int = 0, progress: bool = True,
+                 track_duration: float | None = None) -> ReplayResult:
+    """Step ``sim`` once per (pose or None, twist or None) of ``items``, at times ``t_ns``; see :func:`replay`."""
+    n = len(items)
     snaps: list[int] = []
     if snapshot_every > 0:
         snaps = sorted(set(range(0, n + 1, snapshot_every)) | {n})
     step_time = 0.0
-
-    def items() -> Iterator[tuple[ToolPose, ToolTwist | None]]:
-        for i in range(n):
-            tw = None
-            if twists is not None and np.isfinite(twists[i]).all():
-                tw = ToolTwist(float(twists[i, 0]), float(twists[i, 1]), float(twists[i, 2]))
-            yield ToolPose(float(poses[i, 0]), float(poses[i, 1]), float(poses[i, 2])), tw
 
     from tqdm import tqdm  # noqa: PLC0415
 
@@ -274,20 +287,22 @@ def replay(sim: Simulation, track: ToolTrack, mode: str = "per-message", *, sink
         loop_times[i] = now - last[0]
         last[0] = now
         if sink is not None:
-            sink(report, int(t_ns[i]), ToolPose(float(poses[i, 0]), float(poses[i, 1]), float(poses[i, 2])))
+            sink(report, int(t_ns[i]), items[i][0])
         bar.update(1)
 
     start = time.perf_counter()
     cpu_start = time.process_time()
     last[0] = start
     try:
-        result = rollout(sim, items(), snapshot_steps=[sim.step_count + s for s in snaps], on_step=on_step)
+        result = rollout(sim, items, snapshot_steps=[sim.step_count + s for s in snaps], on_step=on_step)
     finally:
         bar.close()
     wall = time.perf_counter() - start
     cpu = time.process_time() - cpu_start
+    if track_duration is None:
+        track_duration = float(t_ns[-1] - t_ns[0]) * 1e-9 if n else 0.0
     return ReplayResult(rollout=result, t_ns=t_ns, wall_time=wall, step_time=step_time, loop_times=loop_times,
-                        cpu_time=cpu, sim_time=n * sim.params.dt, track_duration=track.duration)
+                        cpu_time=cpu, sim_time=n * sim.params.dt, track_duration=track_duration)
 
 
 # --------------------------------------------------------------------------- CLI
@@ -304,8 +319,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="TwistStamped/Twist topic of the tool velocity (default: derived from poses)")
     add_config_arguments(parser)
     parser.add_argument("--mode", choices=MODES, default="per-message",
-                        help="one step per tool message (default, = node lock-step), or steps at 1/dt with "
-                             "the pose interpolated")
+                        help="one step per tool message (default, = node lock-step), steps at 1/dt with "
+                             "the pose interpolated, or applied: the node's own recording (tool/applied_*) "
+                             "stepped exactly as the node did (bit for bit)")
     parser.add_argument("--time-source", choices=("header", "bag"), default="header",
                         help="sample times from header stamps (default) or bag receive times")
     parser.add_argument("--strict", action="store_true",
@@ -342,6 +358,8 @@ def run(args: argparse.Namespace) -> int:
     if bag_out.exists():
         raise InputError(f"{str(bag_out)!r} exists already: choose another --out (nothing is overwritten)")
 
+    if args.mode == "applied":
+        return _run_applied(args, out, bag_out)
     track = read_tool_track(args.bag, topic=args.tool_topic, frame=args.frame, twist_topic=args.twist_topic,
                             time_source=args.time_source, on_bad_time="error" if args.strict else "skip")
     print(track.summary())
@@ -386,6 +404,60 @@ def run(args: argparse.Namespace) -> int:
     print(result.speed_line())
     write_outputs(out, sim, result, video=args.video, title=f"replay of {Path(args.bag).name} ({args.mode})")
     _write_summary(out / "replay.json", args, track, sim, result)
+    print(f"wrote {out}/energy.csv, energy.png, replay.json, frames/ ({len(result.rollout.snapshots)} PNG)"
+          + (", replay_bag/" if writer is not None else "") + (", replay.mp4" if args.video else ""))
+    return 0
+
+
+def _run_applied(args: argparse.Namespace, out: Path, bag_out: Path) -> int:
+    """``--mode applied``: the node's own recording, stepped with exactly what the node stepped with."""
+    import json  # noqa: PLC0415
+
+    from ..core.config import resolve_config  # noqa: PLC0415
+    from .bags import Bag  # noqa: PLC0415
+    from .tool_applied import read_applied_steps  # noqa: PLC0415
+
+    steps = read_applied_steps(args.bag)
+    print(f"{steps.n} steps from {steps.twist_topic} ({sum(p is not None for p in steps.poses)} with a tool), "
+          f"{(steps.t_ns[-1] - steps.t_ns[0]) * 1e-9:.3f} s")
+    if args.params or getattr(args, "set", None):
+        cfg = config_from_args(args)
+    else:
+        bag = Bag(args.bag)
+        try:
+            recorded = bag.custom_data.get("tissue_sim.params")
+        finally:
+            bag.close()
+        if recorded is None:
+            raise InputError(f"bag {str(args.bag)!r} does not hold the node's parameters (custom_data "
+                             "tissue_sim.params): give the node's parameters with --params")
+        cfg = resolve_config(overrides=json.loads(recorded), source=f"the parameters recorded in {args.bag}")
+        print("parameters: the node's own, from the bag's metadata")
+    sim = Simulation.from_config(cfg)
+    warm = Simulation.from_config(cfg, mesh=sim.model.mesh)
+    warm.step(next((p for p in steps.poses if p is not None), None))
+    frame_every = args.frame_every if args.frame_every > 0 else (0 if args.frame_every < 0 else max(1, -(-steps.n // 40)))
+    out.mkdir(parents=True, exist_ok=True)
+    writer = None if args.no_bag else BagWriter(bag_out, args.storage)
+    try:
+        if writer is not None:
+            writer.set_custom_data("tissue_sim.source_bag", str(args.bag))
+            writer.set_custom_data("tissue_sim.mode", args.mode)
+        sink = ReplayBagSink(writer, sim, points_every=args.points_every) if writer is not None else None
+        result = replay_steps(sim, steps.t_ns, steps.items(), sink=sink, snapshot_every=frame_every,
+                              progress=not args.no_progress)
+    finally:
+        if writer is not None:
+            writer.close()
+    print(result.speed_line())
+    write_outputs(out, sim, result, video=args.video, title=f"replay of {Path(args.bag).name} (applied)")
+    (out / "replay.json").write_text(json.dumps({
+        "bag": str(args.bag), "mode": args.mode, "params": cfg.flat(),
+        "steps": result.n_steps, "steps_with_tool": sum(p is not None for p in steps.poses),
+        "particles": sim.model.n_particles, "triangles": sim.model.n_triangles, "dt": sim.params.dt,
+        "wall_s": result.wall_time, "real_time_factor": result.real_time_factor,
+        "energy_final": float(result.rollout.scene_total[-1]) if result.rollout.steps.size else None,
+    }, indent=2) + "\n")
     print(f"wrote {out}/energy.csv, energy.png, replay.json, frames/ ({len(result.rollout.snapshots)} PNG)"
           + (", replay_bag/" if writer is not None else "") + (", replay.mp4" if args.video else ""))
     return 0
