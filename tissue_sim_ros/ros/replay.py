@@ -127,17 +127,20 @@ def schedule(track: ToolTrack, dt: float, mode: str) -> tuple[np.ndarray, np.nda
     """Times [ns], poses (S, 3) and twists (S, 3) or None of each step of a replay.
 
     ``per-message``: the track's own samples, with a twist only where one
-    carries the pose's own stamp (NaN rows: derived from poses), as the node
-    does in lock-step. ``fixed-rate``: t0 + k dt for k = 1 .. floor(span / dt),
+    carries the pose's own stamp and was received no later than the pose (NaN
+    rows: derived from poses), as the node does in lock-step. ``fixed-rate``: t0 + k dt for k = 1 .. floor(span / dt),
     poses interpolated, twists sample-and-hold.
     """
     if mode == "per-message":
         if track.twist is None:
             return track.t_ns.copy(), track.pose.copy(), None
-        # as the node in lock-step: only a twist with the pose's own stamp; else velocity from poses
+        # as the node in lock-step: only a twist with the pose's own stamp that had arrived when the pose did
+        # (the node steps on the pose; a twist after it is too late); else velocity from poses
         twist = track.twist.copy()
         if track.twist_t_ns is not None:
             twist[track.twist_t_ns != track.t_ns] = np.nan
+        if track.twist_received_ns is not None and track.received_ns is not None:
+            twist[track.twist_received_ns > track.received_ns] = np.nan
         return track.t_ns.copy(), track.pose.copy(), twist
     if mode != "fixed-rate":
         raise InputError(f"--mode {mode!r}: expected one of {', '.join(MODES)}")
