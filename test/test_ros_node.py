@@ -621,16 +621,20 @@ def test_replay_of_a_timer_mode_recording_is_bit_for_bit(ros_client: RosClient, 
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stdout + run.stderr
 
-    def series(path: Path, ns: str) -> tuple[list[float], list[bytes], bytes]:
+    def series(path: Path, ns: str, n: int | None = None) -> tuple[list[float], list[bytes], bytes]:
         with Bag(path) as bag:
-            energy = [M.decode_float64(raw) for _, _, _, raw in bag.messages([f"{ns}/tissue/energy"])]
-            wrench = [bytes(raw) for _, _, _, raw in bag.messages([f"{ns}/tool/wrench"])]
-            points = [bytes(raw) for _, _, _, raw in bag.messages([f"{ns}/tissue/points"])]
+            energy = [M.decode_float64(raw) for _, _, _, raw in bag.messages([f"{ns}/tissue/energy"])][:n]
+            wrench = [bytes(raw) for _, _, _, raw in bag.messages([f"{ns}/tool/wrench"])][:n]
+            points = [bytes(raw) for _, _, _, raw in bag.messages([f"{ns}/tissue/points"])][:n]
         return energy, wrench, points[-1]
 
-    e_live, w_live, p_live = series(bag_path, "/live")
     e_off, w_off, p_off = series(out / "replay_bag", "")
-    assert len(e_live) > 50 and len(e_off) == len(e_live)
+    with Bag(bag_path) as bag:
+        n_live = bag.message_counts["/live/tissue/energy"]
+    # the signal may end the node inside a step: its outputs may be out without its applied tool (published
+    # last), never the other way round
+    assert len(e_off) > 50 and n_live - len(e_off) in (0, 1), (n_live, len(e_off))
+    e_live, w_live, p_live = series(bag_path, "/live", len(e_off))
     assert e_off == e_live  # float64, every step
     def wrenches(raw: list[bytes]) -> tuple[list[Any], np.ndarray]:
         decoded = [M.decode_wrench_stamped(w) for w in raw]

@@ -395,11 +395,6 @@ class TissueSimNode(Node):
             twist = Simulation._twist_from_poses(self.sim.tool_pose, pose, self.sim.params.dt)
         quaternion = self.tool.quaternion
         report = self.sim.step(pose, twist)
-        # what this step used, for an exact offline replay (tool_applied.py)
-        self.pub_applied_twist.publish(tool_applied.encode_applied_twist(stamp, self.frame_id, twist))
-        if pose is not None:
-            self.pub_applied_pose.publish(tool_applied.encode_applied_pose(stamp, self.frame_id, pose.x, pose.y,
-                                                                           quaternion))
         self.last_report = report
         self.stats.steps += 1
         if report.diverged:
@@ -407,6 +402,12 @@ class TissueSimNode(Node):
             self._warn("diverged", f"step {report.step}: the solver diverged; restored the last good state "
                                    f"({self.stats.divergences} divergences so far)")
         self._publish_step(stamp, report)
+        # what this step used, for an exact offline replay (tool_applied.py); last, so that a step whose
+        # applied tool is out (and recorded) has all its outputs out too, even when a signal ends the node
+        if pose is not None:
+            self.pub_applied_pose.publish(tool_applied.encode_applied_pose(stamp, self.frame_id, pose.x, pose.y,
+                                                                           quaternion))
+        self.pub_applied_twist.publish(tool_applied.encode_applied_twist(stamp, self.frame_id, twist))
         elapsed = time.perf_counter() - t0
         s = self.stats
         s.window_steps += 1
