@@ -654,3 +654,81 @@ def test_record_path_that_exists_is_refused(start_process: Any, scene_files: dic
                           "-p", f"record_path:={tmp_path}"], name="bad_record")
     assert proc.wait(timeout=60) == 2
     assert "record_path" in proc.output() and "Traceback" not in proc.output()
+
+
+def test_poses_in_other_frames_are_projected_onto_the_placed_plane(ros_client: RosClient, start_process: Any,
+                                                                   scene_files: dict[str, Any]) -> None:
+    """The plane placed in 'map' by parameters, a static 'map -> base_link' given as static_transform_publisher
+    would: a 3D pose in base_link lands where the transforms put it (reference: core.frames, itself checked
+    against hand-built matrices), with its yaw about the plane's normal; a pose in an unknown frame is dropped.
+    Where tf2_msgs is importable, the plane's transform is on /tf_static and the tool is also taken from /tf.
+    """
+    from tissue_sim_ros.core.frames import Transform, project_pose  # noqa: PLC0415
+    from tissue_sim_ros.ros import tf_input  # noqa: PLC0415
+
+    plane_args = {"world_frame": "map", "plane_x": 1.0, "plane_y": -0.5, "plane_z": 0.2, "plane_roll": 0.0,
+                  "plane_pitch": 0.0, "plane_yaw": math.pi / 2}
+    args = ["tissue_sim_node", "--ros-args", "-r", "__ns:=/placed", "--params-file", str(scene_files["params"]),
+            "-p", "lock_step:=true", "-p", "static_transforms:=0.3 0.1 0.5 0.2 0 0 map base_link"]
+    for k, v in plane_args.items():
+        args += ["-p", f"{k}:={v}"]
+    if tf_input.TF_AVAILABLE:
+        args += ["-p", "tool_frame:=tool0"]
+    proc = start_process(args, name="placed")
+    node = Node(proc, ros_client, ns="/placed")
+    applied = ros_client.raw_subscription(PoseStamped, "/placed/tool/applied_pose", BEST_EFFORT)
+    ros_client.wait_for_subscriber(node.pose_pub, TIMEOUT, proc)
+    ros_client.wait_for_publisher("/placed/tool/applied_pose", TIMEOUT, proc)
+    ros_client.spin_for(0.3)
+    map_plane = Transform.from_xyz_rpy(1.0, -0.5, 0.2, 0.0, 0.0, math.pi / 2)
+    map_base = Transform.from_xyz_rpy(0.3, 0.1, 0.5, 0.0, 0.0, 0.2)
+    plane_base = map_plane.inverse() * map_base
+    # a tool 0.2 m above the plane's origin side, tilted: roll 0.3, yaw 0.4 in base_link
+    position = (-0.6, -0.9, -0.5)
+    q = Transform.from_xyz_rpy(0, 0, 0, 0.3, 0.0, 0.4).rotation
+    x, y, _, q_plane = project_pose(plane_base, position, q)
+    t0 = ros_client.node.get_clock().now()
+    msg = node.pose(0.0, 0.0, frame="base_link", stamp=t0.to_msg())
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = position
+    (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z, msg.pose.orientation.w) = q
+    node.pose_pub.publish(msg)
+    ros_client.spin_until(lambda: applied.messages, TIMEOUT, proc, "the step of the base_link pose")
+    _, frame, p, o = M.decode_pose_stamped(applied.messages[-1])
+    assert frame == "world"
+    np.testing.assert_allclose(p[:2], (x, y), atol=1e-12)
+    from tissue_sim_ros.core.tool import yaw_from_quaternion  # noqa: PLC0415
+
+    assert yaw_from_quaternion(*o) == pytest.approx(yaw_from_quaternion(*q_plane), abs=1e-12)
+    # unknown frame: dropped, counted, no step
+    n = len(applied.messages)
+    node.pose_pub.publish(node.pose(0.2, 0.0, frame="camera", stamp=(t0 + rclpy_duration(0.01)).to_msg()))
+    ros_client.spin_for(0.3)
+    assert len(applied.messages) == n
+    assert "camera" in proc.output() and "no transform" in proc.output()
+    if not tf_input.TF_AVAILABLE:
+        assert "tf2_msgs not installed" in proc.output()
+        return
+    from geometry_msgs.msg import TransformStamped  # noqa: PLC0415
+    from tf2_msgs.msg import TFMessage  # noqa: PLC0415
+
+    static = ros_client.raw_subscription(TFMessage, "/tf_static", tf_input.tf_static_qos())
+    ros_client.spin_until(lambda: static.messages, TIMEOUT, proc, "the plane on /tf_static")
+    from rclpy.serialization import deserialize_message  # noqa: PLC0415
+
+    plane_tf = [t for m in static.messages for t in deserialize_message(m, TFMessage).transforms
+                if t.child_frame_id == "world"]
+    assert plane_tf and plane_tf[0].header.frame_id == "map"
+    assert plane_tf[0].transform.translation.x == 1.0 and plane_tf[0].transform.translation.z == 0.2
+    # the tool only on /tf, as base_link -> tool0
+    tf_pub = ros_client.node.create_publisher(TFMessage, "/tf", tf_input.tf_qos())
+    ros_client.wait_for_subscriber(tf_pub, TIMEOUT, proc)
+    ts = TransformStamped()
+    ts.header.stamp = (t0 + rclpy_duration(0.02)).to_msg()
+    ts.header.frame_id, ts.child_frame_id = "base_link", "tool0"
+    ts.transform.translation.x, ts.transform.translation.y, ts.transform.translation.z = (-0.58, -0.9, -0.5)
+    ts.transform.rotation.w = 1.0
+    tf_pub.publish(TFMessage(transforms=[ts]))
+    x2, y2, _, _ = project_pose(plane_base, (-0.58, -0.9, -0.5), (0.0, 0.0, 0.0, 1.0))
+    ros_client.spin_until(lambda: len(applied.messages) > n, TIMEOUT, proc, "the step of the /tf tool")
+    _, _, p2, _ = M.decode_pose_stamped(applied.messages[-1])
+    np.testing.assert_allclose(p2[:2], (x2, y2), atol=1e-12)

@@ -82,6 +82,24 @@ def _frame(v: Any) -> str | None:
     return None if _FRAME_RE.match(v) and not v.startswith("/") else "a frame name like 'world' (letters, digits, _, /; no leading /)"
 
 
+def _finite(v: Any) -> str | None:
+    return None  # coerce() refuses NaN and inf for every parameter with a check
+
+
+def _frame_or_empty(v: Any) -> str | None:
+    return None if v == "" else _frame(v)
+
+
+def _static_transforms(v: Any) -> str | None:
+    from .frames import parse_static_transforms  # noqa: PLC0415  (frames imports errors only)
+
+    try:
+        parse_static_transforms(v)
+    except InputError as exc:
+        return f"entries 'x y z yaw pitch roll parent child' separated by ';' ({exc})"
+    return None
+
+
 @dataclass(frozen=True)
 class SceneConfig:
     """Where the mesh comes from and how image pixels map to metres (the ``scene`` group)."""
@@ -196,7 +214,17 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("tool_width", float, _TOOL.width, "m", "Full width of a box tool.", True, "tool"),
     ParamSpec("tool_radius", float, _TOOL.radius, "m", "Radius of a capsule or sphere tool.", True, "tool"),
     # the node's own
-    ParamSpec("frame_id", str, "world", "", "The one fixed frame of every message in and out; inputs in another frame are dropped.", False, "node", _frame),
+    ParamSpec("frame_id", str, "world", "", "The simulation plane's frame (tissue in its z = 0 plane): every message out is in it. A tool input in another frame is taken through the known transforms (world_frame and plane_*, static_transforms, /tf, /tf_static) and projected onto the plane; with no transform it is dropped.", False, "node", _frame),
+    ParamSpec("world_frame", str, "", "", "Frame in which plane_x .. plane_yaw place the plane (frame_id); the node broadcasts world_frame -> frame_id on /tf_static where tf2_msgs is installed. Empty = the plane is not placed.", True, "node", _frame_or_empty),
+    ParamSpec("plane_x", float, 0.0, "m", "Plane origin in world_frame: x.", True, "node", _finite),
+    ParamSpec("plane_y", float, 0.0, "m", "Plane origin in world_frame: y.", True, "node", _finite),
+    ParamSpec("plane_z", float, 0.0, "m", "Plane origin in world_frame: z.", True, "node", _finite),
+    ParamSpec("plane_roll", float, 0.0, "rad", "Plane orientation in world_frame: roll about x (R = Rz(yaw) Ry(pitch) Rx(roll), as tf2).", True, "node", _finite),
+    ParamSpec("plane_pitch", float, 0.0, "rad", "Plane orientation in world_frame: pitch about y.", True, "node", _finite),
+    ParamSpec("plane_yaw", float, 0.0, "rad", "Plane orientation in world_frame: yaw about z.", True, "node", _finite),
+    ParamSpec("static_transforms", str, "", "", "Static transforms as static_transform_publisher takes them: 'x y z yaw pitch roll parent child' [m, rad], several separated by ';'. Empty = none.", True, "node", _static_transforms),
+    ParamSpec("tool_frame", str, "", "", "TF frame of the tool: every /tf transform with this child_frame_id is a tool pose (in its parent frame, taken to the plane like tool/pose). Needs tf2_msgs. Empty = off.", True, "node", _frame_or_empty),
+    ParamSpec("tf_tolerance", float, 0.05, "s", "A tool input stamped up to this long after the newest transform of its chain uses that transform; later ones are dropped (no extrapolation).", False, "node", _non_negative),
     ParamSpec("lock_step", bool, False, "", "true: one step per received tool pose (exact replay), no timer; false: a timer at 1/dt.", True, "node"),
     ParamSpec("paused", bool, False, "", "true: no steps (also set by the ~/pause service).", False, "node"),
     ParamSpec("marker_rate", float, 30.0, "Hz", "Rate of tissue/markers, a display rate (RViz redraws at ~30 Hz); capped at 1/dt (every round(1/(dt*rate)) steps). Encoded and published off the step thread, newest state only.", False, "node", _positive),

@@ -44,12 +44,14 @@ from visualization_msgs.msg import MarkerArray
 
 from ..core.config import FOREIGN_PREFIXES, METHOD_ALIASES, Config, load_params_file, resolve_config
 from ..core.errors import InputError
+from ..core.frames import FrameLookupError
 from ..core.simulation import Simulation, StepReport
 from ..core.tool import ToolPose, ToolTwist, yaw_from_quaternion
 from . import messages, qos, tool_applied
 from .marker_publisher import MarkerPublisher, MarkerSnapshot
 from .node_recording import NodeRecorder
 from .parameters import BY_NAME, PARAMETERS, SIM_NAMES, descriptor, parameter_value
+from .tf_input import FrameInput
 
 ENERGY_TERMS = ("inertial", "spring", "area", "total")
 
@@ -141,6 +143,7 @@ class TissueSimNode(Node):
         self.pub_applied_pose = self.create_publisher(PoseStamped, "tool/applied_pose", qos.state_stream())
         self.pub_applied_twist = self.create_publisher(TwistStamped, "tool/applied_twist", qos.state_stream())
         lock_step = self._values["lock_step"]
+        self.frames = FrameInput(self, self._values, on_tool_transform=self._on_tool_transform, on_bad=self._drop)
         self.sub_pose = self.create_subscription(PoseStamped, "tool/pose", self._on_pose, qos.tool_input(lock_step))
         self.sub_twist = self.create_subscription(TwistStamped, "tool/twist", self._on_twist, qos.tool_input(lock_step))
         self.recorder: NodeRecorder | None = None
@@ -163,7 +166,7 @@ class TissueSimNode(Node):
             f"{m.n_particles} particles, {m.n_triangles} triangles, {m.n_bodies} bodies; method "
             f"{self.sim.params.method}/{self.sim.params.scheme}, {self.sim.params.iterations} iterations, contact "
             f"{self.sim.params.contact_model}; {'lock-step' if lock_step else f'{1.0 / self.sim.params.dt:g} Hz'} "
-            f"in frame '{self._values['frame_id']}'")
+            f"in frame '{self._values['frame_id']}'; {self.frames.status}")
 
     def _warm_up(self) -> None:
         """Take a few throwaway steps (tool in the tissue) and reset, so JIT loading is not the first step's overrun."""
@@ -276,8 +279,9 @@ class TissueSimNode(Node):
 
     def _check_header(self, topic: str, stamp: tuple[int, int], frame: str, last: tuple[int, int]) -> bool:
         """Frame, order and age of an input message; False (and counted) when it must be dropped."""
-        if frame != self.frame_id:
-            self._drop("frame", f"{topic} in frame '{frame}', expected '{self.frame_id}'")
+        if frame != self.frame_id and not self.frames.knows(frame):
+            self._drop("frame", f"{topic} in frame '{frame}': no transform from it to '{self.frame_id}' is known "
+                                f"(frames known: {', '.join(sorted(self.frames.buffer.frames)) or 'none'})")
             return False
         if stamp == (0, 0):
             return True  # unstamped: no order or age to check
@@ -309,13 +313,34 @@ class TissueSimNode(Node):
             self._drop("nonfinite", "tool/pose with a NaN/inf value or a zero quaternion")
             return
         stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
-        if not self._check_header("tool/pose", stamp, msg.header.frame_id, self.tool.pose_stamp):
+        self._take_pose("tool/pose", stamp, msg.header.frame_id, (p.x, p.y, p.z), (o.x, o.y, o.z, o.w))
+
+    def _on_tool_transform(self, parent: str, stamp: tuple[int, int], translation: tuple[float, float, float],
+                           rotation: tuple[float, float, float, float]) -> None:
+        """A /tf transform of ``tool_frame``: the tool's pose in ``parent``."""
+        self._take_pose(f"/tf {parent} -> {self._values['tool_frame']}", stamp, parent, translation, rotation)
+
+    def _take_pose(self, topic: str, stamp: tuple[int, int], frame: str, position: tuple[float, float, float],
+                   quaternion: tuple[float, float, float, float]) -> None:
+        """Check a finite tool pose, take it into the plane, and use it (lock-step: step with it)."""
+        if not self._check_header(topic, stamp, frame, self.tool.pose_stamp):
             return
-        if not self._check_jump(p.x, p.y):
+        x, y = position[0], position[1]
+        if frame != self.frame_id:
+            try:
+                x, y, quaternion = self.frames.pose_to_plane(frame, stamp, position, quaternion)
+            except FrameLookupError as exc:
+                self._drop("frame", f"{topic} in frame '{frame}': {exc}")
+                return
+        yaw = yaw_from_quaternion(*quaternion)
+        if yaw is None:
+            self._drop("nonfinite", f"{topic}: its orientation is not a rotation in '{self.frame_id}'")
             return
-        self.tool.pose = ToolPose(p.x, p.y, yaw)
+        if not self._check_jump(x, y):
+            return
+        self.tool.pose = ToolPose(x, y, yaw)
         self.tool.pose_stamp = stamp
-        self.tool.quaternion = (o.x, o.y, o.z, o.w)
+        self.tool.quaternion = quaternion
         if self._values["lock_step"] and not self.paused:
             twist = self.tool.twist if (self._values["twist_source"] == "auto" and stamp != (0, 0)
                                         and self.tool.twist_stamp == stamp) else None
@@ -331,7 +356,14 @@ class TissueSimNode(Node):
         stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
         if not self._check_header("tool/twist", stamp, msg.header.frame_id, self.tool.twist_stamp):
             return
-        self.tool.twist = ToolTwist(v.x, v.y, w.z)
+        vx, vy, wz = v.x, v.y, w.z
+        if msg.header.frame_id != self.frame_id:
+            try:
+                vx, vy, wz = self.frames.twist_to_plane(msg.header.frame_id, stamp, (v.x, v.y, v.z), (w.x, w.y, w.z))
+            except FrameLookupError as exc:
+                self._drop("frame", f"tool/twist in frame '{msg.header.frame_id}': {exc}")
+                return
+        self.tool.twist = ToolTwist(vx, vy, wz)
         self.tool.twist_stamp = stamp
         self.tool.twist_received = self.get_clock().now().nanoseconds * 1e-9
 
@@ -434,8 +466,9 @@ class TissueSimNode(Node):
                      "pub_diagnostics", "pub_applied_pose", "pub_applied_twist"):
             setattr(self, name, self.recorder.wrap(getattr(self, name)))
         self.pub_energy_terms = {k: self.recorder.wrap(p) for k, p in self.pub_energy_terms.items()}
-        for sub in (self.sub_pose, self.sub_twist):
+        for sub in (self.sub_pose, self.sub_twist, *self.frames.subs):
             self.recorder.add(sub.topic_name, sub.msg_type, sub.qos_profile)
+        self.frames.record = self.recorder.write
         self.get_logger().info(f"recording every message in and out to {path} ({storage})")
 
     def destroy_node(self) -> None:
