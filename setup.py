@@ -32,11 +32,12 @@ setup(
     # mapping it into the package makes it importable data after `pip install .`
     # while ament's share/ copy (data_files) serves `ros2 launch` users.
     package_dir={f"{package_name}.config": "config"},
-    package_data={f"{package_name}.config": ["*.yaml", "*.png", "*.rviz", "*.xml"]},
+    package_data={f"{package_name}.config": ["*.yaml", "*.png", "*.rviz", "*.xml", "*.json"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{package_name}"]),
         (f"share/{package_name}", ["package.xml"]),
-        (f"share/{package_name}/config", glob("config/*.yaml") + glob("config/*.png") + glob("config/*.rviz")),
+        (f"share/{package_name}/config", glob("config/*.yaml") + glob("config/*.png") + glob("config/*.rviz")
+                                                 + glob("config/*.json")),
         (f"share/{package_name}/launch", glob("launch/*.py")),
         (f"share/{package_name}/msg_docs", glob("msg_docs/*.md")),
     ],

@@ -52,6 +52,8 @@ SCENE = {
     "diagnostics_rate": 10.0,
     "max_tool_jump": 0.05,
     "max_stamp_age": 0.5,
+    # the play test publishes /clock on the shared graph: only its own node follows it
+    "follow_clock": False,
 }
 
 
@@ -732,3 +734,43 @@ def test_poses_in_other_frames_are_projected_onto_the_placed_plane(ros_client: R
     ros_client.spin_until(lambda: len(applied.messages) > n, TIMEOUT, proc, "the step of the /tf tool")
     _, _, p2, _ = M.decode_pose_stamped(applied.messages[-1])
     np.testing.assert_allclose(p2[:2], (x2, y2), atol=1e-12)
+
+
+def test_play_into_a_node_started_plainly_moves_the_tool(ros_client: RosClient, start_process: Any,
+                                                         scene_files: dict[str, Any], tmp_path: Path) -> None:
+    """`tissue-sim play BAG` (no options) into a timer-mode node without use_sim_time: the node follows the played
+    /clock, takes every recorded pose (none stale), steps on the bag's time, and returns to the system clock after."""
+    import time as _time  # noqa: PLC0415
+
+    from bag_fixtures import tool_msg, write_bag  # noqa: PLC0415
+
+    ty = "geometry_msgs/msg/PoseStamped"
+    t0 = 1_700_000_000_000_000_000  # Nov 2023: years before the node's system clock
+    xs = np.linspace(0.1, 0.3, 60)
+    bag = write_bag(tmp_path / "old", [("/tool/pose", ty, t0 + k * 20_000_000, tool_msg(ty, t0 + k * 20_000_000,
+                                                                                        float(x), -0.1, 0.0))
+                                       for k, x in enumerate(xs)])
+    proc = start_process(["tissue_sim_node", "--ros-args", "-r", "__ns:=/played", "--params-file",
+                          str(scene_files["params"]), "-p", "follow_clock:=true"], name="played")
+    node = Node(proc, ros_client, ns="/played")
+    node.wait_ready()
+    applied = ros_client.raw_subscription(PoseStamped, "/played/tool/applied_pose", BEST_EFFORT)
+    ros_client.wait_for_publisher("/played/tool/applied_pose", TIMEOUT, proc)
+    play = start_process(["tissue-sim", "play", str(bag), "--remap", "/tool/pose:=/played/tool/pose", "--wait", "30"],
+                         name="play")
+    ros_client.spin_until(lambda: play.returncode is not None, 60, None, "play to finish")
+    assert play.wait(timeout=10) == 0, play.output()
+    ros_client.spin_until(lambda: "back to the system clock" in proc.output(), TIMEOUT, proc,
+                          "the node back on the system clock")
+    out = proc.output()
+    assert "following it" in out and "Traceback" not in out
+    assert "dropped" not in out, out[-2000:]
+    decoded = [M.decode_pose_stamped(m) for m in applied.messages]
+    in_bag_time = [(s, p) for s, _, p, _ in decoded if t0 <= s[0] * 1_000_000_000 + s[1] <= t0 + 3_000_000_000]
+    assert len(in_bag_time) >= 50  # stepped on the bag's clock while it played
+    assert in_bag_time[-1][1][0] == xs[-1]  # and the tool followed the recorded poses to the end
+    # back on the system clock: it steps at the wall time again (the tool held where the bag left it)
+    applied.clear()
+    ros_client.spin_until(lambda: applied.messages, TIMEOUT, proc, "steps on the system clock")
+    s, _, p, _ = M.decode_pose_stamped(applied.messages[-1])
+    assert abs(s[0] + s[1] * 1e-9 - _time.time()) < 5.0 and p[0] == xs[-1]

@@ -227,6 +227,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("tf_tolerance", float, 0.05, "s", "A tool input stamped up to this long after the newest transform of its chain uses that transform; later ones are dropped (no extrapolation).", False, "node", _non_negative),
     ParamSpec("lock_step", bool, False, "", "true: one step per received tool pose (exact replay), no timer; false: a timer at 1/dt.", True, "node"),
     ParamSpec("paused", bool, False, "", "true: no steps (also set by the ~/pause service).", False, "node"),
+    ParamSpec("follow_clock", bool, True, "", "Timer mode without use_sim_time: while a /clock publisher exists (tissue-sim play publishes the bag's time), use it (use_sim_time on); back to the system clock 1 s after it goes.", True, "node"),
     ParamSpec("marker_rate", float, 30.0, "Hz", "Rate of tissue/markers, a display rate (RViz redraws at ~30 Hz); capped at 1/dt (every round(1/(dt*rate)) steps). Encoded and published off the step thread, newest state only.", False, "node", _positive),
     ParamSpec("points_rate", float, 100.0, "Hz", "Rate of tissue/points; capped at 1/dt (default: every step).", False, "node", _positive),
     ParamSpec("diagnostics_rate", float, 1.0, "Hz", "Rate of /diagnostics.", False, "node", _positive),

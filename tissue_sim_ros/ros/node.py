@@ -48,6 +48,7 @@ from ..core.frames import FrameLookupError
 from ..core.simulation import Simulation, StepReport
 from ..core.tool import ToolPose, ToolTwist, yaw_from_quaternion
 from . import messages, qos, tool_applied
+from .clock_follow import ClockFollower
 from .marker_publisher import MarkerPublisher, MarkerSnapshot
 from .node_recording import NodeRecorder
 from .parameters import BY_NAME, PARAMETERS, SIM_NAMES, descriptor, parameter_value
@@ -156,6 +157,9 @@ class TissueSimNode(Node):
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         self.step_timer = None if lock_step else self.create_timer(self.sim.params.dt, self._on_tick)
+        self.clock_follower = (ClockFollower(self, self._on_clock_switch)
+                               if not lock_step and self._values["follow_clock"]
+                               and not self.get_parameter("use_sim_time").value else None)
         self.diagnostics_timer = self.create_timer(1.0 / self._values["diagnostics_rate"], self._publish_diagnostics)
         self.add_pre_set_parameters_callback(self._expand_alias)
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -286,9 +290,11 @@ class TissueSimNode(Node):
         if stamp == (0, 0):
             return True  # unstamped: no order or age to check
         max_age, max_future = self._values["max_stamp_age"], self._values["max_stamp_future"]
-        if not self._values["lock_step"] and (max_age > 0 or max_future > 0):
-            age = (self.get_clock().now() - Time(seconds=stamp[0], nanoseconds=stamp[1],
-                                                 clock_type=self.get_clock().clock_type)).nanoseconds * 1e-9
+        now = self.get_clock().now()
+        # a sim-time clock that has not received /clock yet reads 0: nothing to measure an age against
+        if not self._values["lock_step"] and (max_age > 0 or max_future > 0) and now.nanoseconds > 0:
+            age = (now - Time(seconds=stamp[0], nanoseconds=stamp[1],
+                              clock_type=self.get_clock().clock_type)).nanoseconds * 1e-9
             if max_age > 0 and age > max_age:
                 self._drop("stale", f"{topic} is {age:.3f} s old (max_stamp_age {max_age} s)")
                 return False
@@ -366,6 +372,15 @@ class TissueSimNode(Node):
         self.tool.twist = ToolTwist(vx, vy, wz)
         self.tool.twist_stamp = stamp
         self.tool.twist_received = self.get_clock().now().nanoseconds * 1e-9
+
+    def _on_clock_switch(self, following: bool) -> None:
+        """The node's clock changed between /clock and the system clock: forget the input stamps."""
+        self.tool.pose_stamp = self.tool.twist_stamp = (0, 0)
+        self.tool.twist_received = -math.inf
+        self._last_tick = None
+        self.get_logger().info(
+            "a /clock is published: following it (use_sim_time on) while it lasts (follow_clock: false keeps the "
+            "system clock)" if following else "no /clock publisher any more: back to the system clock")
 
     def _check_jump(self, x: float, y: float) -> bool:
         """False (and counted) when a pose lies farther than max_tool_jump from the tool's last accepted pose.
