@@ -19,6 +19,9 @@ $(STAMP): setup.py package.xml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV) || { echo "could not create a venv: on Debian/Ubuntu run 'apt-get install python3-venv'"; exit 1; }
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[ros,test]'
+	@# tf2_msgs (for /tf input and the plane's /tf_static) has no wheel: generate it where cmake and a
+	@# compiler exist; the node runs without it (README, "Frames")
+	-@sh scripts/build_tf2_msgs.sh $(VENV)
 	@touch $@
 
 venv: $(STAMP)

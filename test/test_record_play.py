@@ -264,3 +264,35 @@ def test_recorder_follows_a_best_effort_tool_publisher(tmp_path, ros_client, sta
         ros_client.node.destroy_publisher(pub)
     assert rec.stop(signal.SIGINT, timeout=20) == 0, _text(rec)
     assert _payloads(out, "/tool/pose") == sent
+
+
+def test_tool_only_on_tf_played_into_the_node_equals_the_offline_replay(tmp_path, ros_client, start_process):
+    """A robot's bag with the tool only on /tf (tool_tip among other links): played into a lock-step node with
+    tool_frame, it gives the energy series of `replay --tool-topic /tf --frame tool_tip`, to the bit."""
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64
+
+    from tissue_sim_ros.ros import tf_input
+
+    if not tf_input.TF_AVAILABLE:
+        pytest.skip("tf2_msgs is not importable here (scripts/build_tf2_msgs.sh generates it)")
+    src, _, _ = tool_bag(tmp_path / "in", msgtype="tf2_msgs/msg/TFMessage", topic="/tf", n=40, rate_hz=37.0)
+    # the tool's poses are in base_link, the TF parent: the plane's frame here, as offline
+    params = write_params(tmp_path, frame_id="base_link", tool_frame="tool_tip", lock_step=True)
+    offline = replay(build_simulation(small_params(tmp_path)), read_tool_track(src, topic="/tf", frame="tool_tip"),
+                     progress=False)
+    assert offline.rollout.in_contact.any()
+    energy = ros_client.raw_subscription(Float64, "/tissue/energy", QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+    node = start_process(["tissue_sim_node", "--ros-args", "--params-file", str(params)],
+                         name="node")
+    ros_client.wait_for_publisher("/tissue/energy", timeout=120, process=node)
+    ros_client.spin_until(lambda: energy.sub.get_publisher_count() > 0, 30, node, "matching /tissue/energy")
+    play = start_process(["tissue-sim", "play", str(src), "--topics", "/tf", "--no-clock", "--wait", "30"],
+                         name="play")
+    ros_client.spin_until(lambda: len(energy.messages) >= 40, 180, node, "40 energy messages from the node")
+    assert play.wait(timeout=30) == 0, _text(play)
+    ros_client.spin_for(0.3)
+    live = np.array([m.decode_float64(raw) for raw in energy.messages])
+    assert live.shape == (40,), f"{len(live)} energy messages for 40 tool transforms"
+    np.testing.assert_array_equal(live, offline.rollout.scene_total)

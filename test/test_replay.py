@@ -209,6 +209,33 @@ def test_twist_with_another_stamp_is_not_used_per_message(tmp_path):
     np.testing.assert_array_equal(result.rollout.scene_total, _direct_energy(params, np.array(poses)))
 
 
+def test_twist_received_after_its_pose_is_not_used_per_message(tmp_path):
+    """As the node in lock-step, which steps when the pose arrives: a twist with the pose's stamp counts only if it
+    was received (bag time) no later than the pose; one after it is too late. Before: used; after: derived."""
+    from bag_fixtures import twist_msg
+
+    ty = "geometry_msgs/msg/PoseStamped"
+    msgs = []
+    poses, twists = [], []
+    for i in range(15):
+        t = 1_000_000_000 + i * 20_000_000
+        x, y = -0.3 + 0.012 * i, 0.15
+        poses.append((x, y, 0.0))
+        early = i % 2 == 0  # even samples: the twist comes first; odd: it comes 1 ms after its pose
+        twists.append((0.6, 0.0, 0.0) if early else (np.nan, np.nan, np.nan))
+        twist = ("/tool/twist", "geometry_msgs/msg/TwistStamped", t + (0 if early else 1_000_000),
+                 twist_msg(t, 0.6, 0, 0))
+        pose = ("/tool/pose", ty, t, tool_msg(ty, t, x, y, 0.0))
+        msgs += [twist, pose] if early else [pose, twist]
+    path = write_bag(tmp_path / "in", msgs)
+    params = small_params(tmp_path)
+    track = read_tool_track(path, twist_topic="/tool/twist", time_source="header")
+    _, _, used = schedule(track, 0.01, "per-message")
+    np.testing.assert_array_equal(np.isfinite(used[:, 0]), np.arange(15) % 2 == 0)
+    result = replay(build_simulation(params), track, progress=False)
+    np.testing.assert_array_equal(result.rollout.scene_total, _direct_energy(params, np.array(poses), np.array(twists)))
+
+
 def test_replay_points_carry_signed_strain(tmp_path):
     """tissue/points' strain field is signed in replay as in the node (msg_docs/topics.md): compression < 0."""
     from tissue_sim_ros.core.strain import vertex_strain

@@ -9,11 +9,14 @@ others. ``--remap FROM:=TO`` publishes a bag topic under another name (a
 robot's ``/ee_pose`` as the node's ``/tool/pose``).
 
 Timing: message i goes out at start + (t_i - t_0) / rate of the bag's receive
-times; ``--rate 2`` plays twice as fast. ``--loop`` repeats. ``--clock``
+times; ``--rate 2`` plays twice as fast. ``--loop`` repeats. By default play
 publishes ``/clock`` (rosgraph_msgs/Clock) at ``--clock-rate`` Hz with the bag
-time (continuing across loops), so nodes with ``use_sim_time:=true`` follow
-the bag. Before starting, play waits up to ``--wait`` seconds for every played
-topic (and ``/clock``) to have a subscriber, so the first messages are not lost.
+time (continuing across loops; ``--no-clock``: none), so the recorded stamps
+are current on that clock: ``tissue_sim_node`` follows it by itself
+(parameter ``follow_clock``), other nodes with ``use_sim_time:=true``. Before
+starting, play waits up to ``--wait`` seconds for every played topic to have
+``--min-subscribers`` subscribers, then up to 2 s more for a ``/clock``
+subscriber, so the first messages are not lost.
 """
 from __future__ import annotations
 
@@ -32,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--remap", nargs="+", default=[], metavar="FROM:=TO", help="publish bag topic FROM as TO")
     parser.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
     parser.add_argument("--loop", action="store_true", help="play again from the start at the end")
-    parser.add_argument("--clock", action="store_true", help="publish /clock with the bag time")
+    parser.add_argument("--clock", action=argparse.BooleanOptionalAction, default=True,
+                        help="publish /clock with the bag time (default; the node follows it): --no-clock for none")
     parser.add_argument("--clock-rate", type=float, default=100.0, help="/clock messages per second (default 100)")
     parser.add_argument("--wait", type=float, default=5.0,
                         help="seconds to wait for subscribers on the played topics before starting (default 5)")

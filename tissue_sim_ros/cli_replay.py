@@ -11,14 +11,19 @@ machine allows, and writes into ``--out``:
 * ``energy.png``: the energy plot; ``frames/frame_NNNNN.png`` every k steps;
 * ``replay.mp4`` (or ``.gif``) with ``--video`` (needs the ``video`` extra).
 
-Two modes, chosen with ``--mode``:
+Three modes, chosen with ``--mode``:
 
 ``per-message`` (default)
     one step of dt per tool message, with that message's pose: exactly what
     the node does in lock-step, so the two give the same energy series;
 ``fixed-rate``
     steps at the simulation rate 1/dt over the bag's time span, the pose
-    linearly interpolated (yaw the short way round) at each step's time.
+    linearly interpolated (yaw the short way round) at each step's time;
+``applied``
+    a bag the node recorded itself (``record_path``): one step per message on
+    ``tool/applied_twist`` with the pose of ``tool/applied_pose`` of the same
+    stamp (no tool where there is none) and that very twist, i.e. exactly
+    what the node stepped with, so a timer-mode run is reproduced bit for bit.
 
 Instead of a bag, ``--trajectory PRESET|FILE`` replays a trajectory given as
 data (:mod:`tissue_sim_ros.core.trajectories`: a preset such as ``authors``, or
@@ -44,7 +49,15 @@ from .core.stamps import ns_from_seconds
 from .core.tool import ToolPose
 from .core.trajectories import resolve_trajectory
 from .ros.bags import BagWriter, ToolTrack, read_tool_track
-from .ros.replay import MODES, ReplayBagSink, ReplayResult, replay, track_from_trajectory, write_outputs
+from .ros.replay import (
+    MODES,
+    ReplayBagSink,
+    ReplayResult,
+    replay,
+    replay_steps,
+    track_from_trajectory,
+    write_outputs,
+)
 
 HELP = "run the simulation offline on a bag's tool trajectory; write a bag, CSV, plots, frames"
 DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP
@@ -64,8 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="TwistStamped/Twist topic of the tool velocity (default: derived from poses)")
     add_config_arguments(parser)
     parser.add_argument("--mode", choices=MODES, default="per-message",
-                        help="one step per tool message (default, = node lock-step), or steps at 1/dt with "
-                             "the pose interpolated")
+                        help="one step per tool message (default, = node lock-step), steps at 1/dt with "
+                             "the pose interpolated, or applied: the node's own recording (tool/applied_*) "
+                             "stepped exactly as the node did (bit for bit)")
     parser.add_argument("--time-source", choices=("header", "bag"), default="header",
                         help="sample times from header stamps (default) or bag receive times")
     parser.add_argument("--strict", action="store_true",
@@ -102,6 +116,10 @@ def run(args: argparse.Namespace) -> int:
     if bag_out.exists():
         raise InputError(f"{str(bag_out)!r} exists already: choose another --out (nothing is overwritten)")
 
+    if args.mode == "applied":
+        if args.bag is None:
+            raise InputError("--mode applied replays the node's own recording: expected a bag")
+        return _run_applied(args, out, bag_out)
     if (args.bag is None) == (args.trajectory is None):
         raise InputError("replay needs a bag or --trajectory PRESET|FILE: expected exactly one of them")
     cfg = config_from_args(args)
@@ -156,6 +174,60 @@ def run(args: argparse.Namespace) -> int:
     source = Path(args.bag).name if args.bag else f"trajectory {Path(args.trajectory).name}"
     write_outputs(out, sim, result, video=args.video, title=f"replay of {source} ({args.mode})")
     _write_summary(out / "replay.json", args, track, sim, result)
+    print(f"wrote {out}/energy.csv, energy.png, replay.json, frames/ ({len(result.rollout.snapshots)} PNG)"
+          + (", replay_bag/" if writer is not None else "") + (", replay.mp4" if args.video else ""))
+    return 0
+
+
+def _run_applied(args: argparse.Namespace, out: Path, bag_out: Path) -> int:
+    """``--mode applied``: the node's own recording, stepped with exactly what the node stepped with."""
+    import json  # noqa: PLC0415
+
+    from .core.config import resolve_config  # noqa: PLC0415
+    from .ros.bags import Bag  # noqa: PLC0415
+    from .ros.tool_applied import read_applied_steps  # noqa: PLC0415
+
+    steps = read_applied_steps(args.bag)
+    print(f"{steps.n} steps from {steps.twist_topic} ({sum(p is not None for p in steps.poses)} with a tool), "
+          f"{(steps.t_ns[-1] - steps.t_ns[0]) * 1e-9:.3f} s")
+    if args.params or getattr(args, "set", None):
+        cfg = config_from_args(args)
+    else:
+        bag = Bag(args.bag)
+        try:
+            recorded = bag.custom_data.get("tissue_sim.params")
+        finally:
+            bag.close()
+        if recorded is None:
+            raise InputError(f"bag {str(args.bag)!r} does not hold the node's parameters (custom_data "
+                             "tissue_sim.params): give the node's parameters with --params")
+        cfg = resolve_config(overrides=json.loads(recorded), source=f"the parameters recorded in {args.bag}")
+        print("parameters: the node's own, from the bag's metadata")
+    sim = Simulation.from_config(cfg)
+    warm = Simulation.from_config(cfg, mesh=sim.model.mesh)
+    warm.step(next((p for p in steps.poses if p is not None), None))
+    frame_every = args.frame_every if args.frame_every > 0 else (0 if args.frame_every < 0 else max(1, -(-steps.n // 40)))
+    out.mkdir(parents=True, exist_ok=True)
+    writer = None if args.no_bag else BagWriter(bag_out, args.storage)
+    try:
+        if writer is not None:
+            writer.set_custom_data("tissue_sim.source_bag", str(args.bag))
+            writer.set_custom_data("tissue_sim.mode", args.mode)
+        sink = ReplayBagSink(writer, sim, points_every=args.points_every) if writer is not None else None
+        result = replay_steps(sim, steps.t_ns, steps.items(), sink=sink, snapshot_every=frame_every,
+                              progress=not args.no_progress)
+    finally:
+        if writer is not None:
+            writer.close()
+    print(result.speed_line())
+    write_outputs(out, sim, result, video=args.video, title=f"replay of {Path(args.bag).name} (applied)")
+    (out / "replay.json").write_text(json.dumps({
+        "bag": str(args.bag), "mode": args.mode, "params": cfg.flat(),
+        "steps": result.n_steps, "steps_with_tool": sum(p is not None for p in steps.poses),
+        "particles": sim.model.n_particles, "triangles": sim.model.n_triangles, "dt": sim.params.dt,
+        "wall_s": result.wall_time, "real_time_factor": result.real_time_factor,
+        "energy_final": float(result.rollout.scene_total[-1]) if result.rollout.steps.size else None,
+    }, indent=2) + "\n")
     print(f"wrote {out}/energy.csv, energy.png, replay.json, frames/ ({len(result.rollout.snapshots)} PNG)"
           + (", replay_bag/" if writer is not None else "") + (", replay.mp4" if args.video else ""))
     return 0

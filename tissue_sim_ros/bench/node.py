@@ -5,9 +5,11 @@ and the same image meshed to ~5,000 triangles) the benchmark starts
 ``tissue_sim_node`` as a separate process on a private ROS domain (localhost
 discovery), publishes tool poses at 1/dt from this process - the paper's box
 tool in the gap between the two tissues, pushing the lower one down 4 cm and
-back every 3 s - and listens to ``tissue/markers`` and ``tissue/points`` (raw
-CDR bytes) and ``/diagnostics``. Markers and points are published at the full
-rate (every step) with the wireframe on.
+back every 3 s - and listens to ``tissue/points``, ``tool/applied_pose``,
+``tissue/markers`` (raw CDR bytes) and ``/diagnostics``. Points, energy and
+wrench go out every step; markers (wireframe on) at the node's ``marker_rate``
+(default 30 Hz, encoded and published off the step thread; ``--marker-rate``
+changes it, e.g. 100 to see what markers at every step cost).
 
 Measured, over ``--seconds`` after a warm-up:
 
@@ -15,15 +17,23 @@ Measured, over ``--seconds`` after a warm-up:
 * missed deadlines: steps whose work took longer than dt (``overruns``) plus
   timer ticks skipped (``missed_ticks``), over the ticks due;
 * step time: mean and max wall time of step + encoding + publishing (node side);
-* latency pose -> mesh: each pose is stamped with its send time; the tool
-  marker in ``tissue/markers`` carries the stamp of the pose its step used, so
-  latency = arrival of the first MarkerArray (and of the PointCloud2 of the
-  same step) showing that pose - the pose's stamp. Poses overwritten before a
-  step used them are counted separately (the node uses only the newest).
+* latency pose -> points: each pose is stamped with its send time and carries
+  its sequence number in the last digits of x (1e-9 m apart: nothing the
+  physics notices); ``tool/applied_pose`` tells which pose each step used, in
+  the step's stamp, and the ``tissue/points`` of that stamp's arrival - the
+  pose's send time is the latency. The tool marker in ``tissue/markers``
+  carries the stamp of the pose its step used, so the markers' latency is
+  measured likewise. Poses overwritten before a step used them are not shown
+  (the node uses only the newest).
 
-Targets (issue 5): 100 Hz held with markers at the full rate, < 1 % missed
-deadlines, latency < one period + 2 ms. Writes ``node.csv`` (one row per
+Targets (issues 5, 13): 100 Hz held, < 1 % missed deadlines, pose -> points
+latency (median; the 95th percentile is reported too) < one period + 2 ms. Writes ``node.csv`` (one row per
 scene), ``node_latency_<scene>.csv`` (every pose), ``node.png`` and prints a table.
+
+``--soak SECONDS``: one long timer-mode run of one scene (default 5k) with
+markers, sampling the node's resident memory (``/proc/PID/status`` VmRSS) and
+its counters every few seconds; reports RSS growth from the end of the warm-up
+and the overruns, writes ``node_soak.csv`` and ``node_soak.png``.
 """
 from __future__ import annotations
 
@@ -81,6 +91,10 @@ class SceneResult:
     markers_received: int = 0
     points_received: int = 0
     divergences: int = 0
+    markers_skipped: int = 0
+    marker_rate: float = 0.0
+    marker_ms_mean: float = 0.0
+    soak: list[dict[str, Any]] = field(default_factory=list)
 
     def row(self, dt: float) -> dict[str, Any]:
         lm = np.array(self.latency_markers_ms) if self.latency_markers_ms else np.array([math.nan])
@@ -94,7 +108,10 @@ class SceneResult:
             "missed_pct": round(100 * self.missed_fraction, 3),
             "step_ms_mean": round(self.step_time_mean_ms, 3), "step_ms_max": round(self.step_time_max_ms, 3),
             "sim_ms_mean": round(self.sim_step_ms_mean, 3),
+            "marker_rate": self.marker_rate,
             "markers_hz": round(self.markers_received / max(self.seconds, 1e-9), 2),
+            "markers_skipped": self.markers_skipped,
+            "marker_ms_mean": round(self.marker_ms_mean, 3),
             "lat_markers_ms_median": round(float(np.median(lm)), 3),
             "lat_markers_ms_p95": round(float(np.percentile(lm, 95)), 3),
             "lat_markers_ms_max": round(float(np.max(lm)), 3),
@@ -103,7 +120,7 @@ class SceneResult:
             "latency_budget_ms": round(budget, 3),
             "poses_sent": self.poses_sent, "poses_shown": self.poses_shown, "divergences": self.divergences,
             "rate_ok": self.rate_hz >= 0.99 / dt, "missed_ok": self.missed_fraction < 0.01,
-            "latency_ok": float(np.percentile(lm, 95)) < budget,
+            "latency_ok": float(np.median(lp)) < budget,
         }
 
 
@@ -131,9 +148,28 @@ def _tool_y(t: float) -> float:
     return 0.43 + 0.07 * math.cos(2.0 * math.pi * t / 3.0)
 
 
+def _rss_kib(pid: int) -> int:
+    """Resident set size of a process [KiB] (Linux /proc)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    raise InputError(f"no VmRSS for process {pid}")
+
+
+#: Seconds between memory samples of a soak.
+SOAK_SAMPLE_PERIOD = 5.0
+
+SEQ_STEP = 1e-9
+"""x offset per pose sequence number [m]: identifies the pose in tool/applied_pose."""
+
+
 def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: float, out: Path,
-                domain_id: int, mode: str = "timer", discovery_timeout: float = 30.0) -> SceneResult:
-    """Run one scene: node process + driving client; return the measurements."""
+                domain_id: int, mode: str = "timer", discovery_timeout: float = 30.0,
+                marker_rate: float | None = None, soak: bool = False) -> SceneResult:
+    """Run one scene: node process + driving client; return the measurements.
+
+    ``soak``: sample the node's RSS and counters every SOAK_SAMPLE_PERIOD s into ``node_soak.csv``.
+    """
     import rclpy  # noqa: PLC0415
     from diagnostic_msgs.msg import DiagnosticArray  # noqa: PLC0415
     from geometry_msgs.msg import PoseStamped  # noqa: PLC0415
@@ -146,9 +182,10 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
     from ..core.config import resolve_config  # noqa: PLC0415
     from ..ros import messages, qos  # noqa: PLC0415
 
-    params = resolve_config({**overrides, "marker_rate": 1000.0, "points_rate": 1000.0,
+    extra = {"marker_rate": marker_rate} if marker_rate is not None else {}
+    params = resolve_config({**overrides, "points_rate": 1000.0,
                              "markers_wireframe": True, "diagnostics_rate": 1.0, "max_tool_jump": 1.0,
-                             "lock_step": mode == "lock_step"}, source="bench node").flat()
+                             "lock_step": mode == "lock_step", **extra}, source="bench node").flat()
     dt = float(params["dt"])
     tag = f"{name}_{mode}"
     params_file = out / f"node_{tag}.yaml"
@@ -167,9 +204,12 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
     executor.add_node(node)
     markers: list[tuple[float, tuple[int, int], tuple[int, int], int]] = []
     points: list[tuple[float, tuple[int, int]]] = []
+    applied: list[tuple[tuple[int, int], float]] = []
+    soak_rows: list[dict[str, Any]] = []
     diagnostics: list[dict[str, str]] = []
     sent: list[tuple[int, int]] = []
     sizes = {"markers": 0, "points": 0}
+    counts = {"markers": 0, "points": 0}
     measuring = {"on": False}
 
     def on_markers(data: bytes) -> None:
@@ -177,6 +217,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         sizes["markers"] = len(data)
         if not measuring["on"]:
             return
+        counts["markers"] += 1
         r = messages.CdrReader(data)
         r.u32()
         tool = messages._read_marker(r)  # the tool marker comes first; small
@@ -187,7 +228,13 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         arrival = time.time()
         sizes["points"] = len(data)
         if measuring["on"]:
+            counts["points"] += 1
             points.append((arrival, struct.unpack_from("<iI", data, 4)))
+
+    def on_applied(data: bytes) -> None:
+        if measuring["on"]:
+            step_stamp, _, position, _ = messages.decode_pose_stamped(data)
+            applied.append((step_stamp, float(position[0])))
 
     def on_diag(msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -198,17 +245,24 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
     reader_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
     node.create_subscription(MarkerArray, "tissue/markers", on_markers, reader_qos, raw=True)
     node.create_subscription(PointCloud2, "tissue/points", on_points, reader_qos, raw=True)
+    node.create_subscription(PoseStamped, "tool/applied_pose", on_applied, reader_qos, raw=True)
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, qos.diagnostics())
     pose_pub = node.create_publisher(PoseStamped, "tool/pose", qos.tool_output())
     t_start = {"t": 0.0}
+
+    seq = {"k": 0}
+    by_x: dict[float, tuple[int, int]] = {}
 
     def publish_pose() -> None:
         now_ns = time.time_ns()
         stamp = stamp_from_ns(now_ns)
         y = _tool_y(time.monotonic() - t_start["t"])
-        pose_pub.publish(messages.encode_pose_stamped(stamp, params.get("frame_id", "world"), 0.5, y, 0.0))
+        seq["k"] = (seq["k"] + 1) % 100_000
+        x = 0.5 + SEQ_STEP * seq["k"]
+        pose_pub.publish(messages.encode_pose_stamped(stamp, params.get("frame_id", "world"), x, y, 0.0))
         if measuring["on"]:
             sent.append(stamp)
+            by_x[x] = stamp
 
     def spin_until(predicate: Any, timeout: float, what: str) -> None:
         end = time.monotonic() + timeout
@@ -237,17 +291,39 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         end = t0 + seconds
         from tqdm import tqdm  # noqa: PLC0415
 
+        next_sample = t0
         with tqdm(total=int(seconds), desc=f"bench node {tag}", unit="s", leave=False) as bar:
             last = t0
             while time.monotonic() < end:
                 executor.spin_once(timeout_sec=0.01)
-                if time.monotonic() - last >= 1.0:
+                now = time.monotonic()
+                if now - last >= 1.0:
                     bar.update(1)
                     last += 1.0
+                if soak and now >= next_sample and diagnostics:
+                    d = diagnostics[-1]
+                    soak_rows.append({"t_s": round(now - t0, 2), "rss_kib": _rss_kib(proc.pid),
+                                      "steps": int(d["steps"]) - int(d0["steps"]),
+                                      "overruns": int(d["overruns"]) - int(d0["overruns"]),
+                                      "missed_ticks": int(d["missed_ticks"]) - int(d0["missed_ticks"]),
+                                      "markers_published": int(d.get("markers_published", 0))})
+                    next_sample += SOAK_SAMPLE_PERIOD
+                if soak:  # keep the collected series small over an hour: only counts are needed
+                    markers.clear()
+                    points.clear()
+                    applied.clear()
+                    sent.clear()
+                    by_x.clear()
         measuring["on"] = False
         diagnostics.clear()
         spin_until(lambda: diagnostics, 5.0, "diagnostics")
         d1, t1 = diagnostics[-1], time.monotonic()
+        if soak:
+            soak_rows.append({"t_s": round(t1 - t0, 2), "rss_kib": _rss_kib(proc.pid),
+                              "steps": int(d1["steps"]) - int(d0["steps"]),
+                              "overruns": int(d1["overruns"]) - int(d0["overruns"]),
+                              "missed_ticks": int(d1["missed_ticks"]) - int(d0["missed_ticks"]),
+                              "markers_published": int(d1.get("markers_published", 0))})
     finally:
         executor.shutdown()
         node.destroy_node()
@@ -268,11 +344,15 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
     result.missed_ticks = int(d1["missed_ticks"]) - int(d0["missed_ticks"])
     result.missed_fraction = (result.overruns + result.missed_ticks) / max(result.steps + result.missed_ticks, 1)
     result.divergences = int(d1["divergences"]) - int(d0["divergences"])
+    result.markers_skipped = int(d1.get("markers_skipped", 0)) - int(d0.get("markers_skipped", 0))
+    result.marker_rate = float(params["marker_rate"])
+    result.marker_ms_mean = float(d1.get("marker_encode_ms_mean", "nan"))
+    result.soak = soak_rows
     result.step_time_mean_ms = float(d1["step_time_mean_ms"])
     result.sim_step_ms_mean = float(d1["sim_step_ms_mean"])
     result.step_time_max_ms = max(float(d["step_time_max_ms"]) for d in (d1,))
     result.marker_bytes, result.points_bytes = sizes["markers"], sizes["points"]
-    result.markers_received, result.points_received = len(markers), len(points)
+    result.markers_received, result.points_received = counts["markers"], counts["points"]
     result.poses_sent = len(sent)
     # pose stamp -> first arrival of markers showing it; step stamp -> pose stamp
     first_markers: dict[tuple[int, int], float] = {}
@@ -281,6 +361,10 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         if action == messages.ACTION_ADD:
             first_markers.setdefault(tool_stamp, arrival)
             step_to_pose[step_stamp] = tool_stamp
+    # the pose each step used, from tool/applied_pose (x carries the pose's sequence number)
+    for step_stamp, x in applied:
+        if x in by_x:
+            step_to_pose[step_stamp] = by_x[x]
     first_points: dict[tuple[int, int], float] = {}
     for arrival, step_stamp in points:
         pose_stamp = step_to_pose.get(step_stamp)
@@ -298,7 +382,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
                 result.latency_markers_ms.append(lm)
             if stamp in first_points:
                 result.latency_points_ms.append(lp)
-    result.poses_shown = len(result.latency_markers_ms)
+    result.poses_shown = len(result.latency_points_ms)
     info = [line for line in log_path.read_text(errors="replace").splitlines() if "particles," in line]
     if info:
         words = info[0].split("]: ")[-1].split()
@@ -315,17 +399,18 @@ def _plot(results: list[SceneResult], dt: float, path: Path) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
     ax = axes[0]
     budget = 1e3 * dt + 2.0
-    hi = max([budget * 1.5] + [float(np.percentile(r.latency_markers_ms, 99)) for r in results if r.latency_markers_ms])
+    hi = max([budget * 1.5] + [float(np.percentile(r.latency_points_ms, 99)) for r in results if r.latency_points_ms])
     bins = np.linspace(0, hi, 60)
     for r in results:
-        if r.latency_markers_ms:
-            ax.hist(np.clip(r.latency_markers_ms, 0, hi), bins=bins, alpha=0.5,
-                    label=f"{r.scene} {r.mode} ({r.triangles} tri): median {np.median(r.latency_markers_ms):.1f} ms")
+        if r.latency_points_ms:
+            ax.hist(np.clip(r.latency_points_ms, 0, hi), bins=bins, alpha=0.5,
+                    label=f"{r.scene} {r.mode} ({r.triangles} tri): median {np.median(r.latency_points_ms):.1f} ms, "
+                          f"p95 {np.percentile(r.latency_points_ms, 95):.1f} ms")
     ax.axvline(budget, color="k", linestyle="--", label=f"target: period + 2 ms = {budget:.0f} ms")
-    ax.set_xlabel("latency tool pose -> tissue/markers [ms]")
+    ax.set_xlabel("latency tool pose -> tissue/points [ms]")
     ax.set_ylabel("poses")
     ax.legend(fontsize=8)
-    ax.set_title("pose-to-mesh latency")
+    ax.set_title("pose-to-points latency")
     ax = axes[1]
     x = np.arange(len(results))
     ax.bar(x - 0.2, [r.rate_hz for r in results], 0.4, label="sustained step rate [Hz]")
@@ -336,7 +421,8 @@ def _plot(results: list[SceneResult], dt: float, path: Path) -> None:
     ax.set_xticks(x, [f"{r.scene} {r.mode}\n{r.triangles} triangles" for r in results])
     ax.set_ylim(0, 1.2 / dt)
     ax.legend(fontsize=8, loc="lower right")
-    ax.set_title("rate with markers + points every step")
+    ax.set_title("rate: points every step, markers at " + ", ".join(sorted({f"{r.marker_rate:g}" for r in results}))
+                 + " Hz")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -351,6 +437,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mode", action="append", choices=MODES,
                         help="timer (1/dt timer, newest pose) or lock_step (one step per pose); repeatable; default both")
     parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID of the private graph (default 1 + pid %% 100)")
+    parser.add_argument("--marker-rate", type=float, default=None,
+                        help="the node's marker_rate [Hz] (default: the node's default, a display rate)")
+    parser.add_argument("--soak", type=float, default=None, metavar="SECONDS",
+                        help="one long timer-mode run instead (scene 5k unless --scene): RSS growth and overruns")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -366,10 +456,15 @@ def run(args: argparse.Namespace) -> int:
     from ..core.config import resolve_config  # noqa: PLC0415
 
     dt = resolve_config().sim.dt
+    if args.marker_rate is not None and not (math.isfinite(args.marker_rate) and args.marker_rate > 0):
+        raise InputError(f"--marker-rate={args.marker_rate}: expected a rate > 0 Hz")
+    if args.soak is not None:
+        return _run_soak(args, out, domain_id)
     results = []
     for name in args.scene or list(SCENES):
         for mode in args.mode or list(MODES):
-            results.append(bench_scene(name, SCENES[name], args.seconds, args.warmup, out, domain_id, mode))
+            results.append(bench_scene(name, SCENES[name], args.seconds, args.warmup, out, domain_id, mode,
+                                       marker_rate=args.marker_rate))
     rows = [r.row(dt) for r in results]
     with open(out / "node.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
@@ -377,8 +472,8 @@ def run(args: argparse.Namespace) -> int:
         writer.writerows(rows)
     _plot(results, dt, out / "node.png")
     cols = [("scene", 6), ("mode", 9), ("particles", 9), ("triangles", 9), ("marker_kB", 9), ("rate_hz", 7), ("target_hz", 9),
-            ("missed_pct", 10), ("step_ms_mean", 12), ("step_ms_max", 11), ("sim_ms_mean", 11), ("markers_hz", 10),
-            ("lat_markers_ms_median", 21), ("lat_markers_ms_p95", 18), ("lat_points_ms_median", 20),
+            ("missed_pct", 10), ("step_ms_mean", 12), ("step_ms_max", 11), ("sim_ms_mean", 11), ("markers_hz", 10), ("marker_ms_mean", 14),
+            ("lat_points_ms_median", 20), ("lat_points_ms_p95", 17), ("lat_markers_ms_median", 21),
             ("latency_budget_ms", 17)]
     print("  ".join(f"{c:>{w}}" for c, w in cols))
     for row in rows:
@@ -388,4 +483,54 @@ def run(args: argparse.Namespace) -> int:
         print(f"{row['scene']} {row['mode']}: {verdict}; {row['poses_shown']}/{row['poses_sent']} poses shown, "
               f"{row['divergences']} divergences")
     print(f"wrote {out / 'node.csv'}, {out / 'node.png'}, node_latency_*.csv")
+    return 0
+
+
+def _run_soak(args: argparse.Namespace, out: Path, domain_id: int) -> int:
+    """``--soak SECONDS``: one long run; RSS samples and counters to node_soak.csv/png and a summary."""
+    if not (math.isfinite(args.soak) and args.soak >= 2 * SOAK_SAMPLE_PERIOD):
+        raise InputError(f"--soak={args.soak}: expected at least {2 * SOAK_SAMPLE_PERIOD:g} s")
+    scenes = args.scene or ["5k"]
+    modes = args.mode or ["timer"]
+    if len(scenes) != 1 or len(modes) != 1:
+        raise InputError("--soak runs one scene in one mode: give at most one --scene and one --mode")
+    r = bench_scene(scenes[0], SCENES[scenes[0]], args.soak, max(args.warmup, 5.0), out, domain_id, modes[0],
+                    marker_rate=args.marker_rate, soak=True)
+    rows = r.soak
+    with open(out / "node_soak.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    rss = np.array([row["rss_kib"] for row in rows], dtype=float) / 1024.0
+    t = np.array([row["t_s"] for row in rows], dtype=float)
+    growth = float(rss[-1] - rss[0])
+    # the trend, robust to one allocation burst: least-squares slope over the run
+    slope = float(np.polyfit(t, rss, 1)[0]) * 3600.0 if len(t) > 2 else math.nan
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ax.plot(t / 60.0, rss, label="node RSS [MiB]")
+    ax.set_xlabel("time since warm-up [min]")
+    ax.set_ylabel("RSS [MiB]")
+    ax2 = ax.twinx()
+    ax2.plot(t / 60.0, [row["overruns"] + row["missed_ticks"] for row in rows], color="tab:red",
+             label="overruns + missed ticks")
+    ax2.set_ylabel("missed deadlines (cumulative)")
+    ax.set_title(f"soak: {r.scene} {r.mode}, {r.triangles} triangles, markers at {r.marker_rate:g} Hz: "
+                 f"RSS {growth:+.2f} MiB")
+    fig.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "node_soak.png", dpi=120)
+    plt.close(fig)
+    print(f"soak {r.scene} {r.mode}: {r.seconds:.0f} s, {r.steps} steps at {r.rate_hz:.2f} Hz, {r.triangles} triangles, "
+          f"markers at {r.marker_rate:g} Hz ({r.markers_received} received, {r.markers_skipped} skipped by the node)")
+    print(f"RSS {rss[0]:.2f} MiB after warm-up -> {rss[-1]:.2f} MiB at the end: growth {growth:+.2f} MiB "
+          f"(max {rss.max():.2f} MiB; trend {slope:+.2f} MiB/h); target < 5 MiB: "
+          f"{'met' if growth < 5.0 else 'MISSED'}")
+    print(f"overruns {r.overruns}, missed ticks {r.missed_ticks} of {r.steps + r.missed_ticks} ticks "
+          f"({100 * r.missed_fraction:.3f} %), divergences {r.divergences}")
+    print(f"wrote {out / 'node_soak.csv'}, {out / 'node_soak.png'}")
     return 0

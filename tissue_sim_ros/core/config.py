@@ -103,6 +103,24 @@ def mesh_file_value(value: Any) -> str | tuple[str, ...]:
     raise InputError(f"parameter mesh_file={value!r}: expected a mesh file path or a list of paths")
 
 
+def _finite(v: Any) -> str | None:
+    return None  # coerce() refuses NaN and inf for every parameter with a check
+
+
+def _frame_or_empty(v: Any) -> str | None:
+    return None if v == "" else _frame(v)
+
+
+def _static_transforms(v: Any) -> str | None:
+    from .frames import parse_static_transforms  # noqa: PLC0415  (frames imports errors only)
+
+    try:
+        parse_static_transforms(v)
+    except InputError as exc:
+        return f"entries 'x y z yaw pitch roll parent child' separated by ';' ({exc})"
+    return None
+
+
 @dataclass(frozen=True)
 class SceneConfig:
     """Where the mesh comes from and how image pixels map to metres (the ``scene`` group)."""
@@ -245,17 +263,29 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("tool_width", float, _TOOL.width, "m", "Full width of a box tool.", True, "tool"),
     ParamSpec("tool_radius", float, _TOOL.radius, "m", "Radius of a capsule or sphere tool.", True, "tool"),
     # the node's own
-    ParamSpec("frame_id", str, "world", "", "The one fixed frame of every message in and out; inputs in another frame are dropped.", False, "node", _frame),
+    ParamSpec("frame_id", str, "world", "", "The simulation plane's frame (tissue in its z = 0 plane): every message out is in it. A tool input in another frame is taken through the known transforms (world_frame and plane_*, static_transforms, /tf, /tf_static) and projected onto the plane; with no transform it is dropped.", False, "node", _frame),
+    ParamSpec("world_frame", str, "", "", "Frame in which plane_x .. plane_yaw place the plane (frame_id); the node broadcasts world_frame -> frame_id on /tf_static where tf2_msgs is installed. Empty = the plane is not placed.", True, "node", _frame_or_empty),
+    ParamSpec("plane_x", float, 0.0, "m", "Plane origin in world_frame: x.", True, "node", _finite),
+    ParamSpec("plane_y", float, 0.0, "m", "Plane origin in world_frame: y.", True, "node", _finite),
+    ParamSpec("plane_z", float, 0.0, "m", "Plane origin in world_frame: z.", True, "node", _finite),
+    ParamSpec("plane_roll", float, 0.0, "rad", "Plane orientation in world_frame: roll about x (R = Rz(yaw) Ry(pitch) Rx(roll), as tf2).", True, "node", _finite),
+    ParamSpec("plane_pitch", float, 0.0, "rad", "Plane orientation in world_frame: pitch about y.", True, "node", _finite),
+    ParamSpec("plane_yaw", float, 0.0, "rad", "Plane orientation in world_frame: yaw about z.", True, "node", _finite),
+    ParamSpec("static_transforms", str, "", "", "Static transforms as static_transform_publisher takes them: 'x y z yaw pitch roll parent child' [m, rad], several separated by ';'. Empty = none.", True, "node", _static_transforms),
+    ParamSpec("tool_frame", str, "", "", "TF frame of the tool: every /tf transform with this child_frame_id is a tool pose (in its parent frame, taken to the plane like tool/pose). Needs tf2_msgs. Empty = off.", True, "node", _frame_or_empty),
+    ParamSpec("tf_tolerance", float, 0.05, "s", "A tool input stamped up to this long after the newest transform of its chain uses that transform; later ones are dropped (no extrapolation).", False, "node", _non_negative),
     ParamSpec("lock_step", bool, False, "", "true: one step per received tool pose (exact replay), no timer; false: a timer at 1/dt.", True, "node"),
     ParamSpec("paused", bool, False, "", "true: no steps (also set by the ~/pause service).", False, "node"),
-    ParamSpec("marker_rate", float, 100.0, "Hz", "Rate of tissue/markers; capped at 1/dt (published every round(1/(dt*rate)) steps).", False, "node", _positive),
-    ParamSpec("points_rate", float, 100.0, "Hz", "Rate of tissue/points; capped at 1/dt.", False, "node", _positive),
+    ParamSpec("follow_clock", bool, True, "", "Timer mode without use_sim_time: while a /clock publisher exists (tissue-sim play publishes the bag's time), use it (use_sim_time on); back to the system clock 1 s after it goes.", True, "node"),
+    ParamSpec("marker_rate", float, 30.0, "Hz", "Rate of tissue/markers, a display rate (RViz redraws at ~30 Hz); capped at 1/dt (every round(1/(dt*rate)) steps). Encoded and published off the step thread, newest state only.", False, "node", _positive),
+    ParamSpec("points_rate", float, 100.0, "Hz", "Rate of tissue/points; capped at 1/dt (default: every step).", False, "node", _positive),
     ParamSpec("diagnostics_rate", float, 1.0, "Hz", "Rate of /diagnostics.", False, "node", _positive),
     ParamSpec("markers_wireframe", bool, True, "", "Include the wireframe LINE_LIST in tissue/markers.", False, "node"),
     ParamSpec("strain_color_max", float, 0.2, "", "Strain shown at full colour in the mesh marker (blue -max, red +max).", False, "node", _positive),
     ParamSpec("wire_width", float, 0.002, "m", "Line width of the wireframe markers.", False, "node", _positive),
-    ParamSpec("max_tool_jump", float, 0.05, "m", "A tool pose farther than this from the last one used is clamped to this distance per step.", False, "node", _positive),
+    ParamSpec("max_tool_jump", float, 0.05, "m", "A tool pose farther than this from the last one accepted is rejected (dropped and counted): the tool holds its pose until a pose within this distance arrives, or ~/reset (after which any pose is accepted).", False, "node", _positive),
     ParamSpec("max_stamp_age", float, 0.5, "s", "Timer mode: tool messages stamped older than this are dropped as stale; 0 = no check.", False, "node", _non_negative),
+    ParamSpec("max_stamp_future", float, 0.5, "s", "Timer mode: tool messages stamped further than this ahead of the node's clock are dropped (one would make every later message out of order until the clock caught up); 0 = no check.", False, "node", _non_negative),
     ParamSpec("twist_timeout", float, 0.05, "s", "A tool twist received longer ago than this is stale: velocity is derived from poses.", False, "node", _positive),
     ParamSpec("twist_source", str, "auto", "", "auto: tool/twist when fresh, else from poses; poses: always derived from poses.", False, "node", _one_of(("auto", "poses"))),
     ParamSpec("warn_period", float, 2.0, "s", "Each kind of warning about bad input is logged at most once per period.", False, "node", _positive),

@@ -568,6 +568,11 @@ class ToolTrack:
     """Samples skipped per reason: repeated, out_of_order, non_finite, bad_quaternion."""
     time_source: str = "header"
     """``header`` (stamps, receive time where a stamp is 0 or absent) or ``bag`` (receive times)."""
+    received_ns: np.ndarray | None = None
+    """Bag receive time of each pose sample [ns], shape (M,), int64."""
+    twist_received_ns: np.ndarray | None = None
+    """Bag receive time of the twist each row holds [ns], shape (M,), int64, -1 where none: a twist with the
+    pose's stamp received after the pose is one the node in lock-step had not got when it stepped."""
 
     @property
     def n(self) -> int:
@@ -743,6 +748,7 @@ def read_tool_track(path: str | Path | Bag, topic: str | None = None, frame: str
                                  f"{', '.join(TWIST_TYPES)}")
         skipped = {"repeated": 0, "out_of_order": 0, "non_finite": 0, "bad_quaternion": 0}
         times: list[int] = []
+        received: list[int] = []
         poses: list[tuple[float, float, float]] = []
         frames: set[str] = set()
         n_messages = 0
@@ -769,6 +775,7 @@ def read_tool_track(path: str | Path | Bag, topic: str | None = None, frame: str
                     continue
                 last = t
                 times.append(t)
+                received.append(int(t_bag))
                 poses.append((float(x), float(y), yaw))
                 frames.add(frame_id)
         if not times and msgtype == TF_TYPE and n_messages == 0:
@@ -780,8 +787,10 @@ def read_tool_track(path: str | Path | Bag, topic: str | None = None, frame: str
                              + (f" frame {child!r}" if child else "")
                              + f" gave no usable tool pose ({n_messages} samples; skipped {skipped})")
         t_arr = np.asarray(times, dtype=np.int64)
-        twist, twist_t = _read_twist(bag, twist_topic, t_arr, time_source) if twist_topic else (None, None)
+        twist, twist_t, twist_rx = (_read_twist(bag, twist_topic, t_arr, time_source) if twist_topic
+                                    else (None, None, None))
         return ToolTrack(t_ns=t_arr, pose=np.asarray(poses, dtype=np.float64), twist=twist, twist_t_ns=twist_t,
+                         received_ns=np.asarray(received, dtype=np.int64), twist_received_ns=twist_rx,
                          topic=topic,
                          msgtype=msgtype, child_frame=child, frame_ids=tuple(sorted(frames)),
                          twist_topic=twist_topic, n_messages=n_messages, skipped=skipped, time_source=time_source)
@@ -790,9 +799,12 @@ def read_tool_track(path: str | Path | Bag, topic: str | None = None, frame: str
             bag.close()
 
 
-def _read_twist(bag: Bag, topic: str, t_pose: np.ndarray, time_source: str) -> tuple[np.ndarray, np.ndarray]:
-    """Latest twist at or before each pose time (sample and hold; NaN rows before the first twist) and its time."""
+def _read_twist(bag: Bag, topic: str, t_pose: np.ndarray,
+                time_source: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Latest twist at or before each pose time (sample and hold; NaN rows before the first twist), its time
+    and its bag receive time."""
     t_tw: list[int] = []
+    rx: list[int] = []
     vals: list[tuple[float, float, float]] = []
     for _, msgtype, t_bag, raw in bag.messages([topic]):
         msg = bag.decode(raw, msgtype)
@@ -805,16 +817,19 @@ def _read_twist(bag: Bag, topic: str, t_pose: np.ndarray, time_source: str) -> t
         if not all(math.isfinite(c) for c in v) or (t_tw and t < t_tw[-1]):
             continue  # a bad or late twist: the pose-derived velocity stands in
         t_tw.append(t)
+        rx.append(int(t_bag))
         vals.append(v)
     out = np.full((t_pose.shape[0], 3), np.nan)
     times = np.full(t_pose.shape[0], -1, dtype=np.int64)
+    received = np.full(t_pose.shape[0], -1, dtype=np.int64)
     if t_tw:
         t_arr = np.asarray(t_tw, dtype=np.int64)
         idx = np.searchsorted(t_arr, t_pose, side="right") - 1
         ok = idx >= 0
         out[ok] = np.asarray(vals)[idx[ok]]
         times[ok] = t_arr[idx[ok]]
-    return out, times
+        received[ok] = np.asarray(rx, dtype=np.int64)[idx[ok]]
+    return out, times, received
 
 
 __all__ = ["STORAGES", "POSE_TYPES", "TWIST_TYPES", "BagWriter", "Bag", "ToolTrack", "read_tool_track",

@@ -9,11 +9,15 @@ others. ``--remap FROM:=TO`` publishes a bag topic under another name (a
 robot's ``/ee_pose`` as the node's ``/tool/pose``).
 
 Timing: message i goes out at start + (t_i - t_0) / rate of the bag's receive
-times; ``--rate 2`` plays twice as fast. ``--loop`` repeats. ``--clock``
+times; ``--rate 2`` plays twice as fast. ``--loop`` repeats. By default play
 publishes ``/clock`` (rosgraph_msgs/Clock) at ``--clock-rate`` Hz with the bag
-time (continuing across loops), so nodes with ``use_sim_time:=true`` follow
-the bag. Before starting, play waits up to ``--wait`` seconds for every played
-topic (and ``/clock``) to have a subscriber, so the first messages are not lost.
+time (continuing across loops; ``--no-clock``: none), so the recorded stamps
+are current on that clock: ``tissue_sim_node`` follows it by itself
+(parameter ``follow_clock``), other nodes with ``use_sim_time:=true``. Before
+starting, play waits up to ``--wait`` seconds for every played topic to have
+``--min-subscribers`` subscribers, then up to 2 s more for a ``/clock``
+subscriber (a node that follows /clock subscribes within about 0.5 s), so the
+first messages are not lost.
 """
 from __future__ import annotations
 
@@ -50,7 +54,7 @@ def choose_topics(bag: Bag, requested: list[str] | None) -> list[str]:
 
 
 def play(bag_path: str | Path, *, topics: list[str] | None = None, remaps: dict[str, str] | None = None,
-         rate: float = 1.0, loop: bool = False, clock: bool = False, clock_rate: float = 100.0, wait: float = 5.0,
+         rate: float = 1.0, loop: bool = False, clock: bool = True, clock_rate: float = 100.0, wait: float = 5.0,
          min_subscribers: int = 1) -> int:
     """Publish a bag's tool topics (or ``topics``) with the recorded timing; returns the messages published.
 
@@ -114,13 +118,21 @@ def play(bag_path: str | Path, *, topics: list[str] | None = None, remaps: dict[
         need = min_subscribers
         deadline = time.monotonic() + max(0.0, wait)
         while not stop.is_set() and time.monotonic() < deadline:
-            if all(p.get_subscription_count() >= need for p in watched.values()):
+            if all(p.get_subscription_count() >= need for p in pubs.values()):
                 break
             stop.wait(0.02)  # polling the graph; a signal ends the wait at once
-        waiting = [remaps.get(t, t) for t, p in watched.items() if p.get_subscription_count() < need]
+        if clock_pub is not None and need > 0:
+            # a node that follows /clock subscribes once it has seen this publisher; nodes that do not never do
+            clock_deadline = min(deadline, time.monotonic() + 2.0) if wait > 0 else time.monotonic()
+            while not stop.is_set() and time.monotonic() < clock_deadline and clock_pub.get_subscription_count() < 1:
+                stop.wait(0.02)
+        waiting = [remaps.get(t, t) for t, p in pubs.items() if p.get_subscription_count() < need]
         if waiting and wait > 0:
             print(f"play: fewer than {need} subscribers on {', '.join(waiting)} after {wait} s; playing anyway",
                   flush=True)
+        if clock_pub is not None and clock_pub.get_subscription_count() == 0:
+            print("play: nobody subscribes to /clock (yet): nodes with use_sim_time or follow_clock follow the "
+                  "bag's time once they do", flush=True)
         print(f"playing {len(messages)} messages on {', '.join(remaps.get(t, t) for t in topics)} at {rate}x"
               + (" with /clock" if clock_pub else "") + (", looping" if loop else ""), flush=True)
 

@@ -5,7 +5,9 @@
 modes); :class:`ReplayBagSink` writes each step's outputs into a bag with the
 node's own :class:`~tissue_sim_ros.ros.messages.StepEncoder`; :func:`write_outputs`
 writes the CSV, plot, frames and video. The command line is in
-:mod:`tissue_sim_ros.cli_replay`. Instead of a bag, :func:`track_from_trajectory` turns a trajectory given as
+:mod:`tissue_sim_ros.cli_replay`. Three modes (:func:`schedule`): ``per-message``, ``fixed-rate``, and ``applied``: a bag the node recorded
+itself, stepped with the pose and twist the node used at each step (``tool/applied_pose``,
+``tool/applied_twist``), so a timer-mode run is reproduced bit for bit. Instead of a bag, :func:`track_from_trajectory` turns a trajectory given as
 data (:mod:`tissue_sim_ros.core.trajectories`) into the samples, one step each.
 No ROS graph and no rclpy: this runs anywhere
 the core runs.
@@ -17,7 +19,7 @@ import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -29,7 +31,7 @@ from ..core.tool import ToolPose, ToolTwist, Trajectory
 from . import messages as msgs
 from .bags import BagWriter, ToolTrack
 
-MODES = ("per-message", "fixed-rate")
+MODES = ("per-message", "fixed-rate", "applied")
 
 #: Output topics of the replay bag: the tool pose used and the node's step outputs but the markers
 #: (msg_docs/topics.md), encoded by the node's own :class:`~.messages.StepEncoder`.
@@ -112,17 +114,20 @@ def schedule(track: ToolTrack, dt: float, mode: str) -> tuple[np.ndarray, np.nda
     """Times [ns], poses (S, 3) and twists (S, 3) or None of each step of a replay.
 
     ``per-message``: the track's own samples, with a twist only where one
-    carries the pose's own stamp (NaN rows: derived from poses), as the node
-    does in lock-step. ``fixed-rate``: t0 + k dt for k = 1 .. floor(span / dt),
+    carries the pose's own stamp and was received no later than the pose (NaN
+    rows: derived from poses), as the node does in lock-step. ``fixed-rate``: t0 + k dt for k = 1 .. floor(span / dt),
     poses interpolated, twists sample-and-hold.
     """
     if mode == "per-message":
         if track.twist is None:
             return track.t_ns.copy(), track.pose.copy(), None
-        # as the node in lock-step: only a twist with the pose's own stamp; else velocity from poses
+        # as the node in lock-step: only a twist with the pose's own stamp that had arrived when the pose did
+        # (the node steps on the pose; a twist after it is too late); else velocity from poses
         twist = track.twist.copy()
         if track.twist_t_ns is not None:
             twist[track.twist_t_ns != track.t_ns] = np.nan
+        if track.twist_received_ns is not None and track.received_ns is not None:
+            twist[track.twist_received_ns > track.received_ns] = np.nan
         return track.t_ns.copy(), track.pose.copy(), twist
     if mode != "fixed-rate":
         raise InputError(f"--mode {mode!r}: expected one of {', '.join(MODES)}")
@@ -154,12 +159,13 @@ class ReplayBagSink:
             writer.add_topic(name, msgtype)
         self.encoder = msgs.StepEncoder(sim.model, sim.tool)
 
-    def __call__(self, report: StepReport, t_ns: int, pose: ToolPose) -> None:
+    def __call__(self, report: StepReport, t_ns: int, pose: ToolPose | None) -> None:
         stamp = stamp_from_ns(t_ns)
         self._n += 1
         out = self.encoder.encode(stamp, self.frame_id, report, self.sim.state.particle_q,
                                   points=self._n % self.points_every == 0)
-        items = [("/tool/pose", msgs.encode_pose_stamped(stamp, self.frame_id, pose.x, pose.y, pose.yaw), t_ns)]
+        items = [] if pose is None else [
+            ("/tool/pose", msgs.encode_pose_stamped(stamp, self.frame_id, pose.x, pose.y, pose.yaw), t_ns)]
         items += [(f"/{topic}", data, t_ns) for topic, data in out.messages.items()]
         self.writer.write_many(items)
 
@@ -183,18 +189,25 @@ def replay(sim: Simulation, track: ToolTrack, mode: str = "per-message", *, sink
         Show a tqdm progress bar on stderr.
     """
     t_ns, poses, twists = schedule(track, sim.params.dt, mode)
-    n = int(t_ns.shape[0])
+    items: list[tuple[ToolPose | None, ToolTwist | None]] = []
+    for i in range(int(t_ns.shape[0])):
+        tw = None
+        if twists is not None and np.isfinite(twists[i]).all():
+            tw = ToolTwist(float(twists[i, 0]), float(twists[i, 1]), float(twists[i, 2]))
+        items.append((ToolPose(float(poses[i, 0]), float(poses[i, 1]), float(poses[i, 2])), tw))
+    return replay_steps(sim, t_ns, items, sink=sink, snapshot_every=snapshot_every, progress=progress,
+                        track_duration=track.duration)
+
+
+def replay_steps(sim: Simulation, t_ns: np.ndarray, items: list[tuple[ToolPose | None, ToolTwist | None]], *,
+                 sink: Any = None, snapshot_every: int = 0, progress: bool = True,
+                 track_duration: float | None = None) -> ReplayResult:
+    """Step ``sim`` once per (pose or None, twist or None) of ``items``, at times ``t_ns``; see :func:`replay`."""
+    n = len(items)
     snaps: list[int] = []
     if snapshot_every > 0:
         snaps = sorted(set(range(0, n + 1, snapshot_every)) | {n})
     step_time = 0.0
-
-    def items() -> Iterator[tuple[ToolPose, ToolTwist | None]]:
-        for i in range(n):
-            tw = None
-            if twists is not None and np.isfinite(twists[i]).all():
-                tw = ToolTwist(float(twists[i, 0]), float(twists[i, 1]), float(twists[i, 2]))
-            yield ToolPose(float(poses[i, 0]), float(poses[i, 1]), float(poses[i, 2])), tw
 
     from tqdm import tqdm  # noqa: PLC0415
 
@@ -213,20 +226,22 @@ def replay(sim: Simulation, track: ToolTrack, mode: str = "per-message", *, sink
         loop_times[i] = now - last[0]
         last[0] = now
         if sink is not None:
-            sink(report, int(t_ns[i]), ToolPose(float(poses[i, 0]), float(poses[i, 1]), float(poses[i, 2])))
+            sink(report, int(t_ns[i]), items[i][0])
         bar.update(1)
 
     start = time.perf_counter()
     cpu_start = time.process_time()
     last[0] = start
     try:
-        result = rollout(sim, items(), snapshot_steps=[sim.step_count + s for s in snaps], on_step=on_step)
+        result = rollout(sim, items, snapshot_steps=[sim.step_count + s for s in snaps], on_step=on_step)
     finally:
         bar.close()
     wall = time.perf_counter() - start
     cpu = time.process_time() - cpu_start
+    if track_duration is None:
+        track_duration = float(t_ns[-1] - t_ns[0]) * 1e-9 if n else 0.0
     return ReplayResult(rollout=result, t_ns=t_ns, wall_time=wall, step_time=step_time, loop_times=loop_times,
-                        cpu_time=cpu, sim_time=n * sim.params.dt, track_duration=track.duration)
+                        cpu_time=cpu, sim_time=n * sim.params.dt, track_duration=track_duration)
 
 
 def write_outputs(out: Path, sim: Simulation, result: ReplayResult, *, video: bool = False, title: str = "") -> None:
