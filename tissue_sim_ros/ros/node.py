@@ -47,7 +47,7 @@ from ..core.errors import InputError
 from ..core.frames import FrameLookupError
 from ..core.simulation import Simulation, StepReport
 from ..core.stamps import Stamp, stamp_from_ns, stamp_to_seconds
-from ..core.tool import ToolPose, ToolTwist, yaw_from_quaternion
+from ..core.tool import ToolPose, ToolTwist, twist_from_poses, yaw_from_quaternion
 from . import messages, qos, tool_applied
 from .clock_follow import ClockFollower
 from .marker_publisher import MarkerPublisher, MarkerSnapshot
@@ -451,7 +451,7 @@ class TissueSimNode(Node):
             twist = ToolTwist()
         elif twist is None:
             # derived here, by the Simulation's own formula, so the twist used can be published and replayed
-            twist = Simulation._twist_from_poses(self.sim.tool_pose, pose, self.sim.params.dt)
+            twist = twist_from_poses(self.sim.tool_pose, pose, self.sim.params.dt)
         quaternion = self.tool.quaternion
         report = self.sim.step(pose, twist)
         self.last_report = report
