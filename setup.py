@@ -22,6 +22,7 @@ ROS_WHEELS = [
     "ros-jazzy-visualization-msgs",
     "ros-jazzy-std-srvs",
     "ros-jazzy-diagnostic-msgs",
+    "ros-jazzy-nav-msgs",
 ]
 
 setup(
