@@ -321,16 +321,14 @@ def warm_up(sim: Simulation) -> None:
     sim.reset()
 
 
-def _worker_main(conn: Connection, scene: BatchScene, nice: int) -> None:
+def _worker_main(conn: Connection, scene: BatchScene) -> None:
     """A worker: build and warm the scene once, then serve snapshots, baselines and candidates until told to stop."""
+    import signal  # noqa: PLC0415
+
     import numba  # noqa: PLC0415
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the parent stops us
     numba.set_num_threads(1)  # one core per worker: the workers are the parallelism
-    if nice:
-        try:
-            os.nice(nice)
-        except OSError:
-            pass
     try:
         sim = scene.build()
         warm_up(sim)
@@ -398,9 +396,15 @@ class RolloutPool:
         self._batch = 0
         for _ in range(self.n_workers):
             parent, child = ctx.Pipe()
-            proc = ctx.Process(target=_worker_main, args=(child, self.scene, nice), daemon=True)
+            proc = ctx.Process(target=_worker_main, args=(child, self.scene), daemon=True)
             proc.start()
             child.close()
+            if nice:
+                # at once, before the worker's imports compete with the caller's threads
+                try:
+                    os.setpriority(os.PRIO_PROCESS, proc.pid, os.getpriority(os.PRIO_PROCESS, proc.pid) + nice)
+                except OSError:
+                    pass
             self._conns.append(parent)
             self._procs.append(proc)
         self.pids = [self._expect(c, "ready", start_timeout) for c in self._conns]

@@ -48,6 +48,7 @@ from ..core.tool import ToolPose, ToolTwist, yaw_from_quaternion
 from . import messages, qos
 from .node_recording import NodeRecorder
 from .parameters import BY_NAME, PARAMETERS, SIM_NAMES, descriptor, parameter_value
+from .planner_service import PlannerService
 
 
 @dataclass
@@ -136,6 +137,7 @@ class TissueSimNode(Node):
             self._start_recording(self._values["record_path"], self._values["record_storage"])
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
+        self.planner = PlannerService(self)  # ~/plan_insertion, on its own thread
         self.step_timer = None if lock_step else self.create_timer(self.sim.params.dt, self._on_tick)
         self.diagnostics_timer = self.create_timer(1.0 / self._values["diagnostics_rate"], self._publish_diagnostics)
         self.add_pre_set_parameters_callback(self._expand_alias)
@@ -405,6 +407,7 @@ class TissueSimNode(Node):
         self.get_logger().info(f"recording every message in and out to {path} ({storage})")
 
     def destroy_node(self) -> None:
+        self.planner.close()
         if self.recorder is not None:
             self.recorder.close()  # a closed bag, whatever ended the node
         super().destroy_node()
