@@ -185,3 +185,16 @@ def test_pose_array_candidates_continue_from_the_snapshot_tool(live):
     r = rollout_candidate(one, sim.snapshot(), path)
     assert one.tool_pose == ToolPose(*poses[-1]) and r.steps == 5
     assert isinstance(_insertion(sim, -30.0), StraightInsertion)
+
+
+def test_bench_plan_writes_its_table(tmp_path, capsys):
+    from tissue_sim_ros.cli import main
+
+    assert main(["bench", "plan", "--candidates", "3", "--steps", "5", "--repeats", "1", "--workers", "1",
+                 "--no-node", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "identical" in out and "pool 1" in out and " NO" not in out
+    rows = (tmp_path / "plan_bench.csv").read_text().splitlines()
+    assert len(rows) == 3 and rows[0].startswith("backend,workers,candidates")
+    assert (tmp_path / "plan_bench.png").stat().st_size > 1000
+    assert main(["bench", "plan", "--candidates", "0", "--no-node", "--out", str(tmp_path)]) == 2

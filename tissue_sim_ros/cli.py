@@ -38,6 +38,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
         "accuracy": ("tissue_sim_ros.bench.accuracy", "error against an exact Newton solve versus time per step, Pareto front"),
         "stability": ("tissue_sim_ros.bench.stability", "where each method fails over dt, stiffness, tool speed and mesh quality"),
         "spacing": ("tissue_sim_ros.bench.spacing", "effective spring and area moduli, mass per area and sag against mesh spacing"),
+        "plan": ("tissue_sim_ros.bench.plan", "batch rollouts per second (serial, 1 and 2 workers); the planner service's latency and node rate"),
         "peers": ("tissue_sim_ros.bench.peers", "time per step against Taichi, MuJoCo flex and the NumPy baseline (optional extras)"),
     },
 }
