@@ -125,3 +125,20 @@ def test_node_steps_while_it_plans_and_survives_bad_requests(ros_client: RosClie
     # still stepping after all that
     n = len(points.messages)
     ros_client.spin_until(lambda: len(points.messages) > n + 5, TIMEOUT, proc, "tissue/points after the requests")
+
+
+def test_plan_live_carries_the_plan_out_and_replans(ros_client: RosClient, start_process: Any, tmp_path) -> None:
+    proc, client = _start(start_process, ros_client, "-p", "contact_model:=projection")
+    poses = ros_client.raw_subscription(PoseStamped, "tool/pose", qos.tool_input())
+    live = start_process(["tissue-sim", "plan", "--live", "--replan-every", "40", "--out", str(tmp_path / "live"),
+                          "--timeout", "60"], name="live")
+    code = live.wait(timeout=180)
+    out = live.output()
+    assert code == 0, out[-3000:]
+    assert "0.00 mm from the target" in out, out
+    plans = (tmp_path / "live" / "live_plans.csv").read_text().splitlines()
+    assert len(plans) >= 3, plans  # the first plan and at least two replans (a 0.2 m insertion at 0.1-0.2 m/s)
+    rows = np.loadtxt(tmp_path / "live" / "live.csv", delimiter=",", skiprows=1)
+    assert rows.shape[0] >= 40 and np.isfinite(rows).all()
+    ros_client.spin_until(lambda: len(poses.messages) > 0, TIMEOUT, proc, "the poses on tool/pose")
+    assert proc.alive()

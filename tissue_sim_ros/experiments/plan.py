@@ -8,6 +8,10 @@ cost of an insertion is the energy it adds to the scene, summed over its steps
 (the energy of each step minus that of the same scene without the tool; the
 peak and the final energy are reported too). Output: a ranked table, plan.csv and
 plan.png (cost against angle, one curve per speed, the best marked).
+
+``--live`` plans on a running ``tissue_sim_node`` instead, through its
+``~/plan_insertion`` service, carries the plan out on its tool topics and
+replans every ``--replan-every`` steps (:mod:`~tissue_sim_ros.experiments.plan_live`).
 """
 from __future__ import annotations
 
@@ -27,6 +31,7 @@ from ..cli_config import add_config_arguments, config_from_args
 from ..core.config import Config
 from ..core.errors import InputError
 from . import trajectories as tr
+from .plan_live import add_live_arguments, run_live
 
 HELP = "rank insertion angles/speeds toward a target by implicit Euler energy"
 DESCRIPTION = __doc__
@@ -43,6 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
     add_config_arguments(parser)
     parser.add_argument("--out", default="out/plan", help="output directory (default: out/plan)")
+    add_live_arguments(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -136,6 +142,8 @@ def chart(path: Path, rows: list[dict[str, Any]], target: tuple[float, float]) -
 def run(args: argparse.Namespace) -> int:
     from .paper import B_TOOL_VALUES  # noqa: PLC0415
 
+    if args.live:
+        return run_live(args)
     values = config_from_args(args, defaults=B_TOOL_VALUES)
     angles = angle_grid(*args.angles)
     target = (float(args.target[0]), float(args.target[1]))
