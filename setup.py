@@ -56,7 +56,9 @@ setup(
     ],
     extras_require={
         "ros": ROS_WHEELS,
-        "test": ["pytest>=7", "ruff>=0.6", "mcap>=1.1", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5"],
+        "test": ["pytest>=7", "ruff>=0.6", "mcap>=1.1", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5",
+                 "ray>=2.40"],  # the --backend ray tests on a local cluster (measured: +254 MB, ~10 s to install)
+        "ray": ["ray>=2.40"],  # --backend ray: plan, bench stability on a Ray cluster
         "video": ["imageio>=2.30", "imageio-ffmpeg>=0.4"],
         "peers": ["mujoco>=4.0", "taichi>=1.7"],  # flexcomp dof="2d" is not in older MuJoCo (measured: 4.0.0, taichi 1.7.4)
     },
