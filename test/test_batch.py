@@ -198,3 +198,16 @@ def test_bench_plan_writes_its_table(tmp_path, capsys):
     assert len(rows) == 3 and rows[0].startswith("backend,workers,candidates")
     assert (tmp_path / "plan_bench.png").stat().st_size > 1000
     assert main(["bench", "plan", "--candidates", "0", "--no-node", "--out", str(tmp_path)]) == 2
+
+
+@pytest.mark.parametrize("angle,speed,hold", [(-30.0, 0.1, 0.0), (-72.5, 0.2333, 0.05), (45.0, 0.3, 0.0)])
+def test_straight_paths_sampled_with_numpy_are_the_trajectory_loop_bit_for_bit(angle, speed, hold):
+    from tissue_sim_ros.core.tool import ToolShape, Trajectory
+
+    traj = StraightInsertion.from_angle(ToolShape(kind="box", length=0.3), (0.55, 0.38), math.radians(angle), 0.2,
+                                        speed, hold=hold)
+    path = ToolPath.from_trajectory(traj, 0.01)
+    rows = list(Trajectory.steps(traj, 0.01))  # the generic per-step loop
+    assert np.array_equal(path.poses, [(p.x, p.y, p.yaw) for p, _ in rows])
+    assert np.array_equal(path.twists, [(t.vx, t.vy, t.wz) for _, t in rows])
+    assert path.start == traj.pose_at(0.0)

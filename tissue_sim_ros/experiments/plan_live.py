@@ -18,8 +18,11 @@ A closed loop around a running ``tissue_sim_node`` (timer mode):
 The tool holds while the planner thinks, so the tissue the plan was made
 from is the tissue the plan starts on (up to the steps the node takes with
 the tool at rest). Writes ``live.csv`` (every pose sent: time, x, y, yaw,
-which plan) and ``live_plans.csv`` (every request: step, latency, poses
-answered), and prints a summary.
+which plan), ``live_plans.csv`` (every request: step, latency, poses
+answered) and ``live_plan.png``: the first plan as RViz shows it, drawn from
+what the node published (the particles of ``tissue/points``, the candidate
+lines of ``plan/candidates`` in their cost colours, ``plan/costs``), and
+prints a summary.
 """
 from __future__ import annotations
 
@@ -28,6 +31,8 @@ import csv
 import math
 import time
 from pathlib import Path
+
+import numpy as np
 
 from ..core.errors import InputError
 
@@ -63,6 +68,9 @@ def run_live(args: argparse.Namespace) -> int:
     from geometry_msgs.msg import PoseStamped, TwistStamped  # noqa: PLC0415
     from nav_msgs.srv import GetPlan  # noqa: PLC0415
     from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
+    from sensor_msgs.msg import PointCloud2  # noqa: PLC0415
+    from std_msgs.msg import Float64MultiArray  # noqa: PLC0415
+    from visualization_msgs.msg import MarkerArray  # noqa: PLC0415
 
     from ..ros import qos  # noqa: PLC0415
 
@@ -80,6 +88,13 @@ def run_live(args: argparse.Namespace) -> int:
     pub_pose = node.create_publisher(PoseStamped, f"{ns}/tool/pose", qos.tool_output())
     pub_twist = node.create_publisher(TwistStamped, f"{ns}/tool/twist", qos.tool_output())
     client = node.create_client(GetPlan, f"{args.node}/plan_insertion")
+    seen: dict[str, object] = {}
+    node.create_subscription(MarkerArray, f"{ns}/plan/candidates", lambda m: seen.setdefault("candidates", m),
+                             qos.latched())
+    node.create_subscription(Float64MultiArray, f"{ns}/plan/costs", lambda m: seen.setdefault("costs", m),
+                             qos.latched(), raw=True)
+    node.create_subscription(PointCloud2, f"{ns}/tissue/points", lambda m: seen.__setitem__("points", m),
+                             qos.state_stream(), raw=True)
     target = (float(args.target[0]), float(args.target[1]))
     sent: list[tuple[float, float, float, float, int]] = []
     requests: list[dict] = []
@@ -111,10 +126,15 @@ def run_live(args: argparse.Namespace) -> int:
     try:
         _wait(executor, client.service_is_ready, args.timeout, f"the service {args.node}/plan_insertion")
         _wait(executor, lambda: pub_pose.get_subscription_count() > 0, args.timeout, f"{ns}/tool/pose's subscriber")
+        _wait(executor, lambda: "points" in seen, args.timeout, f"{ns}/tissue/points")
+        points_at_request = seen["points"]
         path = ask(tuple(args.entry), 0)
         if not path:
             print(f"no plan from {tuple(args.entry)} to {target}: the node's log says why")
             return 1
+        _wait(executor, lambda: "candidates" in seen and "costs" in seen, args.timeout, "the plan's candidates")
+        figure = draw_plan(out / "live_plan.png", points_at_request, seen["candidates"], seen["costs"],
+                           tuple(args.entry), target)
         dt = stamp_dt["dt"]
         # the tip is at the target at the path's end: its offset from the tool's centre follows
         tip_offset = math.hypot(target[0] - path[-1][0], target[1] - path[-1][1])
@@ -163,6 +183,64 @@ def run_live(args: argparse.Namespace) -> int:
     print(f"{len(sent)} poses sent in {len(requests)} plans ({answered} answered, {len(requests) - answered} "
           f"kept the current plan); plan latency median {lat[len(lat) // 2]:.3f} s, max {lat[-1]:.3f} s")
     print(f"tip at ({tip[0]:.4f}, {tip[1]:.4f}) m, {1e3 * math.hypot(tip[0] - target[0], tip[1] - target[1]):.2f} mm "
-          f"from the target; wrote {out / 'live.csv'} and {out / 'live_plans.csv'}")
+          f"from the target; wrote {out / 'live.csv'}, {out / 'live_plans.csv'} and {figure}")
     return 0
+
+
+def draw_plan(path: Path, points: bytes, candidates, costs: bytes, entry: tuple[float, float],
+              target: tuple[float, float]) -> Path:
+    """The plan as RViz shows it, from the published messages: particles, candidate lines in their colours, costs."""
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+    from matplotlib.colors import LinearSegmentedColormap, LogNorm  # noqa: PLC0415
+
+    from ..ros import messages  # noqa: PLC0415
+
+    _, _, cloud = messages.decode_point_cloud(points)
+    rows, labels = messages.decode_float64_multiarray(costs)
+    fields = labels[1].split(":", 1)[1].split(",")
+    col = {name: rows[:, i] for i, name in enumerate(fields)}
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.8), gridspec_kw={"width_ratios": [1.25, 1]})
+    ax.scatter(cloud["x"], cloud["y"], s=4, color="#9e9e9e", zorder=1, label="tissue particles (tissue/points)")
+    for m in candidates.markers:
+        if m.ns != "plan_candidates":
+            continue
+        xs, ys = [p.x for p in m.points], [p.y for p in m.points]
+        ax.plot(xs, ys, color=(m.color.r, m.color.g, m.color.b), alpha=m.color.a, lw=1000 * m.scale.x / 2,
+                solid_capstyle="round", zorder=2 + (m.scale.x > 0.004))
+    ax.plot(*target, marker="o", ms=9, color="#ffd600", mec="#8d6e00", zorder=5, label="goal")
+    ax.plot(*entry, marker="s", ms=6, color="k", zorder=5, label="start")
+    ax.set_aspect("equal")
+    ax.set_xlim(min(entry[0], target[0]) - 0.25, max(entry[0], target[0]) + 0.1)
+    ax.set_ylim(min(entry[1], target[1]) - 0.15, max(entry[1], target[1]) + 0.15)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title("plan/candidates: tip paths coloured by cost (wide: the plan)", fontsize=9)
+    ax.legend(fontsize=7, loc="lower left")
+    feasible = col["feasible"] > 0
+    green_red = LinearSegmentedColormap.from_list("cost", [(0.0, 1.0, 0.15), (1.0, 0.2, 0.15)])
+    positive = col["cost"][feasible & (col["cost"] > 0)]
+    norm = LogNorm(positive.min(), positive.max()) if positive.size >= 2 and positive.max() > positive.min() else None
+    for v in np.unique(col["speed_mps"]):
+        sel = col["speed_mps"] == v
+        order = np.argsort(col["angle_deg"][sel])
+        bx.plot(col["angle_deg"][sel][order], col["cost"][sel][order], "-", color="0.7", zorder=1)
+        bx.scatter(col["angle_deg"][sel], col["cost"][sel], c=col["cost"][sel], cmap=green_red, norm=norm,
+                   s=40, marker="o" if v == col["speed_mps"].min() else "^", zorder=2, label=f"{v:g} m/s")
+    best = col["best"] > 0
+    bx.scatter(col["angle_deg"][best], col["cost"][best], marker="*", s=260, color="#ffd600", edgecolor="#8d6e00",
+               zorder=3, label="the plan")
+    if positive.size:
+        bx.set_yscale("log")
+    bx.set_xlabel("approach angle [deg]")
+    bx.set_ylabel("cost: energy added over the tool-free baseline")
+    bx.set_title("plan/costs", fontsize=9)
+    bx.legend(fontsize=7)
+    bx.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
 
