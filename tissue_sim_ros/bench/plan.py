@@ -58,6 +58,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="pool sizes (default 1 2)")
     parser.add_argument("--seconds", type=float, default=10.0, help="node part: seconds idle and planning each")
     parser.add_argument("--no-node", action="store_true", help="skip the node part")
+    parser.add_argument("--node-workers", type=int, default=2, help="node part: the node's plan_workers (default 2)")
+    parser.add_argument("--node-only", action="store_true", help="skip the library part")
     add_config_arguments(parser)
 
 
@@ -135,7 +137,7 @@ def _row(name: str, workers: int, walls: list[float], n: int, steps: int, start:
             "pool_start_s": start, "identical_to_serial": bool(same)}
 
 
-def bench_node(cfg: Config, seconds: float, out: Path, domain_id: int) -> dict[str, Any]:
+def bench_node(cfg: Config, seconds: float, out: Path, domain_id: int, workers: int = 2) -> dict[str, Any]:
     """The node's rate and overruns idle and while planning; request-to-answer latency of each request."""
     import rclpy  # noqa: PLC0415
     from diagnostic_msgs.msg import DiagnosticArray  # noqa: PLC0415
@@ -150,7 +152,7 @@ def bench_node(cfg: Config, seconds: float, out: Path, domain_id: int) -> dict[s
     params = cfg.replace(**{"marker_rate": 100.0, "points_rate": 100.0, "diagnostics_rate": 1.0,
                              "plan_angle_min": -40.0, "plan_angle_max": 35.0, "plan_angle_step": 5.0,
                              "plan_speed_min": 0.15, "plan_speed_max": 0.3, "plan_speed_count": 4,
-                             "plan_workers": 2}).flat()
+                             "plan_workers": workers}).flat()
     params_file = out / "plan_node.yaml"
     _write_params(params_file, params)
     log_path = out / "plan_node.log"
@@ -238,7 +240,7 @@ def bench_node(cfg: Config, seconds: float, out: Path, domain_id: int) -> dict[s
                 proc.kill()
                 proc.wait()
     lat = np.array(busy["latencies"])
-    return {"candidates": 64, "first_request_s": first, "requests": int(lat.size),
+    return {"candidates": 64, "plan_workers": workers, "first_request_s": first, "requests": int(lat.size),
             "latency_s_median": float(np.median(lat)), "latency_s_min": float(lat.min()),
             "latency_s_max": float(lat.max()),
             "idle_rate_hz": idle["rate_hz"], "idle_missed_pct": idle["missed_pct"],
@@ -295,9 +297,22 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     load_before = _load()
-    rows = bench_library(cfg, args.candidates, args.steps, args.repeats, sorted(set(args.workers)))
-    node_row = None if args.no_node else bench_node(cfg, args.seconds, out, 1 + os.getpid() % 100)
+    rows = [] if args.node_only else bench_library(cfg, args.candidates, args.steps, args.repeats,
+                                                   sorted(set(args.workers)))
+    node_row = None if args.no_node else bench_node(cfg, args.seconds, out, 1 + os.getpid() % 100, args.node_workers)
     load = f"{load_before} -> {_load()}"
+    if rows:
+        _library_table(rows, args, load, out)
+    if node_row:
+        _node_table(node_row, out)
+    if rows:
+        _plot(rows, node_row, out / "plan_bench.png", load)
+        print(f"wrote {out / 'plan_bench.csv'}, {out / 'plan_bench.png'}")
+    print(f"load average {load}")
+    return 0
+
+
+def _library_table(rows: list[dict[str, Any]], args: argparse.Namespace, load: str, out: Path) -> None:
     with open(out / "plan_bench.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
         writer.writeheader()
@@ -311,12 +326,15 @@ def run(args: argparse.Namespace) -> int:
               f"{r['candidates_per_s']:>7.1f} {r['steps_per_s']:>8.0f} {r['ms_per_step']:>7.3f} "
               f"{r['speedup_vs_serial']:>8.2f}x {r['speedup_vs_1_worker']:>7.2f}x "
               f"{r['pool_start_s']:>7.2f} {'yes' if r['identical_to_serial'] else 'NO'}")
+
+
+def _node_table(node_row: dict[str, Any], out: Path) -> None:
     if node_row:
         with open(out / "plan_node.csv", "w", newline="") as fh:
             writer = csv.DictWriter(fh, fieldnames=list(node_row))
             writer.writeheader()
             writer.writerow(node_row)
-        print(f"node, ~/plan_insertion with 64 candidates: first request {node_row['first_request_s']:.2f} s "
+        print(f"node (plan_workers {node_row['plan_workers']}), ~/plan_insertion with 64 candidates: first request {node_row['first_request_s']:.2f} s "
               f"(starts the workers); then {node_row['requests']} requests, latency median "
               f"{node_row['latency_s_median']:.3f} s (min {node_row['latency_s_min']:.3f}, max "
               f"{node_row['latency_s_max']:.3f})")
@@ -324,8 +342,4 @@ def run(args: argparse.Namespace) -> int:
               f"planning {node_row['planning_rate_hz']:.2f} Hz ({node_row['planning_missed_pct']:.2f}% missed: "
               f"{node_row['planning_overruns']} overruns, {node_row['planning_missed_ticks']} skipped ticks in "
               f"{node_row['planning_steps']} steps); 100 Hz {'met' if node_row['rate_ok'] else 'MISSED'}, "
-              f"< 1% missed {'met' if node_row['missed_ok'] else 'MISSED'}")
-    _plot(rows, node_row, out / "plan_bench.png", load)
-    print(f"wrote {out / 'plan_bench.csv'}, {out / 'plan_bench.png'}" + ("" if node_row is None else
-                                                                         f", {out / 'plan_node.csv'}"))
-    return 0
+              f"< 1% missed {'met' if node_row['missed_ok'] else 'MISSED'}; wrote {out / 'plan_node.csv'}")

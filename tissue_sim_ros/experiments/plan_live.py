@@ -68,7 +68,6 @@ def run_live(args: argparse.Namespace) -> int:
     from geometry_msgs.msg import PoseStamped, TwistStamped  # noqa: PLC0415
     from nav_msgs.srv import GetPlan  # noqa: PLC0415
     from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
-    from sensor_msgs.msg import PointCloud2  # noqa: PLC0415
     from std_msgs.msg import Float64MultiArray  # noqa: PLC0415
     from visualization_msgs.msg import MarkerArray  # noqa: PLC0415
 
@@ -93,8 +92,8 @@ def run_live(args: argparse.Namespace) -> int:
                              qos.latched())
     node.create_subscription(Float64MultiArray, f"{ns}/plan/costs", lambda m: seen.setdefault("costs", m),
                              qos.latched(), raw=True)
-    node.create_subscription(PointCloud2, f"{ns}/tissue/points", lambda m: seen.__setitem__("points", m),
-                             qos.state_stream(), raw=True)
+    node.create_subscription(MarkerArray, f"{ns}/tissue/markers", lambda m: seen.__setitem__("tissue", m),
+                             qos.state_stream())
     target = (float(args.target[0]), float(args.target[1]))
     sent: list[tuple[float, float, float, float, int]] = []
     requests: list[dict] = []
@@ -126,14 +125,14 @@ def run_live(args: argparse.Namespace) -> int:
     try:
         _wait(executor, client.service_is_ready, args.timeout, f"the service {args.node}/plan_insertion")
         _wait(executor, lambda: pub_pose.get_subscription_count() > 0, args.timeout, f"{ns}/tool/pose's subscriber")
-        _wait(executor, lambda: "points" in seen, args.timeout, f"{ns}/tissue/points")
-        points_at_request = seen["points"]
+        _wait(executor, lambda: "tissue" in seen, args.timeout, f"{ns}/tissue/markers")
+        tissue_at_request = seen["tissue"]
         path = ask(tuple(args.entry), 0)
         if not path:
             print(f"no plan from {tuple(args.entry)} to {target}: the node's log says why")
             return 1
         _wait(executor, lambda: "candidates" in seen and "costs" in seen, args.timeout, "the plan's candidates")
-        figure = draw_plan(out / "live_plan.png", points_at_request, seen["candidates"], seen["costs"],
+        figure = draw_plan(out / "live_plan.png", tissue_at_request, seen["candidates"], seen["costs"],
                            tuple(args.entry), target)
         dt = stamp_dt["dt"]
         # the tip is at the target at the path's end: its offset from the tool's centre follows
@@ -187,23 +186,28 @@ def run_live(args: argparse.Namespace) -> int:
     return 0
 
 
-def draw_plan(path: Path, points: bytes, candidates, costs: bytes, entry: tuple[float, float],
+def draw_plan(path: Path, tissue, candidates, costs: bytes, entry: tuple[float, float],
               target: tuple[float, float]) -> Path:
-    """The plan as RViz shows it, from the published messages: particles, candidate lines in their colours, costs."""
+    """The plan as RViz shows it, from the published messages: the tissue, candidate lines in their colours, costs."""
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
+    from matplotlib.collections import PolyCollection  # noqa: PLC0415
     from matplotlib.colors import LinearSegmentedColormap, LogNorm  # noqa: PLC0415
 
     from ..ros import messages  # noqa: PLC0415
 
-    _, _, cloud = messages.decode_point_cloud(points)
     rows, labels = messages.decode_float64_multiarray(costs)
     fields = labels[1].split(":", 1)[1].split(",")
     col = {name: rows[:, i] for i, name in enumerate(fields)}
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.8), gridspec_kw={"width_ratios": [1.25, 1]})
-    ax.scatter(cloud["x"], cloud["y"], s=4, color="#9e9e9e", zorder=1, label="tissue particles (tissue/points)")
+    for m in tissue.markers:  # the deformed mesh (TRIANGLE_LIST, strain colours) as RViz draws it
+        if m.ns == "tissue" and m.type == m.TRIANGLE_LIST and m.points:
+            xy = np.array([(p.x, p.y) for p in m.points]).reshape(-1, 3, 2)
+            rgba = np.array([(c.r, c.g, c.b, c.a) for c in m.colors]).reshape(-1, 3, 4).mean(axis=1) \
+                if len(m.colors) == len(m.points) else (m.color.r, m.color.g, m.color.b, m.color.a)
+            ax.add_collection(PolyCollection(xy, facecolors=rgba, edgecolors="#9e9e9e", linewidths=0.4, zorder=1))
     for m in candidates.markers:
         if m.ns != "plan_candidates":
             continue
@@ -212,6 +216,7 @@ def draw_plan(path: Path, points: bytes, candidates, costs: bytes, entry: tuple[
                 solid_capstyle="round", zorder=2 + (m.scale.x > 0.004))
     ax.plot(*target, marker="o", ms=9, color="#ffd600", mec="#8d6e00", zorder=5, label="goal")
     ax.plot(*entry, marker="s", ms=6, color="k", zorder=5, label="start")
+    ax.plot([], [], color="#9e9e9e", lw=1, label="tissue mesh (tissue/markers, strain colours)")
     ax.set_aspect("equal")
     ax.set_xlim(min(entry[0], target[0]) - 0.25, max(entry[0], target[0]) + 0.1)
     ax.set_ylim(min(entry[1], target[1]) - 0.15, max(entry[1], target[1]) + 0.15)
