@@ -264,6 +264,7 @@ def _plot(rows: list[dict[str, Any]], node_row: dict[str, Any] | None, path: Pat
         ax.text(i, r["wall_s"], f"{r['candidates_per_s']:.0f} cand/s\n{r['speedup_vs_serial']:.2f}x serial",
                 ha="center", va="bottom", fontsize=8)
     ax.axhline(1.0, color="k", linestyle="--", label="goal on 2 cores: 1 s")
+    ax.set_ylim(0, 1.25 * max([1.0] + [r["wall_s"] for r in rows]))
     ax.set_xticks(x, [r["backend"] for r in rows])
     ax.set_ylabel(f"wall time of {rows[0]['candidates']} candidates [s], median")
     ax.set_title(f"batch rollouts, {rows[0]['steps_total']} steps (load {load})", fontsize=10)
