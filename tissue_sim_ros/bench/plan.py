@@ -42,8 +42,8 @@ from typing import Any
 
 import numpy as np
 
-from ..cli_config import add_config_arguments, config_from_args
-from ..core.config import Config
+from ..core import trajectories as tr
+from ..core.config import Config, parse_assignments, resolve_config
 from ..core.errors import InputError
 
 HELP = "batch rollouts per second (serial, 1 and 2 workers) and the planner service's latency and node rate"
@@ -60,7 +60,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-node", action="store_true", help="skip the node part")
     parser.add_argument("--node-workers", type=int, default=2, help="node part: the node's plan_workers (default 2)")
     parser.add_argument("--node-only", action="store_true", help="skip the library part")
-    add_config_arguments(parser)
+    parser.add_argument("--params", metavar="FILE", help="parameter YAML over the shipped config/tissue_sim.yaml")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override one parameter")
 
 
 def _load() -> str:
@@ -73,7 +74,6 @@ def _load() -> str:
 def batch_candidates(sim: Any, n: int, steps: int) -> list:
     """``n`` insertions toward experiment b's target, each exactly ``steps`` steps (angles x 4 speeds)."""
     from ..core.batch import ToolPath  # noqa: PLC0415
-    from ..experiments import trajectories as tr  # noqa: PLC0415
 
     n_speeds = 4 if n >= 4 else 1
     n_angles = math.ceil(n / n_speeds)
@@ -285,8 +285,6 @@ def _plot(rows: list[dict[str, Any]], node_row: dict[str, Any] | None, path: Pat
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..experiments.paper import B_TOOL_VALUES  # noqa: PLC0415
-
     for name in ("candidates", "steps", "repeats"):
         if getattr(args, name) < 1:
             raise InputError(f"--{name}={getattr(args, name)}: expected at least 1")
@@ -294,7 +292,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--workers {args.workers}: expected pool sizes >= 1")
     if not (math.isfinite(args.seconds) and args.seconds >= 1):
         raise InputError(f"--seconds={args.seconds}: expected at least 1 s")
-    cfg = config_from_args(args, defaults=B_TOOL_VALUES)
+    b_tool = {"tool_shape": tr.B_TOOL.kind, "tool_length": tr.B_TOOL.length, "tool_width": tr.B_TOOL.width}
+    cfg = resolve_config(overrides=parse_assignments(args.set), params_file=args.params, defaults=b_tool,
+                         source="--set")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     load_before = _load()
