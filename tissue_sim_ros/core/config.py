@@ -83,6 +83,18 @@ def _non_negative(v: Any) -> str | None:
     return None if v >= 0 else "a value >= 0"
 
 
+def _finite(v: Any) -> str | None:
+    return None if math.isfinite(v) else "a finite number"
+
+
+def _at_least_one(v: Any) -> str | None:
+    return None if v >= 1 else "an integer >= 1"
+
+
+def _nice(v: Any) -> str | None:
+    return None if 0 <= v <= 19 else "a niceness increment in [0, 19]"
+
+
 def _one_of(options: tuple[str, ...]) -> Check:
     return lambda v: None if v in options else f"one of {', '.join(options)}"
 
@@ -291,6 +303,18 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("warn_period", float, 2.0, "s", "Each kind of warning about bad input is logged at most once per period.", False, "node", _positive),
     ParamSpec("record_path", str, "", "path", "Record every message in and out (the very bytes published) to this new rosbag2 bag directory; empty = no recording.", True, "node"),
     ParamSpec("record_storage", str, "mcap", "", "Storage of the recorded bag: mcap (default, as ros2 bag in Jazzy) or sqlite3.", True, "node", _one_of(("mcap", "sqlite3"))),
+    # the node's planner service ~/plan_insertion (ros/planner_service.py, msg_docs/services.md)
+    ParamSpec("plan_angle_min", float, -20.0, "deg", "Planner: smallest approach angle, as an offset from the start->goal direction.", False, "node", _finite),
+    ParamSpec("plan_angle_max", float, 20.0, "deg", "Planner: largest approach angle offset (>= plan_angle_min).", False, "node", _finite),
+    ParamSpec("plan_angle_step", float, 10.0, "deg", "Planner: spacing of the approach angles from plan_angle_min.", False, "node", _positive),
+    ParamSpec("plan_speed_min", float, 0.1, "m/s", "Planner: slowest tip speed.", False, "node", _positive),
+    ParamSpec("plan_speed_max", float, 0.2, "m/s", "Planner: fastest tip speed (>= plan_speed_min).", False, "node", _positive),
+    ParamSpec("plan_speed_count", int, 2, "", "Planner: tip speeds, evenly spaced from plan_speed_min to plan_speed_max.", False, "node", _at_least_one),
+    ParamSpec("plan_tolerance", float, 0.01, "m", "Planner: tolerance used when a request's tolerance is 0.", False, "node", _positive),
+    ParamSpec("plan_track_target", bool, False, "", "Planner: the tolerance applies to the tissue's target point, which the insertion pushes (true), or the tip reaching the commanded goal suffices (false).", False, "node"),
+    ParamSpec("plan_max_steps", int, 500, "", "Planner: candidates longer than this many steps are not rolled out.", False, "node", _at_least_one),
+    ParamSpec("plan_workers", int, 2, "", "Planner: worker processes for the rollouts (started at the first request); 0 = in the node's planner thread (slows the step thread).", True, "node", _non_negative),
+    ParamSpec("plan_nice", int, 10, "", "Planner: niceness added to the worker processes, so the step thread is scheduled first.", True, "node", _nice),
 )
 
 

@@ -9,6 +9,7 @@ the contact model; it never imports ROS.
 """
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable
@@ -21,6 +22,7 @@ from .energy import EnergyTerms, energy_terms
 from .errors import InputError
 from .kernels import count_inverted
 from .model import Model, State
+from .snapshot import SimSnapshot, carry_state, restore_carry, scene_key
 from .solvers import Solver
 from .tool import ToolPose, ToolShape, ToolTwist, tool_shape_array, twist_from_poses
 from .tool_checks import INSIDE_TOL, tool_checks
@@ -125,6 +127,46 @@ class Simulation:
         self.time = 0.0
         self.tool_pose: ToolPose | None = None
         self._last_good: State = self.state.copy()
+        self.lock = threading.RLock()
+        """Held by :meth:`step`, :meth:`snapshot` and :meth:`restore`: a planner thread snapshots a stepping scene."""
+        self._scene_key: str | None = None
+
+    @property
+    def scene_key(self) -> str:
+        """Fingerprint of the model's topology and rest shape (:func:`~tissue_sim_ros.core.snapshot.scene_key`)."""
+        if self._scene_key is None:
+            self._scene_key = scene_key(self.model)
+        return self._scene_key
+
+    def snapshot(self) -> SimSnapshot:
+        """Everything the next steps read, copied: restore it here or in another Simulation of the same scene."""
+        with self.lock:
+            return SimSnapshot(
+                scene=self.scene_key, particle_q=self.state.particle_q.copy(), particle_qd=self.state.particle_qd.copy(),
+                last_good_q=self._last_good.particle_q.copy(), last_good_qd=self._last_good.particle_qd.copy(),
+                step_count=self.step_count, time=self.time, tool_pose=self.tool_pose,
+                solver=carry_state(self.solver), contact=carry_state(self.contact))
+
+    def restore(self, snap: SimSnapshot) -> None:
+        """Continue from ``snap`` (copied): the next step is bit for bit the one that followed the snapshot.
+
+        Raises InputError when ``snap`` comes from another scene (other topology or rest shape).
+        """
+        if not isinstance(snap, SimSnapshot):
+            raise InputError(f"restore({type(snap).__name__}): expected a SimSnapshot from Simulation.snapshot()")
+        if snap.scene != self.scene_key:
+            raise InputError(f"snapshot of scene {snap.scene[:8]} ({snap.n_particles} particles): expected one of this "
+                             f"scene, {self.scene_key[:8]} ({self.model.n_particles} particles)")
+        with self.lock:
+            np.copyto(self.state.particle_q, snap.particle_q)
+            np.copyto(self.state.particle_qd, snap.particle_qd)
+            np.copyto(self._last_good.particle_q, snap.last_good_q)
+            np.copyto(self._last_good.particle_qd, snap.last_good_qd)
+            self.step_count = int(snap.step_count)
+            self.time = float(snap.time)
+            self.tool_pose = snap.tool_pose
+            restore_carry(self.solver, snap.solver)
+            restore_carry(self.contact, snap.contact)
 
     @classmethod
     def from_config(cls, cfg: Config, mesh: "TissueMesh | None" = None,
@@ -165,12 +207,13 @@ class Simulation:
 
     def reset(self) -> None:
         """Back to the rest configuration at t = 0 (tool pose forgotten)."""
-        self.state = self.model.state()
-        self._state_out = self.model.state()
-        self._last_good = self.state.copy()
-        self.step_count = 0
-        self.time = 0.0
-        self.tool_pose = None
+        with self.lock:
+            self.state = self.model.state()
+            self._state_out = self.model.state()
+            self._last_good = self.state.copy()
+            self.step_count = 0
+            self.time = 0.0
+            self.tool_pose = None
 
     def set_state(self, state: State) -> None:
         """Replace the current state (copied)."""
@@ -187,6 +230,10 @@ class Simulation:
         tool_twist : ToolTwist, optional
             Tool velocity. None: derived from the previous and this pose over dt.
         """
+        with self.lock:
+            return self._step(tool_pose, tool_twist)
+
+    def _step(self, tool_pose: ToolPose | None, tool_twist: ToolTwist | None) -> StepReport:
         t_start = time.perf_counter()
         p = self.params
         model = self.model

@@ -110,6 +110,27 @@ class SleepingSolver:
         total = model.n_edges + model.n_triangles
         self.awake_constraint_fraction = (self._reduced.n_edges + self._reduced.n_triangles) / total if total else 1.0
 
+    def carry_state(self) -> dict:
+        """What the next steps read of this solver (for :meth:`Simulation.snapshot`), copied."""
+        return {"quiet": self._quiet.copy(), "sleeping": self.sleeping.copy(),
+                "last_contact": self._last_contact.copy(), "full": self._reduced is self.model}
+
+    def restore_carry(self, state: dict) -> None:
+        """Back to a :meth:`carry_state`; the reduced solver is rebuilt only when the sleeping set differs."""
+        full = bool(state["full"])
+        same = full == (self._reduced is self.model) and np.array_equal(state["sleeping"], self.sleeping)
+        self._quiet = np.array(state["quiet"], dtype=np.int64)
+        self._last_contact = np.array(state["last_contact"], dtype=np.int64)
+        self.sleeping = np.array(state["sleeping"], dtype=bool)
+        if same:
+            return
+        if full:
+            self._reduced = self.model
+            self._solver = Solver(self.model)
+            self.awake_constraint_fraction = 1.0
+        else:
+            self._rebuild()
+
     def step(self, state_in: State, state_out: State, contacts: Contacts, dt: float) -> SolveInfo:
         """As :meth:`Solver.step`, with sleepers held and their constraints skipped."""
         contact_idx = np.union1d(np.asarray(contacts.held_idx, dtype=np.int64),

@@ -8,6 +8,10 @@ cost of an insertion is the energy it adds to the scene, summed over its steps
 (the energy of each step minus that of the same scene without the tool; the
 peak and the final energy are reported too). Output: a ranked table, plan.csv and
 plan.png (cost against angle, one curve per speed, the best marked).
+
+``--live`` plans on a running ``tissue_sim_node`` instead, through its
+``~/plan_insertion`` service, carries the plan out on its tool topics and
+replans every ``--replan-every`` steps (:mod:`~tissue_sim_ros.experiments.plan_live`).
 """
 from __future__ import annotations
 
@@ -15,8 +19,6 @@ import argparse
 import math
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +29,7 @@ from ..cli_config import add_config_arguments, config_from_args
 from ..core.config import Config
 from ..core.errors import InputError
 from . import trajectories as tr
+from .plan_live import add_live_arguments, run_live
 
 HELP = "rank insertion angles/speeds toward a target by implicit Euler energy"
 DESCRIPTION = __doc__
@@ -40,9 +43,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speeds", type=float, nargs="+", default=[0.001, 0.002],
                         help="tip speeds [m per step] (default: 0.001 0.002)")
     parser.add_argument("--distance", type=float, default=tr.B_DISTANCE, help="insertion distance [m]")
-    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
+    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                        help="worker processes, or Ray actors with --backend ray (default: all cores)")
+    parser.add_argument("--backend", choices=("local", "ray"), default="local",
+                        help="local: warm worker processes on this machine; ray: Ray actors (pip install '.[ray]')")
+    parser.add_argument("--address", default=None,
+                        help="--backend ray: the cluster (HOST:6379, ray://HOST:10001; default RAY_ADDRESS or a "
+                             "private local cluster)")
     add_config_arguments(parser)
     parser.add_argument("--out", default="out/plan", help="output directory (default: out/plan)")
+    add_live_arguments(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -80,8 +90,18 @@ def evaluate(values: Config, angle_deg: float, speed: float, target: tuple[float
 
 
 def plan(values: Config, angles: list[float], speeds: list[float], target: tuple[float, float],
-         distance: float, jobs: int, progress: bool = True) -> list[dict[str, Any]]:
-    """Evaluate every (angle, speed) on ``jobs`` processes; rows ranked by cost (cheapest first)."""
+         distance: float, jobs: int, progress: bool = True, backend: str = "local",
+         address: str | None = None) -> list[dict[str, Any]]:
+    """Roll every (angle, speed) out from the rest state as one batch; rows ranked by cost (cheapest first).
+
+    ``jobs`` warm worker processes (local; 1: serially here) or Ray actors
+    (``backend="ray"``, ``address`` of the cluster); the numbers are the same
+    bit for bit (:mod:`~tissue_sim_ros.core.batch`), and equal to :func:`evaluate`'s.
+    """
+    from ..core.backends import check_backend, rollout_pool  # noqa: PLC0415
+    from ..core.batch import BatchScene, rollout_batch  # noqa: PLC0415
+    from ..core.scene import build_simulation  # noqa: PLC0415
+
     for s in speeds:
         if not (math.isfinite(s) and s > 0):
             raise InputError(f"--speeds {s}: expected speeds > 0 m per step")
@@ -89,21 +109,23 @@ def plan(values: Config, angles: list[float], speeds: list[float], target: tuple
         raise InputError(f"--distance {distance}: expected an insertion distance > 0 m")
     if jobs < 1:
         raise InputError(f"--jobs {jobs}: expected at least 1 worker")
+    check_backend(backend)
     tasks = [(a, s) for s in speeds for a in angles]
-    rows: list[dict[str, Any]] = []
-    bar = tqdm(total=len(tasks), desc="insertions", unit="run", disable=not progress)
-    if jobs == 1:
-        for a, s in tasks:
-            rows.append(evaluate(values, a, s, target, distance))
-            bar.update(1)
+    sim = build_simulation(values)
+    dt = sim.params.dt
+    trajs = [tr.experiment_b(sim.tool, dt, a, speed=s, target=target, distance=distance) for a, s in tasks]
+    bar = tqdm(total=1, desc=f"{len(tasks)} insertions", unit="batch", disable=not progress)
+    if jobs == 1 and backend == "local":
+        res = rollout_batch(sim, trajs)
     else:
-        # spawn: a fresh interpreter per worker (numba's threads do not survive fork); kernels load from cache
-        with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
-            futures = [pool.submit(evaluate, values, a, s, target, distance) for a, s in tasks]
-            for f in as_completed(futures):
-                rows.append(f.result())
-                bar.update(1)
+        with rollout_pool(BatchScene.from_simulation(sim), jobs, backend, address) as pool:
+            res = rollout_batch(sim, trajs, pool=pool)
+    bar.update(1)
     bar.close()
+    rows = [{"angle_deg": a, "speed_m_per_step": s, "steps": c.steps, "cost": c.cost, "peak_added": c.peak_added,
+             "final_added": c.final_added, "contact_steps": c.contact_steps, "max_reaction_N": c.peak_force,
+             "max_inverted": c.max_inverted, "finite": c.finite, "wall_s": c.wall_s}
+            for (a, s), c in zip(tasks, res.candidates)]
     return sorted(rows, key=lambda r: (not r["finite"], r["cost"]))
 
 
@@ -136,13 +158,16 @@ def chart(path: Path, rows: list[dict[str, Any]], target: tuple[float, float]) -
 def run(args: argparse.Namespace) -> int:
     from .paper import B_TOOL_VALUES  # noqa: PLC0415
 
+    if args.live:
+        return run_live(args)
     values = config_from_args(args, defaults=B_TOOL_VALUES)
     angles = angle_grid(*args.angles)
     target = (float(args.target[0]), float(args.target[1]))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    rows = plan(values, angles, list(args.speeds), target, args.distance, args.jobs, progress=not args.no_progress)
+    rows = plan(values, angles, list(args.speeds), target, args.distance, args.jobs, progress=not args.no_progress,
+                backend=args.backend, address=args.address)
     wall = time.perf_counter() - t0
     cols = list(rows[0])
     with open(out / "plan.csv", "w") as fh:
@@ -150,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
         for r in rows:
             fh.write(",".join(repr(r[c]) if isinstance(r[c], float) else str(r[c]) for c in cols) + "\n")
     chart(out / "plan.png", rows, target)
-    print(f"{len(rows)} insertions toward {target} in {wall:.1f} s on {args.jobs} processes, ranked by cost "
+    print(f"{len(rows)} insertions toward {target} in {wall:.1f} s on {args.jobs} {'Ray actors' if args.backend == 'ray' else 'processes'}, ranked by cost "
           f"(energy the insertion adds, summed over its steps):")
     print(f"{'rank':>4} {'angle':>7} {'speed':>11} {'cost':>11} {'peak added':>11} {'contact':>8} {'max force':>10}")
     for i, r in enumerate(rows, 1):

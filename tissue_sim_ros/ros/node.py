@@ -53,6 +53,7 @@ from .clock_follow import ClockFollower
 from .marker_publisher import MarkerPublisher, MarkerSnapshot
 from .node_recording import NodeRecorder
 from .parameters import BY_NAME, PARAMETERS, SIM_NAMES, descriptor, parameter_value
+from .planner_service import PlannerService
 from .tf_input import FrameInput
 
 _SWITCH_INTERVAL = 0.0005
@@ -157,6 +158,7 @@ class TissueSimNode(Node):
             on_error=lambda exc: self._warn("markers", f"tissue/markers not published: {exc}"))
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
+        self.planner = PlannerService(self)  # ~/plan_insertion, on its own thread
         self.step_timer = None if lock_step else self.create_timer(self.sim.params.dt, self._on_tick)
         self.clock_follower = (ClockFollower(self, self._on_clock_switch)
                                if not lock_step and self._values["follow_clock"]
@@ -500,6 +502,7 @@ class TissueSimNode(Node):
 
     def destroy_node(self) -> None:
         self.marker_worker.close()  # before the bag closes: its last markers go in
+        self.planner.close()
         if self.recorder is not None:
             self.recorder.close()  # a closed bag, whatever ended the node
         super().destroy_node()

@@ -1,0 +1,346 @@
+"""``tissue-sim bench plan``: batch rollouts per second, serial and on 1 and 2 workers; the planner service live.
+
+Library part: ``--candidates`` insertions (default 64: 16 approach angles x 4
+speeds toward experiment b's target, each exactly ``--steps`` steps, default
+100, so the batch is 64 x 100 steps plus the 100-step tool-free baseline) on
+the paper scene (the shipped configuration with experiment b's 0.3 m box;
+``--set`` overrides), from a snapshot 20 steps in. Each backend runs the same
+batch ``--repeats`` times (median wall time):
+
+* ``serial``: :func:`~tissue_sim_ros.core.batch.rollout_batch` in this process;
+* ``pool 1``, ``pool 2``: a :class:`~tissue_sim_ros.core.batch.RolloutPool`
+  of that many warm workers (their start-up is reported apart, not timed in).
+
+Reported: wall time, candidates/s, steps/s, the ratio to serial and to one
+worker, and whether the costs are bit-identical to the serial ones (they must
+be). Goals (issue 11): <= 1 s for 64 x 100 on 2 cores, >= 1.7x the
+one-worker speed, on an idle machine.
+
+Node part (skip with ``--no-node``): ``tissue_sim_node`` (timer mode, 100 Hz,
+markers and points every step, ``plan_workers`` 2) in its own process on a
+private ROS domain; for ``--seconds`` without requests, then for ``--seconds``
+with ``~/plan_insertion`` requests back to back (the same 64-candidate sweep,
+16 angle offsets x 4 speeds), the node's own step rate and overruns from
+``/diagnostics``, and each request's request-to-answer latency measured by
+the client (the first request, which starts the workers, apart). Goals: 100
+Hz and < 1% missed deadlines while planning.
+
+Writes ``plan_bench.csv`` (one row per backend), ``plan_node.csv``,
+``plan_bench.png`` and prints the tables with the machine's load average.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core import trajectories as tr
+from ..core.config import Config, parse_assignments, resolve_config
+from ..core.errors import InputError
+
+HELP = "batch rollouts per second (serial, 1 and 2 workers) and the planner service's latency and node rate"
+DESCRIPTION = __doc__
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", default="bench_out/plan", help="output directory (CSV, PNG)")
+    parser.add_argument("--candidates", type=int, default=64, help="candidates per batch (default 64)")
+    parser.add_argument("--steps", type=int, default=100, help="steps per candidate (default 100)")
+    parser.add_argument("--repeats", type=int, default=5, help="batches per backend; the median is reported")
+    parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="pool sizes (default 1 2)")
+    parser.add_argument("--seconds", type=float, default=10.0, help="node part: seconds idle and planning each")
+    parser.add_argument("--no-node", action="store_true", help="skip the node part")
+    parser.add_argument("--node-workers", type=int, default=2, help="node part: the node's plan_workers (default 2)")
+    parser.add_argument("--node-only", action="store_true", help="skip the library part")
+    parser.add_argument("--params", metavar="FILE", help="parameter YAML over the shipped config/tissue_sim.yaml")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override one parameter")
+
+
+def _load() -> str:
+    try:
+        return Path("/proc/loadavg").read_text().split(" ")[0]
+    except OSError:
+        return "n/a"
+
+
+def batch_candidates(sim: Any, n: int, steps: int) -> list:
+    """``n`` insertions toward experiment b's target, each exactly ``steps`` steps (angles x 4 speeds)."""
+    from ..core.batch import ToolPath  # noqa: PLC0415
+
+    n_speeds = 4 if n >= 4 else 1
+    n_angles = math.ceil(n / n_speeds)
+    angles = np.linspace(-5.0, -40.0, n_angles)
+    speeds = np.linspace(0.0015, 0.003, n_speeds)  # m per step
+    out = []
+    for s in speeds:
+        for a in angles:
+            traj = tr.experiment_b(sim.tool, sim.params.dt, float(a), speed=float(s), distance=float(s) * steps)
+            path = ToolPath.from_trajectory(traj, sim.params.dt)
+            out.append(ToolPath(path.poses[:steps], path.twists[:steps], path.start))
+            if len(out) == n:
+                return out
+    return out
+
+
+def bench_library(cfg: Config, n: int, steps: int, repeats: int, workers: list[int]) -> list[dict[str, Any]]:
+    """One row per backend: serial, then a pool of each size."""
+    from ..core.batch import BatchScene, RolloutPool, rollout_batch  # noqa: PLC0415
+    from ..core.simulation import Simulation  # noqa: PLC0415
+
+    sim = Simulation.from_config(cfg)
+    for _ in range(20):
+        sim.step(None)
+    snap = sim.snapshot()
+    scene = BatchScene.from_simulation(sim)
+    cands = batch_candidates(sim, n, steps)
+    total_steps = sum(c.n_steps for c in cands) + max(c.n_steps for c in cands)
+    rows: list[dict[str, Any]] = []
+    rollout_batch(snap, cands[:2], scene=scene)  # warm this process's kernels
+    walls = []
+    for _ in range(repeats):
+        reference = rollout_batch(snap, cands, scene=scene)
+        walls.append(reference.wall_s)
+    rows.append(_row("serial", 0, walls, n, total_steps, math.nan, True))
+    for w in workers:
+        t0 = time.perf_counter()
+        with RolloutPool(scene, w) as pool:
+            start = time.perf_counter() - t0
+            walls = []
+            same = True
+            for _ in range(repeats):
+                res = pool.run(snap, cands)
+                walls.append(res.wall_s)
+                same = same and np.array_equal(res.costs, reference.costs) and all(
+                    np.array_equal(a.energy, b.energy) for a, b in zip(res.candidates, reference.candidates))
+        rows.append(_row(f"pool {w}", w, walls, n, total_steps, start, same))
+    serial = rows[0]["wall_s"]
+    one = next((r["wall_s"] for r in rows if r["workers"] == 1), math.nan)
+    for r in rows:
+        r["speedup_vs_serial"] = serial / r["wall_s"]
+        r["speedup_vs_1_worker"] = one / r["wall_s"]
+    return rows
+
+
+def _row(name: str, workers: int, walls: list[float], n: int, steps: int, start: float, same: bool) -> dict[str, Any]:
+    wall = float(np.median(walls))
+    return {"backend": name, "workers": workers, "candidates": n, "steps_total": steps, "repeats": len(walls),
+            "wall_s": wall, "wall_s_min": float(np.min(walls)), "wall_s_max": float(np.max(walls)),
+            "candidates_per_s": n / wall, "steps_per_s": steps / wall, "ms_per_step": 1e3 * wall / steps,
+            "pool_start_s": start, "identical_to_serial": bool(same)}
+
+
+def bench_node(cfg: Config, seconds: float, out: Path, domain_id: int, workers: int = 2) -> dict[str, Any]:
+    """The node's rate and overruns idle and while planning; request-to-answer latency of each request."""
+    import rclpy  # noqa: PLC0415
+    from diagnostic_msgs.msg import DiagnosticArray  # noqa: PLC0415
+    from geometry_msgs.msg import PoseStamped  # noqa: PLC0415
+    from nav_msgs.srv import GetPlan  # noqa: PLC0415
+    from rclpy.context import Context  # noqa: PLC0415
+    from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
+
+    from ..ros import qos  # noqa: PLC0415
+    from .node import _isolated_env, _node_command, _write_params  # noqa: PLC0415
+
+    params = cfg.replace(**{"marker_rate": 100.0, "points_rate": 100.0, "diagnostics_rate": 1.0,
+                             "plan_angle_min": -40.0, "plan_angle_max": 35.0, "plan_angle_step": 5.0,
+                             "plan_speed_min": 0.15, "plan_speed_max": 0.3, "plan_speed_count": 4,
+                             "plan_workers": workers}).flat()
+    params_file = out / "plan_node.yaml"
+    _write_params(params_file, params)
+    log_path = out / "plan_node.log"
+    env = _isolated_env(domain_id)
+    with open(log_path, "wb") as log:
+        proc = subprocess.Popen(_node_command() + ["--ros-args", "--params-file", str(params_file)],
+                                env=env, stdout=log, stderr=subprocess.STDOUT)
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = rclpy.create_node("bench_plan_client", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    diagnostics: list[dict[str, str]] = []
+
+    def on_diag(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.startswith("/tissue_sim_node"):
+                diagnostics.append({kv.key: kv.value for kv in status.values})
+
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, qos.diagnostics())
+    client = node.create_client(GetPlan, "/tissue_sim_node/plan_insertion")
+
+    def spin_until(predicate: Any, timeout: float, what: str) -> Any:
+        end = time.monotonic() + timeout
+        while not predicate():
+            if proc.poll() is not None:
+                raise InputError(f"tissue_sim_node exited with {proc.returncode} while waiting for {what}; see {log_path}")
+            if time.monotonic() > end:
+                raise InputError(f"timed out after {timeout} s waiting for {what}; see {log_path}")
+            executor.spin_once(timeout_sec=0.01)
+        return predicate()
+
+    def pose(x: float, y: float) -> PoseStamped:
+        ps = PoseStamped()
+        ps.header.frame_id = params["frame_id"]
+        ps.pose.position.x, ps.pose.position.y = x, y
+        ps.pose.orientation.w = 1.0
+        return ps
+
+    a = math.radians(-30.0)
+    request = GetPlan.Request(start=pose(0.55 - 0.2 * math.cos(a), 0.38 - 0.2 * math.sin(a)), goal=pose(0.55, 0.38))
+
+    def call() -> tuple[float, int]:
+        t0 = time.perf_counter()
+        future = client.call_async(request)
+        spin_until(future.done, 120.0, "a plan")
+        return time.perf_counter() - t0, len(future.result().plan.poses)
+
+    def window(plan: bool) -> dict[str, Any]:
+        diagnostics.clear()
+        spin_until(lambda: diagnostics, 5.0, "diagnostics")
+        d0, t0 = diagnostics[-1], time.monotonic()
+        lat: list[float] = []
+        while time.monotonic() - t0 < seconds:
+            if plan:
+                wall, n = call()
+                if n == 0:
+                    raise InputError(f"the planner answered an empty path; see {log_path}")
+                lat.append(wall)
+            else:
+                executor.spin_once(timeout_sec=0.01)
+        diagnostics.clear()
+        spin_until(lambda: diagnostics, 5.0, "diagnostics")
+        d1, t1 = diagnostics[-1], time.monotonic()
+        steps = int(d1["steps"]) - int(d0["steps"])
+        over = int(d1["overruns"]) - int(d0["overruns"])
+        missed = int(d1["missed_ticks"]) - int(d0["missed_ticks"])
+        return {"rate_hz": steps / (t1 - t0), "steps": steps, "overruns": over, "missed_ticks": missed,
+                "missed_pct": 100.0 * (over + missed) / max(steps + missed, 1), "latencies": lat}
+
+    try:
+        spin_until(lambda: client.service_is_ready() and diagnostics, 60.0, "the node's planner service")
+        first, _ = call()  # starts the workers
+        idle = window(False)
+        busy = window(True)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+    lat = np.array(busy["latencies"])
+    return {"candidates": 64, "plan_workers": workers, "first_request_s": first, "requests": int(lat.size),
+            "latency_s_median": float(np.median(lat)), "latency_s_min": float(lat.min()),
+            "latency_s_max": float(lat.max()),
+            "idle_rate_hz": idle["rate_hz"], "idle_missed_pct": idle["missed_pct"],
+            "planning_rate_hz": busy["rate_hz"], "planning_steps": busy["steps"],
+            "planning_overruns": busy["overruns"], "planning_missed_ticks": busy["missed_ticks"],
+            "planning_missed_pct": busy["missed_pct"], "rate_ok": busy["rate_hz"] >= 99.0,
+            "missed_ok": busy["missed_pct"] < 1.0}
+
+
+def _plot(rows: list[dict[str, Any]], node_row: dict[str, Any] | None, path: Path, load: str) -> None:
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    fig, axes = plt.subplots(1, 2 if node_row else 1, figsize=(11 if node_row else 6, 4), squeeze=False)
+    ax = axes[0][0]
+    x = np.arange(len(rows))
+    ax.bar(x, [r["wall_s"] for r in rows], color=["C7"] + ["C0"] * (len(rows) - 1))
+    for i, r in enumerate(rows):
+        ax.text(i, r["wall_s"], f"{r['candidates_per_s']:.0f} cand/s\n{r['speedup_vs_serial']:.2f}x serial",
+                ha="center", va="bottom", fontsize=8)
+    ax.axhline(1.0, color="k", linestyle="--", label="goal on 2 cores: 1 s")
+    ax.set_ylim(0, 1.25 * max([1.0] + [r["wall_s"] for r in rows]))
+    ax.set_xticks(x, [r["backend"] for r in rows])
+    ax.set_ylabel(f"wall time of {rows[0]['candidates']} candidates [s], median")
+    ax.set_title(f"batch rollouts, {rows[0]['steps_total']} steps (load {load})", fontsize=10)
+    ax.legend(fontsize=8)
+    if node_row:
+        ax = axes[0][1]
+        ax.bar([0, 1], [node_row["idle_rate_hz"], node_row["planning_rate_hz"]], color=["C7", "C0"])
+        ax.axhline(100.0, color="k", linestyle="--", label="goal 100 Hz")
+        for i, (k, m) in enumerate((("idle_rate_hz", "idle_missed_pct"), ("planning_rate_hz", "planning_missed_pct"))):
+            ax.text(i, node_row[k] * 0.5, f"{node_row[k]:.1f} Hz\n{node_row[m]:.2f}% missed", ha="center", fontsize=8)
+        ax.set_xticks([0, 1], ["idle", f"planning\n{node_row['latency_s_median']:.2f} s per request"])
+        ax.set_ylabel("node step rate [Hz]")
+        ax.set_title("the node while it plans (64 candidates per request)", fontsize=10)
+        ax.legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def run(args: argparse.Namespace) -> int:
+    for name in ("candidates", "steps", "repeats"):
+        if getattr(args, name) < 1:
+            raise InputError(f"--{name}={getattr(args, name)}: expected at least 1")
+    if any(w < 1 for w in args.workers):
+        raise InputError(f"--workers {args.workers}: expected pool sizes >= 1")
+    if not (math.isfinite(args.seconds) and args.seconds >= 1):
+        raise InputError(f"--seconds={args.seconds}: expected at least 1 s")
+    b_tool = {"tool_shape": tr.B_TOOL.kind, "tool_length": tr.B_TOOL.length, "tool_width": tr.B_TOOL.width}
+    cfg = resolve_config(overrides=parse_assignments(args.set), params_file=args.params, defaults=b_tool,
+                         source="--set")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    load_before = _load()
+    rows = [] if args.node_only else bench_library(cfg, args.candidates, args.steps, args.repeats,
+                                                   sorted(set(args.workers)))
+    node_row = None if args.no_node else bench_node(cfg, args.seconds, out, 1 + os.getpid() % 100, args.node_workers)
+    load = f"{load_before} -> {_load()}"
+    if rows:
+        _library_table(rows, args, load, out)
+    if node_row:
+        _node_table(node_row, out)
+    if rows:
+        _plot(rows, node_row, out / "plan_bench.png", load)
+        print(f"wrote {out / 'plan_bench.csv'}, {out / 'plan_bench.png'}")
+    print(f"load average {load}")
+    return 0
+
+
+def _library_table(rows: list[dict[str, Any]], args: argparse.Namespace, load: str, out: Path) -> None:
+    with open(out / "plan_bench.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    print(f"{args.candidates} candidates x {args.steps} steps on the paper scene (+ the baseline), "
+          f"median of {args.repeats}; load average {load}; {os.cpu_count()} cores")
+    print(f"{'backend':<8} {'wall s':>7} {'min':>6} {'max':>6} {'cand/s':>7} {'steps/s':>8} {'ms/step':>7} "
+          f"{'vs serial':>9} {'vs 1 wkr':>8} {'start s':>7} identical")
+    for r in rows:
+        print(f"{r['backend']:<8} {r['wall_s']:>7.3f} {r['wall_s_min']:>6.3f} {r['wall_s_max']:>6.3f} "
+              f"{r['candidates_per_s']:>7.1f} {r['steps_per_s']:>8.0f} {r['ms_per_step']:>7.3f} "
+              f"{r['speedup_vs_serial']:>8.2f}x {r['speedup_vs_1_worker']:>7.2f}x "
+              f"{r['pool_start_s']:>7.2f} {'yes' if r['identical_to_serial'] else 'NO'}")
+
+
+def _node_table(node_row: dict[str, Any], out: Path) -> None:
+    if node_row:
+        with open(out / "plan_node.csv", "w", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=list(node_row))
+            writer.writeheader()
+            writer.writerow(node_row)
+        print(f"node (plan_workers {node_row['plan_workers']}), ~/plan_insertion with 64 candidates: first request {node_row['first_request_s']:.2f} s "
+              f"(starts the workers); then {node_row['requests']} requests, latency median "
+              f"{node_row['latency_s_median']:.3f} s (min {node_row['latency_s_min']:.3f}, max "
+              f"{node_row['latency_s_max']:.3f})")
+        print(f"node step rate: idle {node_row['idle_rate_hz']:.2f} Hz ({node_row['idle_missed_pct']:.2f}% missed), "
+              f"planning {node_row['planning_rate_hz']:.2f} Hz ({node_row['planning_missed_pct']:.2f}% missed: "
+              f"{node_row['planning_overruns']} overruns, {node_row['planning_missed_ticks']} skipped ticks in "
+              f"{node_row['planning_steps']} steps); 100 Hz {'met' if node_row['rate_ok'] else 'MISSED'}, "
+              f"< 1% missed {'met' if node_row['missed_ok'] else 'MISSED'}; wrote {out / 'plan_node.csv'}")

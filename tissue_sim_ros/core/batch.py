@@ -1,0 +1,544 @@
+"""Batch rollouts: K candidate tool paths from one snapshot, serially or on a pool of warm worker processes.
+
+A planner asks the running simulation which of K motions costs least from the
+tissue as it is now. :func:`rollout_batch` restores a
+:class:`~tissue_sim_ros.core.snapshot.SimSnapshot` into a scratch simulation
+of the same scene for each candidate and for one tool-free baseline, and
+returns per candidate:
+
+* ``cost``: the energy the candidate adds over the baseline, summed over its
+  steps, sum_t (E_t - E_t^baseline) (the cost of ``tissue-sim plan``; the
+  baseline is the same snapshot stepped as long without the tool);
+* ``peak_energy`` (max_t E_t) and ``peak_added`` (max_t E_t - E_t^baseline);
+* ``peak_force``: the largest reaction on the tool, max_t |F_t| [N];
+* ``max_penetration``: the deepest a tissue particle lies inside the tool's
+  shape at the end of a step [m] (what the contact model left unresolved:
+  ~0 with projection contact, up to the tool's half width when the paper's
+  rule lets the tool through);
+* ``max_displacement``: the largest distance of a particle from its position
+  in the snapshot [m] (the indentation);
+* the scene energy per step, contact steps, inverted triangles, divergences,
+  and the final State when asked.
+
+Two executions, same numbers bit for bit (``test/test_batch.py`` compares
+with ``np.array_equal``):
+
+* serial (``pool=None``): one scratch simulation in this process, restored
+  before each candidate;
+* :class:`RolloutPool`: persistent worker processes (spawned; numba kernels
+  loaded and warmed once per worker, the scene sent once per worker; a
+  snapshot once per batch per worker). Candidates are handed out one at a
+  time to whichever worker is free (two in flight per worker so none waits
+  for the parent), so there is no barrier between candidates: a batch ends
+  when its last candidate does.
+
+Both build their simulation with :meth:`BatchScene.build`: the scene's model
+and tool with the serial Gauss-Seidel solver (one core per candidate; the
+parallel path's sweep order would differ from a serial run's).
+"""
+from __future__ import annotations
+
+import math
+import os
+import time
+import traceback
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+from multiprocessing.connection import Connection, wait
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from .collision import points_sdf
+from .errors import InputError
+from .model import Model, State
+from .simulation import Simulation
+from .snapshot import SimSnapshot, scene_key
+from .solvers import Solver
+from .tool import StraightInsertion, ToolPose, ToolShape, ToolTwist, Trajectory, tool_shape_array, wrap_angle
+
+# --------------------------------------------------------------------------- inputs
+
+
+@dataclass(frozen=True)
+class ToolPath:
+    """One candidate: the tool pose at the end of each step, optionally its twist, and where it starts.
+
+    Parameters
+    ----------
+    poses : (S, 3) float64
+        Tool pose (x [m], y [m], yaw [rad]) at the end of steps 1..S.
+    twists : (S, 3) float64, optional
+        Tool velocity (vx, vy [m/s], wz [rad/s]) of each step; None: derived
+        from consecutive poses by the simulation.
+    start : ToolPose, optional
+        Where the tool is placed before step 1 (no sweep from the snapshot's
+        tool pose): a new insertion. None: the path continues from the
+        snapshot's tool pose (replanning a motion in progress).
+    """
+
+    poses: np.ndarray
+    twists: np.ndarray | None = None
+    start: ToolPose | None = None
+
+    def __post_init__(self) -> None:
+        poses = np.ascontiguousarray(self.poses, dtype=np.float64)
+        if poses.ndim != 2 or poses.shape[1] != 3 or poses.shape[0] < 1:
+            raise InputError(f"tool path poses have shape {poses.shape}: expected (S, 3) [x, y, yaw] with S >= 1")
+        if not np.isfinite(poses).all():
+            raise InputError("tool path poses must be finite")
+        object.__setattr__(self, "poses", poses)
+        if self.twists is not None:
+            twists = np.ascontiguousarray(self.twists, dtype=np.float64)
+            if twists.shape != poses.shape or not np.isfinite(twists).all():
+                raise InputError(f"tool path twists have shape {twists.shape}: expected finite {poses.shape}")
+            object.__setattr__(self, "twists", twists)
+
+    @property
+    def n_steps(self) -> int:
+        return int(self.poses.shape[0])
+
+    @classmethod
+    def _straight(cls, traj: StraightInsertion, dt: float, start: bool) -> "ToolPath":
+        n = traj.n_steps(dt)
+        if n == 0:
+            raise InputError(f"trajectory of {traj.duration} s has no step of dt={dt} s")
+        end = traj.start_time + traj.duration
+        # Trajectory.steps: t_k = min(start + k dt, end); StraightInsertion.pose_at / tip_at per t
+        t = np.minimum(traj.start_time + np.arange(0, n + 1, dtype=np.float64) * dt, end)
+        t[0] = traj.start_time
+        s = np.minimum(np.maximum(t, 0.0) * traj.speed_mps, traj.length) / traj.length
+        yaw = traj.angle
+        c, sn = math.cos(yaw), math.sin(yaw)
+        x = (traj.start[0] + s * (traj.target[0] - traj.start[0])) - traj.tip_offset * c
+        y = (traj.start[1] + s * (traj.target[1] - traj.start[1])) - traj.tip_offset * sn
+        poses = np.empty((n, 3))
+        poses[:, 0], poses[:, 1], poses[:, 2] = x[1:], y[1:], yaw
+        twists = np.zeros((n, 3))
+        twists[:, 0] = (x[1:] - x[:-1]) / dt
+        twists[:, 1] = (y[1:] - y[:-1]) / dt
+        twists[:, 2] = wrap_angle(0.0) / dt
+        return cls(poses, twists, ToolPose(float(x[0]), float(y[0]), yaw) if start else None)
+
+    @classmethod
+    def from_trajectory(cls, traj: Trajectory, dt: float, *, start: bool = True) -> "ToolPath":
+        """The per-step poses and twists of ``traj`` (:meth:`Trajectory.steps`); placed at its start pose if ``start``.
+
+        A :class:`~tissue_sim_ros.core.tool.StraightInsertion` is sampled with NumPy in the same floating-point
+        operations as its ``pose_at`` (the same bits, ``test/test_batch.py``), 10x faster than the loop.
+        """
+        if isinstance(traj, StraightInsertion):
+            return cls._straight(traj, dt, start)
+        rows = list(traj.steps(dt))
+        if not rows:
+            raise InputError(f"trajectory of {traj.duration} s has no step of dt={dt} s")
+        poses = np.array([(p.x, p.y, p.yaw) for p, _ in rows], dtype=np.float64)
+        twists = np.array([(t.vx, t.vy, t.wz) for _, t in rows], dtype=np.float64)
+        return cls(poses, twists, traj.pose_at(traj.start_time) if start else None)
+
+
+def as_tool_path(candidate: ToolPath | Trajectory | np.ndarray, dt: float) -> ToolPath:
+    """A ToolPath from a ToolPath, a Trajectory (placed at its start) or an (S, 3) pose array (continuing)."""
+    if isinstance(candidate, ToolPath):
+        return candidate
+    if isinstance(candidate, Trajectory):
+        return ToolPath.from_trajectory(candidate, dt)
+    return ToolPath(np.asarray(candidate, dtype=np.float64))
+
+
+@dataclass(frozen=True)
+class BatchScene:
+    """What a worker needs to build the scene: the Model and the tool (sent once per worker)."""
+
+    model: Model
+    tool: ToolShape
+
+    @classmethod
+    def from_simulation(cls, sim: Simulation) -> "BatchScene":
+        if sim.tool is None:
+            raise InputError("batch rollouts need a simulation with a tool (tool_shape ...)")
+        return cls(sim.model, sim.tool)
+
+    @property
+    def key(self) -> str:
+        """:func:`~tissue_sim_ros.core.snapshot.scene_key` of the model."""
+        return scene_key(self.model)
+
+    def build(self) -> Simulation:
+        """A scratch Simulation of this scene with the serial solver (see the module docstring)."""
+        sim = Simulation(self.model, self.tool)
+        if getattr(sim.solver, "parallel", False):
+            sim.solver = Solver(self.model, parallel=False)
+        return sim
+
+
+# --------------------------------------------------------------------------- results
+
+
+@dataclass
+class CandidateResult:
+    """What one candidate did (see the module docstring for each number)."""
+
+    index: int
+    steps: int
+    cost: float
+    peak_energy: float
+    peak_added: float
+    final_added: float
+    peak_force: float
+    max_penetration: float
+    max_displacement: float
+    contact_steps: int
+    max_inverted: int
+    diverged_steps: int
+    finite: bool
+    energy: np.ndarray
+    """Scene energy of each step, shape (S,)."""
+    final_state: State | None = None
+    wall_s: float = 0.0
+    """Wall time of the rollout in its process [s] (not part of the comparison with a serial run)."""
+
+    def metrics(self) -> dict[str, Any]:
+        """The scalar numbers (a CSV row)."""
+        return {k: getattr(self, k) for k in ("index", "steps", "cost", "peak_energy", "peak_added", "final_added",
+                                              "peak_force", "max_penetration", "max_displacement", "contact_steps",
+                                              "max_inverted", "diverged_steps", "finite")}
+
+
+@dataclass
+class BatchResult:
+    """Every candidate's result, in candidate order, and the baseline."""
+
+    candidates: list[CandidateResult]
+    baseline_energy: np.ndarray
+    """Scene energy of each step of the tool-free baseline, shape (max S,)."""
+    wall_s: float = 0.0
+    workers: int = 0
+    """Worker processes used (0: serial, in this process)."""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def costs(self) -> np.ndarray:
+        return np.array([c.cost for c in self.candidates])
+
+    def best(self) -> int | None:
+        """Index of the cheapest candidate with finite numbers, or None."""
+        ok = [c for c in self.candidates if c.finite]
+        return None if not ok else min(ok, key=lambda c: c.cost).index
+
+
+# --------------------------------------------------------------------------- one rollout (worker and serial alike)
+
+
+def rollout_baseline(sim: Simulation, snap: SimSnapshot, steps: int) -> np.ndarray:
+    """The scene energy of ``steps`` tool-free steps from ``snap``, shape (steps,)."""
+    sim.restore(snap)
+    out = np.empty(steps)
+    for k in range(steps):
+        out[k] = sim.step(None).energy.scene_total
+    return out
+
+
+def rollout_candidate(sim: Simulation, snap: SimSnapshot, path: ToolPath, index: int = 0,
+                      final_state: bool = False) -> CandidateResult:
+    """Roll ``path`` out from ``snap`` in ``sim``; ``cost`` and the added energies are filled by :func:`finish`."""
+    t0 = time.perf_counter()
+    sim.restore(snap)
+    if path.start is not None:
+        sim.tool_pose = path.start
+    n = path.n_steps
+    energy = np.empty(n)
+    x0 = snap.particle_q
+    n_part = x0.shape[0]
+    sdf = np.empty(n_part)
+    grad = np.empty((n_part, 2))
+    peak_force = max_pen = max_disp = 0.0
+    contact = inverted = diverged = 0
+    poses, twists = path.poses, path.twists
+    for k in range(n):
+        pose = ToolPose(float(poses[k, 0]), float(poses[k, 1]), float(poses[k, 2]))
+        twist = None if twists is None else ToolTwist(float(twists[k, 0]), float(twists[k, 1]), float(twists[k, 2]))
+        r = sim.step(pose, twist)
+        energy[k] = r.energy.scene_total
+        fx, fy = float(r.reaction_force[0]), float(r.reaction_force[1])
+        peak_force = max(peak_force, math.sqrt(fx * fx + fy * fy))  # as np.linalg.norm rounds it
+        x = sim.state.particle_q
+        if n_part:
+            points_sdf(x, tool_shape_array(sim.tool, pose, 0.0), sdf, grad)
+            max_pen = max(max_pen, -float(sdf.min()))
+            d = x - x0
+            max_disp = max(max_disp, math.sqrt(float((d * d).sum(axis=1).max())))
+        contact += bool(r.in_contact.any())
+        inverted = max(inverted, r.n_inverted)
+        diverged += bool(r.diverged)
+    state = sim.state.copy() if final_state else None
+    return CandidateResult(index=index, steps=n, cost=math.nan, peak_energy=float(energy.max()), peak_added=math.nan,
+                           final_added=math.nan, peak_force=peak_force, max_penetration=max(0.0, max_pen),
+                           max_displacement=max_disp, contact_steps=contact, max_inverted=inverted,
+                           diverged_steps=diverged, finite=bool(np.isfinite(energy).all()) and diverged == 0,
+                           energy=energy, final_state=state, wall_s=time.perf_counter() - t0)
+
+
+def finish(result: CandidateResult, baseline: np.ndarray) -> CandidateResult:
+    """Fill the numbers measured against the baseline (in the caller's process: same arithmetic either way)."""
+    added = result.energy - baseline[: result.steps]
+    result.cost = float(added.sum())
+    result.peak_added = float(added.max())
+    result.final_added = float(added[-1])
+    result.finite = result.finite and bool(np.isfinite(added).all())
+    return result
+
+
+def _paths(candidates: Iterable[ToolPath | Trajectory | np.ndarray], dt: float) -> list[ToolPath]:
+    paths = [as_tool_path(c, dt) for c in candidates]
+    if not paths:
+        raise InputError("no candidate tool paths: expected at least one")
+    return paths
+
+
+def _snapshot_of(source: Simulation | SimSnapshot) -> SimSnapshot:
+    return source.snapshot() if isinstance(source, Simulation) else source
+
+
+def rollout_batch(source: Simulation | SimSnapshot, candidates: Sequence[ToolPath | Trajectory | np.ndarray], *,
+                  scene: BatchScene | None = None, pool: "RolloutPool | None" = None,
+                  final_state: bool = False) -> BatchResult:
+    """Roll every candidate out from ``source`` (a Simulation: its snapshot now; or a snapshot).
+
+    Parameters
+    ----------
+    source : Simulation or SimSnapshot
+        Where every candidate starts.
+    candidates : sequence of ToolPath, Trajectory or (S, 3) pose arrays
+        See :func:`as_tool_path`.
+    scene : BatchScene, optional
+        The scene (default: ``source``'s, which must then be a Simulation; or the pool's).
+    pool : RolloutPool, optional
+        Run on its workers; None: serially in this process.
+    final_state : bool
+        Keep each candidate's final State.
+    """
+    snap = _snapshot_of(source)
+    if pool is not None:
+        return pool.run(snap, candidates, final_state=final_state)
+    if scene is None:
+        if not isinstance(source, Simulation):
+            raise InputError("rollout_batch from a snapshot needs scene= (a BatchScene) or pool=")
+        scene = BatchScene.from_simulation(source)
+    t0 = time.perf_counter()
+    sim = scene.build()
+    paths = _paths(candidates, scene.model.params.dt)
+    baseline = rollout_baseline(sim, snap, max(p.n_steps for p in paths))
+    results = [finish(rollout_candidate(sim, snap, p, i, final_state), baseline) for i, p in enumerate(paths)]
+    return BatchResult(results, baseline, time.perf_counter() - t0, 0)
+
+
+# --------------------------------------------------------------------------- the pool
+
+
+def warm_up(sim: Simulation) -> None:
+    """A few throwaway steps with the tool in the tissue, then reset: numba kernels loaded (or compiled) now."""
+    q0 = sim.model.particle_q0
+    if len(q0) == 0:
+        return
+    cx, cy = (q0.min(axis=0) + q0.max(axis=0)) / 2.0
+    sim.step(None)
+    if sim.tool is not None:
+        sim.step(ToolPose(float(cx), float(cy), 0.0))
+        sim.step(ToolPose(float(cx) + 1e-3, float(cy), 0.0))
+    sim.reset()
+
+
+def _worker_main(conn: Connection, scene: BatchScene) -> None:
+    """A worker: build and warm the scene once, then serve snapshots, baselines and candidates until told to stop."""
+    import signal  # noqa: PLC0415
+
+    import numba  # noqa: PLC0415
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the parent stops us
+    numba.set_num_threads(1)  # one core per worker: the workers are the parallelism
+    try:
+        sim = scene.build()
+        warm_up(sim)
+        conn.send(("ready", os.getpid()))
+    except Exception:  # noqa: BLE001  reported to the parent, which raises it
+        conn.send(("error", -1, -1, traceback.format_exc()))
+        return
+    snaps: dict[int, SimSnapshot] = {}
+    while True:
+        try:
+            msg = conn.recv()
+        except EOFError:
+            return
+        kind = msg[0]
+        if kind == "stop":
+            return
+        try:
+            if kind == "scene":
+                sim = msg[1].build()
+                warm_up(sim)
+                snaps.clear()
+                conn.send(("scene", os.getpid()))
+            elif kind == "snapshot":
+                snaps.clear()
+                snaps[msg[1]] = msg[2]
+            elif kind == "baseline":
+                _, batch, steps = msg
+                conn.send(("baseline", batch, -1, rollout_baseline(sim, snaps[batch], steps)))
+            elif kind == "run":
+                _, batch, index, path, keep = msg
+                conn.send(("result", batch, index, rollout_candidate(sim, snaps[batch], path, index, keep)))
+        except Exception:  # noqa: BLE001
+            conn.send(("error", msg[1] if len(msg) > 1 else -1, msg[2] if len(msg) > 2 else -1, traceback.format_exc()))
+
+
+class RolloutPool:
+    """Persistent worker processes that keep a scene's kernels warm and roll candidates out on demand.
+
+    Parameters
+    ----------
+    scene : BatchScene or Simulation
+        Sent to every worker once (and again by :meth:`set_scene`).
+    workers : int
+        Worker processes (default: the machine's cores).
+    nice : int
+        Added to each worker's niceness, so that a process sharing the cores
+        (the node's step thread) is scheduled first; 0 = unchanged.
+    start_timeout : float
+        Seconds to wait for the workers to build and warm the scene.
+
+    Use as a context manager, or call :meth:`close`.
+    """
+
+    def __init__(self, scene: BatchScene | Simulation, workers: int | None = None, *, nice: int = 0,
+                 start_timeout: float = 120.0) -> None:
+        self.scene = BatchScene.from_simulation(scene) if isinstance(scene, Simulation) else scene
+        workers = (os.cpu_count() or 1) if workers is None else workers
+        if workers < 1:
+            raise InputError(f"workers={workers}: expected at least 1 worker process")
+        self.n_workers = int(workers)
+        self.scene_key = self.scene.key
+        ctx = get_context("spawn")  # a fresh interpreter: numba's threads do not survive fork
+        self._conns: list[Connection] = []
+        self._procs = []
+        self._batch = 0
+        for _ in range(self.n_workers):
+            parent, child = ctx.Pipe()
+            proc = ctx.Process(target=_worker_main, args=(child, self.scene), daemon=True)
+            proc.start()
+            child.close()
+            if nice:
+                # at once, before the worker's imports compete with the caller's threads
+                try:
+                    os.setpriority(os.PRIO_PROCESS, proc.pid, os.getpriority(os.PRIO_PROCESS, proc.pid) + nice)
+                except OSError:
+                    pass
+            self._conns.append(parent)
+            self._procs.append(proc)
+        self.pids = [self._expect(c, "ready", start_timeout) for c in self._conns]
+
+    def _expect(self, conn: Connection, kind: str, timeout: float) -> Any:
+        if not conn.poll(timeout):
+            self.close()
+            raise RuntimeError(f"rollout worker did not answer '{kind}' within {timeout} s")
+        try:
+            msg = conn.recv()
+        except EOFError:
+            msg = ("error", -1, -1, "the worker exited before it was ready (is the caller's main module import-safe?)")
+        if msg[0] != kind:
+            self.close()
+            raise RuntimeError(f"rollout worker failed:\n{msg[-1]}")
+        return msg[1]
+
+    def __enter__(self) -> "RolloutPool":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    @property
+    def alive(self) -> bool:
+        return bool(self._procs) and all(p.is_alive() for p in self._procs)
+
+    def set_scene(self, scene: BatchScene | Simulation, timeout: float = 120.0) -> None:
+        """Send a new scene (other parameters or mesh) to every worker; they rebuild and warm it."""
+        self.scene = BatchScene.from_simulation(scene) if isinstance(scene, Simulation) else scene
+        self.scene_key = self.scene.key
+        for c in self._conns:
+            c.send(("scene", self.scene))
+        for c in self._conns:
+            self._expect(c, "scene", timeout)
+
+    def run(self, snap: SimSnapshot, candidates: Sequence[ToolPath | Trajectory | np.ndarray], *,
+            final_state: bool = False) -> BatchResult:
+        """Roll every candidate out from ``snap`` on the workers (see :func:`rollout_batch`)."""
+        if not self.alive:
+            raise RuntimeError("the rollout pool is closed or a worker died")
+        if snap.scene != self.scene_key:
+            raise InputError(f"snapshot of scene {snap.scene[:8]}: expected one of the pool's scene {self.scene_key[:8]}")
+        t0 = time.perf_counter()
+        paths = _paths(candidates, self.scene.model.params.dt)
+        self._batch += 1
+        batch = self._batch
+        for c in self._conns:
+            c.send(("snapshot", batch, snap))
+        # the baseline first (it is as long as the longest candidate), then candidates in order
+        tasks: list[tuple] = [("baseline", batch, max(p.n_steps for p in paths))]
+        tasks += [("run", batch, i, p, final_state) for i, p in enumerate(paths)]
+        results: list[CandidateResult | None] = [None] * len(paths)
+        baseline: np.ndarray | None = None
+        next_task = 0
+        in_flight = {id(c): 0 for c in self._conns}
+        by_id = {id(c): c for c in self._conns}
+        for _ in range(2):  # two in flight per worker: a worker never waits for the parent's round trip
+            for c in self._conns:
+                if next_task < len(tasks):
+                    c.send(tasks[next_task])
+                    in_flight[id(c)] += 1
+                    next_task += 1
+        remaining = len(tasks)
+        while remaining:
+            ready = wait([c for c in self._conns if in_flight[id(c)]], timeout=60.0)
+            if not ready:
+                if not self.alive:
+                    raise RuntimeError("a rollout worker died")
+                continue
+            for c in ready:
+                try:
+                    msg = c.recv()
+                except EOFError:
+                    raise RuntimeError("a rollout worker died") from None
+                kind, b, index, payload = msg
+                if kind == "error":
+                    raise RuntimeError(f"rollout worker failed on task {index}:\n{payload}")
+                if b != batch:
+                    continue
+                in_flight[id(c)] -= 1
+                remaining -= 1
+                if kind == "baseline":
+                    baseline = payload
+                else:
+                    results[index] = payload
+                if next_task < len(tasks):
+                    by_id[id(c)].send(tasks[next_task])
+                    in_flight[id(c)] += 1
+                    next_task += 1
+        assert baseline is not None
+        out = [finish(r, baseline) for r in results if r is not None]
+        return BatchResult(out, baseline, time.perf_counter() - t0, self.n_workers)
+
+    def close(self) -> None:
+        """Stop the workers (a second call does nothing)."""
+        for c in self._conns:
+            try:
+                c.send(("stop",))
+            except (OSError, BrokenPipeError):
+                pass
+        for p in self._procs:
+            p.join(timeout=5.0)
+            if p.is_alive():
+                p.terminate()
+                p.join(timeout=2.0)
+        for c in self._conns:
+            c.close()
+        self._conns, self._procs = [], []
