@@ -1,0 +1,499 @@
+"""Identify tissue parameters from a recording: least squares over rollouts, error bars, identifiability.
+
+The unknowns are optimised in a scaled variable z: ``z = ln(value)`` for a
+scale parameter (a stiffness, a modulus, a density: positive, wanted to a
+relative accuracy) and ``z = value / scale`` for the others (Poisson's ratio,
+a damping rate that may be 0). The residuals are simulated minus observed
+tracked-point coordinates in mm over the fitted frames. The Jacobian is
+forward differences in z, all perturbed candidates handed to the
+:class:`~tissue_sim_ros.core.tracking.TrackSimulator` in one batch.
+
+Uncertainty (Gauss-Newton at the optimum): ``cov_z = tau s^2 (J^T J)^-1`` with
+``s^2 = |r|^2 / (m - n)``; ``tau = 1 + 2 sum_k rho_k`` is the integrated
+autocorrelation time of the residuals along the recording (rho_k summed while
+positive), so residuals that are not white (model error that is smooth in
+time, as a coarser mesh than the tissue's leaves) widen the error bars by the
+factor the effective number of independent residuals falls.
+
+A parameter is *not identifiable* when its 95% interval is wider than a factor
+of 2 (scale parameters) or a quarter of its bounds (the others), or when the
+scaled Jacobian has a relative singular value below 1e-3 along it (it has no
+effect on the observed points, or only a combination with another is
+determined). It is then held at its starting value, the others refitted, and
+reported with the reason instead of a number.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from .errors import InputError
+from .tracking import SimulatedTracks, TrackSimulator
+
+#: Parameters a fit knows how to scale: name -> (kind, scale or None, default bounds or None).
+#: ``log``: z = ln(value), bounds default to value / 100 .. value * 100; ``lin``: z = value / scale.
+KNOWN_PARAMETERS: dict[str, tuple[str, float | None, tuple[float, float] | None]] = {
+    "young_modulus": ("log", None, None),
+    "poisson_ratio": ("lin", 0.1, (0.0, 0.49)),
+    "thickness": ("log", None, None),
+    "density": ("log", None, None),
+    "damping": ("lin", 1.0, (0.0, 50.0)),
+    "stiffness_spring": ("log", None, None),
+    "stiffness_area": ("log", None, None),
+    "mass_per_area": ("log", None, None),
+    "mass": ("log", None, None),
+    "k_spring": ("lin", 0.1, (0.0, 1.0)),
+    "k_area": ("lin", 0.1, (0.0, 1.0)),
+}
+
+#: Relative singular value of the scaled Jacobian below which a direction is not determined.
+SINGULAR_TOLERANCE = 1e-3
+#: A scale parameter is identified when its 95% interval is within this factor either way.
+MAX_FACTOR_95 = 2.0
+#: Any other parameter is identified when its 95% half-width is below this fraction of its bounds' span.
+MAX_SPAN_FRACTION_95 = 0.25
+Z95 = 1.959964
+
+
+@dataclass(frozen=True)
+class FitParameter:
+    """One unknown: its name, start value, bounds and scaling."""
+
+    name: str
+    initial: float
+    lower: float
+    upper: float
+    kind: str = "log"
+    """``log`` (z = ln value) or ``lin`` (z = value / scale)."""
+    scale: float = 1.0
+
+    def to_z(self, value: float) -> float:
+        return math.log(value) if self.kind == "log" else value / self.scale
+
+    def from_z(self, z: float) -> float:
+        return math.exp(z) if self.kind == "log" else z * self.scale
+
+    @property
+    def z_bounds(self) -> tuple[float, float]:
+        return self.to_z(self.lower), self.to_z(self.upper)
+
+
+def make_parameter(name: str, initial: float, bounds: tuple[float, float] | None = None) -> FitParameter:
+    """A :class:`FitParameter` with the scaling of :data:`KNOWN_PARAMETERS` (log for other positive values)."""
+    if not (isinstance(initial, (int, float)) and not isinstance(initial, bool) and math.isfinite(initial)):
+        raise InputError(f"parameter {name}={initial!r}: expected a finite number to start the fit from")
+    kind, scale, default_bounds = KNOWN_PARAMETERS.get(name, ("log" if initial > 0 else "lin", None, None))
+    if kind == "log" and initial <= 0:
+        raise InputError(f"parameter {name}={initial!r}: expected a value > 0 to fit (it is fitted on a log scale)")
+    if bounds is None:
+        bounds = default_bounds if default_bounds is not None else (
+            (initial / 100.0, initial * 100.0) if kind == "log" else (initial - 10 * (scale or 1.0), initial + 10 * (scale or 1.0)))
+    lo, hi = float(bounds[0]), float(bounds[1])
+    if not (lo < hi) or (kind == "log" and lo <= 0):
+        raise InputError(f"bounds of {name} {lo}:{hi}: expected lower < upper" + (" and lower > 0" if kind == "log" else ""))
+    if not lo <= initial <= hi:
+        raise InputError(f"parameter {name}={initial}: the start value is outside its bounds {lo}:{hi}")
+    return FitParameter(name=name, initial=float(initial), lower=lo, upper=hi, kind=kind,
+                        scale=float(scale) if scale else (abs(initial) if kind == "lin" and initial else 1.0))
+
+
+@dataclass
+class ParameterEstimate:
+    """The outcome for one parameter."""
+
+    name: str
+    initial: float
+    value: float | None
+    """The fitted value; None when it is not identifiable."""
+    sigma: float | None
+    """One standard deviation [the parameter's unit] (delta method for log-scaled ones)."""
+    low95: float | None
+    high95: float | None
+    identifiable: bool
+    reason: str = ""
+    """Why it is not identifiable (empty when it is)."""
+
+    def as_dict(self) -> dict:
+        return {"name": self.name, "initial": self.initial, "value": self.value, "sigma": self.sigma,
+                "low95": self.low95, "high95": self.high95, "identifiable": self.identifiable, "reason": self.reason}
+
+
+@dataclass
+class CostSlice:
+    """The cost along one parameter through the optimum, the others held."""
+
+    name: str
+    values: np.ndarray
+    cost: np.ndarray
+    """0.5 sum r^2 [mm^2] at each value."""
+
+
+@dataclass
+class FitResult:
+    """What a fit found."""
+
+    estimates: list[ParameterEstimate]
+    values: dict[str, float]
+    """Every fitted parameter's final value (the start value for those not identifiable)."""
+    rms_fit_mm: float
+    rms_holdout_mm: float | None
+    cost: float
+    """0.5 sum r^2 over the fitted frames [mm^2]."""
+    n_residuals: int
+    tau: float
+    """Integrated autocorrelation time of the residuals (1 for white residuals)."""
+    singular_values: np.ndarray
+    """Relative singular values of the scaled Jacobian (largest 1)."""
+    jacobian: np.ndarray
+    """d residual [mm] / d z at the optimum, shape (m, n)."""
+    covariance_z: np.ndarray | None
+    n_rollouts: int
+    n_iterations: int
+    wall_time: float
+    optimizer: str
+    message: str
+    contact_steps: int
+    """Steps with contact in the final rollout of the fitted part."""
+    simulated: np.ndarray | None = None
+    """Simulated points over the whole recording with the final values, shape (F, P, 2)."""
+    slices: list[CostSlice] = field(default_factory=list)
+
+    def estimate(self, name: str) -> ParameterEstimate:
+        return next(e for e in self.estimates if e.name == name)
+
+
+def autocorrelation_time(res: np.ndarray) -> float:
+    """Integrated autocorrelation time of residual series, res shape (F, C) (time along axis 0).
+
+    tau = 1 + 2 sum_{k>=1} rho_k, the correlations averaged over the C series and summed while positive
+    (Geyer's initial positive sequence, truncated at the first negative rho).
+    """
+    r = np.where(np.isfinite(res), res, 0.0)
+    r = r - r.mean(axis=0, keepdims=True)
+    f = r.shape[0]
+    var = (r * r).sum()
+    if f < 3 or var <= 0:
+        return 1.0
+    tau = 1.0
+    for k in range(1, f // 2):
+        rho = float((r[k:] * r[:-k]).sum() / var)
+        if rho <= 0:
+            break
+        tau += 2.0 * rho
+    return tau
+
+
+class FitProblem:
+    """Residuals of a recording's fitted frames as a function of the scaled unknowns z."""
+
+    def __init__(self, simulator: TrackSimulator, observed: np.ndarray, parameters: Sequence[FitParameter],
+                 n_fit_frames: int, fixed: Mapping[str, float] | None = None, diff_step: float = 1e-2) -> None:
+        self.simulator = simulator
+        self.observed = observed
+        self.parameters = list(parameters)
+        self.n_fit = int(n_fit_frames)
+        self.fixed = dict(fixed or {})
+        self.diff_step = float(diff_step)
+        self._cache: dict[bytes, tuple[np.ndarray, SimulatedTracks]] = {}
+        obs = observed[1:self.n_fit]  # frame 0 binds the points: zero residual by construction
+        self._mask = np.isfinite(obs)
+        self.n_residuals = int(self._mask.sum())
+
+    def values(self, z: np.ndarray) -> dict[str, float]:
+        out = dict(self.fixed)
+        out.update({p.name: p.from_z(float(zi)) for p, zi in zip(self.parameters, z)})
+        return out
+
+    def residual_of(self, tracks: SimulatedTracks) -> np.ndarray:
+        sim = tracks.points[1:self.n_fit]
+        r = (sim - self.observed[1:self.n_fit]) * 1e3
+        return r[self._mask]
+
+    def evaluate(self, zs: Sequence[np.ndarray]) -> list[tuple[np.ndarray, SimulatedTracks]]:
+        """Residuals [mm] and tracks of several z at once (one batch to the simulator; cached)."""
+        keys = [np.asarray(z, dtype=np.float64).tobytes() for z in zs]
+        todo = [i for i, k in enumerate(keys) if k not in self._cache]
+        # drop duplicates within the batch
+        first: dict[bytes, int] = {}
+        for i in todo:
+            first.setdefault(keys[i], i)
+        idx = list(first.values())
+        if idx:
+            runs = self.simulator.simulate([self.values(zs[i]) for i in idx], self.n_fit)
+            for i, run in zip(idx, runs):
+                self._cache[keys[i]] = (self.residual_of(run), run)
+        return [self._cache[k] for k in keys]
+
+    def residual(self, z: np.ndarray) -> np.ndarray:
+        return self.evaluate([z])[0][0]
+
+    def jacobian(self, z: np.ndarray) -> np.ndarray:
+        """Forward differences in z, the step away from the nearer bound; one batch of n + 1 rollouts."""
+        z = np.asarray(z, dtype=np.float64)
+        steps = []
+        for j, p in enumerate(self.parameters):
+            lo, hi = p.z_bounds
+            h = self.diff_step if z[j] + self.diff_step <= hi else -self.diff_step
+            if z[j] + h < lo:
+                h = self.diff_step
+            steps.append(h)
+        zs = [z] + [z + h * np.eye(len(z))[j] for j, h in enumerate(steps)]
+        out = self.evaluate(zs)
+        r0 = out[0][0]
+        return np.column_stack([(out[j + 1][0] - r0) / steps[j] for j in range(len(steps))]) if steps else \
+            np.zeros((r0.size, 0))
+
+
+def _covariance(jac: np.ndarray, r: np.ndarray, params: Sequence[FitParameter], tau: float
+                ) -> tuple[np.ndarray | None, np.ndarray]:
+    """Gauss-Newton covariance of z and the relative singular values of the scaled J."""
+    n_params = len(params)
+    if jac.size == 0:
+        return None, np.zeros(0)
+    sv = np.linalg.svd(scaled_jacobian(params, jac), compute_uv=False)
+    rel = sv / sv[0] if sv[0] > 0 else np.zeros_like(sv)
+    dof = max(1, r.size - n_params)
+    s2 = float(r @ r) / dof
+    try:
+        cov = tau * s2 * np.linalg.pinv(jac.T @ jac, rcond=1e-12)
+    except np.linalg.LinAlgError:
+        return None, rel
+    return cov, rel
+
+
+def plausible_range(p: FitParameter) -> float:
+    """The change of z that matters for a parameter: a factor 2 (log) or a quarter of its bounds' span (lin)."""
+    return math.log(MAX_FACTOR_95) if p.kind == "log" else MAX_SPAN_FRACTION_95 * (p.upper - p.lower) / p.scale
+
+
+def scaled_jacobian(params: Sequence[FitParameter], jac: np.ndarray) -> np.ndarray:
+    """J with each column times its parameter's :func:`plausible_range`: comparable across units."""
+    return jac * np.array([plausible_range(p) for p in params])[None, :] if len(params) else jac
+
+
+def _identifiability(params: Sequence[FitParameter], jac: np.ndarray, cov: np.ndarray | None, noise: float,
+                     contact_steps: int) -> list[str]:
+    """A reason per parameter ('' = identified).
+
+    ``noise``: the standard deviation of one residual [mm], inflated by the autocorrelation time
+    (sqrt(tau s^2)). A parameter whose plausible change moves the residuals by less than 1.96 noise has no
+    effect on the observed points; a scaled Jacobian singular value below SINGULAR_TOLERANCE of the largest
+    means only a combination is determined; otherwise the 95% interval decides.
+    """
+    n = len(params)
+    reasons = [""] * n
+    if n == 0:
+        return reasons
+    js = scaled_jacobian(params, jac)
+    col = np.linalg.norm(js, axis=0)
+    _, sv, vt = np.linalg.svd(js, full_matrices=False)
+    smax = float(sv[0]) if sv.size else 0.0
+    no_touch = " (the tool never touches the tissue in the fitted part)" if contact_steps == 0 else ""
+    for j, p in enumerate(params):
+        if col[j] <= Z95 * noise or smax == 0 or col[j] <= SINGULAR_TOLERANCE * smax:
+            reasons[j] = f"has no effect on the observed points{no_touch}"
+    for k in range(sv.size):
+        if smax > 0 and sv[k] < SINGULAR_TOLERANCE * smax:
+            v = np.abs(vt[k])
+            involved = [params[j].name for j in np.flatnonzero(v > 0.3)]
+            for j in np.flatnonzero(v > 0.3):
+                others = [nm for nm in involved if nm != params[j].name]
+                if not reasons[j] and others:
+                    reasons[j] = "only a combination with " + ", ".join(others) + " is determined"
+    if cov is not None:
+        for j, p in enumerate(params):
+            if reasons[j]:
+                continue
+            sz = math.sqrt(max(0.0, cov[j, j]))
+            if Z95 * sz <= plausible_range(p):
+                continue
+            # wide although it moves the points: correlated with another (its conditional sigma is small)
+            corr = [params[i].name for i in range(n) if i != j and cov[i, i] > 0
+                    and abs(cov[i, j]) / math.sqrt(cov[i, i] * cov[j, j]) > 0.9]
+            if p.kind == "log":
+                what = f"the recording determines it only within a factor {math.exp(Z95 * sz):.3g} (95%)"
+            else:
+                what = f"the recording determines it only to +-{Z95 * sz * p.scale:.3g} (95%)"
+            reasons[j] = what + (f", correlated with {', '.join(corr)}" if corr else "") + no_touch
+    return reasons
+
+
+def _least_squares(problem: FitProblem, z0: np.ndarray, max_nfev: int, on_iter: Callable[[float], None] | None
+                   ) -> tuple[np.ndarray, int, str]:
+    from scipy.optimize import least_squares  # noqa: PLC0415  (scipy is slow to import; only fits need it)
+
+    lo = np.array([p.z_bounds[0] for p in problem.parameters])
+    hi = np.array([p.z_bounds[1] for p in problem.parameters])
+    count = [0]
+
+    def fun(z: np.ndarray) -> np.ndarray:
+        r = problem.residual(z)
+        count[0] += 1
+        if on_iter is not None:
+            on_iter(0.5 * float(r @ r))
+        return r
+
+    res = least_squares(fun, z0, jac=problem.jacobian, bounds=(lo, hi), method="trf", x_scale=1.0,
+                        xtol=1e-4, ftol=1e-6, gtol=1e-8, max_nfev=max_nfev)
+    return res.x, int(res.nfev), str(res.message)
+
+
+def _cma(problem: FitProblem, z0: np.ndarray, max_nfev: int, on_iter: Callable[[float], None] | None,
+         seed: int) -> tuple[np.ndarray, int, str]:
+    try:
+        import cma  # noqa: PLC0415  (optional extra: pip install '.[fit]')
+    except ModuleNotFoundError:
+        raise InputError("--optimizer cma needs the 'cma' package: pip install 'tissue_sim_ros[fit]'") from None
+    lo = [p.z_bounds[0] for p in problem.parameters]
+    hi = [p.z_bounds[1] for p in problem.parameters]
+    es = cma.CMAEvolutionStrategy(list(z0), 0.3, {"bounds": [lo, hi], "seed": seed, "verbose": -9,
+                                                  "maxfevals": max_nfev, "tolfun": 1e-6, "tolx": 1e-4})
+    n = 0
+    while not es.stop():
+        zs = [np.asarray(z) for z in es.ask()]
+        out = problem.evaluate(zs)
+        costs = [0.5 * float(r @ r) for r, _ in out]
+        n += len(zs)
+        es.tell([list(z) for z in zs], costs)
+        if on_iter is not None:
+            on_iter(min(costs))
+    return np.asarray(es.result.xbest, dtype=np.float64), n, ", ".join(f"{k}={v}" for k, v in es.stop().items())
+
+
+def fit(simulator: TrackSimulator, observed: np.ndarray, parameters: Sequence[FitParameter], *, n_fit_frames: int,
+        optimizer: str = "least_squares", max_nfev: int = 60, diff_step: float = 1e-2, seed: int = 0,
+        slices: int = 9, slice_sigmas: float = 3.0, on_iter: Callable[[float], None] | None = None) -> FitResult:
+    """Fit ``parameters`` so that the simulated tracked points match ``observed`` over the first frames.
+
+    Parameters
+    ----------
+    simulator : TrackSimulator
+        Rolls out candidate parameter values.
+    observed : (F, P, 2) tracked points [m] (NaN: not seen).
+    parameters : the unknowns (start values, bounds, scaling).
+    n_fit_frames : frames 0 .. n_fit_frames-1 are fitted; the rest is held out.
+    optimizer : ``least_squares`` (scipy, trust region reflective) or ``cma`` (CMA-ES, for a rough cost).
+    slices : points per 1D cost slice through the optimum (0: none), spanning +- slice_sigmas sigma (at least
+        +-10% or +-0.02 scale units).
+    """
+    if optimizer not in ("least_squares", "cma"):
+        raise InputError(f"optimizer={optimizer!r}: expected least_squares or cma")
+    start = time.perf_counter()
+    params = list(parameters)
+    if not params:
+        raise InputError("nothing to fit: expected at least one parameter")
+    n_total = observed.shape[0]
+    if not 2 <= n_fit_frames <= n_total:
+        raise InputError(f"{n_fit_frames} fitted frames of {n_total}: expected at least 2")
+    held: dict[str, float] = {}
+    reasons: dict[str, str] = {}
+    active = params
+    rollouts = 0
+    nfev_total = 0
+    message = ""
+    problem = None
+    z = None
+    for _attempt in range(len(params) + 1):
+        problem = FitProblem(simulator, observed, active, n_fit_frames, fixed=held, diff_step=diff_step)
+        if problem.n_residuals < len(active) + 1:
+            raise InputError(f"{problem.n_residuals} observed coordinates in the fitted part: too short to fit "
+                             f"{len(active)} parameter(s)")
+        z0 = np.array([p.to_z(p.initial) for p in active])
+        if optimizer == "least_squares":
+            z, nfev, message = _least_squares(problem, z0, max_nfev, on_iter)
+        else:
+            z, nfev, message = _cma(problem, z0, max_nfev, on_iter, seed)
+        nfev_total += nfev
+        r, run = problem.evaluate([z])[0]
+        jac = problem.jacobian(z)
+        res_frames = _residual_frames(problem, run)
+        tau = autocorrelation_time(res_frames)
+        cov, rel_sv = _covariance(jac, r, active, tau)
+        noise = math.sqrt(tau * float(r @ r) / max(1, r.size - len(active)))
+        why = _identifiability(active, jac, cov, noise, run.contact_steps)
+        rollouts += len(problem._cache)
+        if not any(why):
+            break
+        for p, w in zip(active, why):
+            if w:
+                held[p.name] = p.initial
+                reasons[p.name] = w
+        active = [p for p in active if p.name not in held]
+        if not active:
+            break
+    assert problem is not None and z is not None
+    if not active:
+        # nothing identifiable: report the residual at the start values
+        problem = FitProblem(simulator, observed, [], n_fit_frames, fixed=held, diff_step=diff_step)
+        z = np.zeros(0)
+        r, run = problem.evaluate([z])[0]
+        jac = np.zeros((r.size, 0))
+        tau = autocorrelation_time(_residual_frames(problem, run))
+        cov, rel_sv = None, np.zeros(0)
+        rollouts += 1
+    final = problem.values(z)
+    estimates = []
+    for p in params:
+        if p.name in held:
+            estimates.append(ParameterEstimate(p.name, p.initial, None, None, None, None, False, reasons[p.name]))
+            continue
+        j = [q.name for q in active].index(p.name)
+        zj = float(z[j])
+        sz = math.sqrt(max(0.0, cov[j, j])) if cov is not None else float("nan")
+        value = p.from_z(zj)
+        if p.kind == "log":
+            sigma, lo95, hi95 = value * sz, math.exp(zj - Z95 * sz), math.exp(zj + Z95 * sz)
+        else:
+            sigma, lo95, hi95 = sz * p.scale, value - Z95 * sz * p.scale, value + Z95 * sz * p.scale
+        estimates.append(ParameterEstimate(p.name, p.initial, value, sigma, lo95, hi95, True))
+    # the whole recording with the final values: the fitted part and the held-out part
+    full = simulator.simulate([final], n_total)[0]
+    rollouts += 1
+    from .tracking import rms_mm  # noqa: PLC0415
+
+    rms_fit = rms_mm(full.points[1:n_fit_frames], observed[1:n_fit_frames])
+    rms_hold = rms_mm(full.points[n_fit_frames:], observed[n_fit_frames:]) if n_fit_frames < n_total else None
+    result = FitResult(
+        estimates=estimates, values=final, rms_fit_mm=rms_fit, rms_holdout_mm=rms_hold, cost=0.5 * float(r @ r),
+        n_residuals=int(r.size), tau=tau, singular_values=rel_sv, jacobian=jac, covariance_z=cov,
+        n_rollouts=rollouts, n_iterations=nfev_total, wall_time=0.0, optimizer=optimizer, message=message,
+        contact_steps=run.contact_steps, simulated=full.points)
+    if slices > 0 and active:
+        result.slices = cost_slices(problem, z, cov, slices, slice_sigmas)
+        result.n_rollouts += sum(len(s.values) for s in result.slices)
+    result.wall_time = time.perf_counter() - start
+    return result
+
+
+def _residual_frames(problem: FitProblem, run: SimulatedTracks) -> np.ndarray:
+    """Residuals [mm] as a (frames, coordinates) table for the autocorrelation (NaN where not observed)."""
+    f = problem.n_fit
+    r = (run.points[1:f] - problem.observed[1:f]) * 1e3
+    return r.reshape(r.shape[0], -1)
+
+
+def cost_slices(problem: FitProblem, z: np.ndarray, cov: np.ndarray | None, n: int, sigmas: float) -> list[CostSlice]:
+    """The cost along each parameter through ``z`` (one batch for all slices)."""
+    grids = []
+    for j, p in enumerate(problem.parameters):
+        sz = math.sqrt(max(0.0, cov[j, j])) if cov is not None else 0.0
+        half = max(sigmas * sz, 0.1 if p.kind == "log" else 0.2)
+        lo, hi = p.z_bounds
+        g = np.clip(z[j] + np.linspace(-half, half, n), lo, hi)
+        grids.append(g)
+    zs = []
+    for j, g in enumerate(grids):
+        for v in g:
+            zz = z.copy()
+            zz[j] = v
+            zs.append(zz)
+    out = problem.evaluate(zs)
+    slices = []
+    for j, (p, g) in enumerate(zip(problem.parameters, grids)):
+        costs = np.array([0.5 * float(r @ r) for r, _ in out[j * n:(j + 1) * n]])
+        slices.append(CostSlice(p.name, np.array([p.from_z(float(v)) for v in g]), costs))
+    return slices
