@@ -30,6 +30,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
     "record": ("tissue_sim_ros.ros.record", "record the node's topics to a rosbag2 bag (MCAP or sqlite3)"),
     "replay": ("tissue_sim_ros.ros.replay", "run the simulation offline on a bag's tool trajectory; write a bag, CSV, plots, frames"),
     "play": ("tissue_sim_ros.ros.play", "publish a bag's tool topics into a live ROS graph with the recorded timing"),
+    "fit": ("tissue_sim_ros.ros.fit", "identify the tissue's material from a recording (tracked points + tool poses)"),
     "tune": ("tissue_sim_ros.bench.tune", "pick the cheapest mesh spacing/method/iterations meeting an error tolerance"),
     "bench": {
         "solver": ("tissue_sim_ros.bench.solver", "ms per step, ns per projection and ratio to NumPy, per method and mesh size"),

@@ -321,6 +321,81 @@ class SerialTrackSimulator:
         return out
 
 
+@dataclass
+class SceneFactory:
+    """Builds the scene at rest for candidate values: ``build_simulation({**values, **candidate}, mesh=mesh)``.
+
+    Plain data, so it travels to worker processes.
+    """
+
+    values: dict[str, Any]
+    mesh: TissueMesh
+
+    def __call__(self, candidate: Mapping[str, float]) -> Any:
+        from .scene import build_simulation  # noqa: PLC0415  (scene imports the solvers; tracking stays light)
+
+        return build_simulation({**self.values, **candidate}, mesh=self.mesh)
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _worker_init(factory: SceneFactory, binding: PointBinding, schedule: Schedule) -> None:
+    import os  # noqa: PLC0415
+
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")  # one core per candidate, as in the parent's serial runs
+    _WORKER.update(factory=factory, binding=binding, schedule=schedule)
+    sim = factory({})  # load the compiled kernels now, not in the first candidate
+    sim.step(ToolPose(float(schedule.tool_pose[0, 0]), float(schedule.tool_pose[0, 1]), float(schedule.tool_pose[0, 2])))
+
+
+def _worker_simulate(candidate: Mapping[str, float], n_frames: int) -> SimulatedTracks:
+    sim = _WORKER["factory"](candidate)
+    return rollout_tracks(sim, _WORKER["binding"], _WORKER["schedule"], n_frames)
+
+
+class PoolTrackSimulator:
+    """Candidates rolled out on persistent worker processes, one candidate per worker at a time.
+
+    The scene (mesh, parameters), the binding and the schedule are sent to each worker once; a batch of
+    candidates is spread over the workers with no barrier between candidates. The numbers are those of
+    :class:`SerialTrackSimulator` bit for bit (the same rollout code on the same serial solver;
+    ``test/test_fit.py`` compares them). Use as a context manager, or call :meth:`close`.
+    """
+
+    def __init__(self, factory: SceneFactory, binding: PointBinding, schedule: Schedule, workers: int,
+                 on_rollout: Callable[[], None] | None = None) -> None:
+        from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
+        from multiprocessing import get_context  # noqa: PLC0415
+
+        if workers < 1:
+            raise InputError(f"workers={workers}: expected at least 1")
+        self.workers = int(workers)
+        self.on_rollout = on_rollout
+        self.n_rollouts = 0
+        self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=get_context("spawn"),
+                                         initializer=_worker_init, initargs=(factory, binding, schedule))
+
+    def simulate(self, candidates: Sequence[Mapping[str, float]], n_frames: int) -> list[SimulatedTracks]:
+        futures = [self._pool.submit(_worker_simulate, dict(c), n_frames) for c in candidates]
+        out = []
+        for f in futures:
+            out.append(f.result())
+            self.n_rollouts += 1
+            if self.on_rollout is not None:
+                self.on_rollout()
+        return out
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+    def __enter__(self) -> "PoolTrackSimulator":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def sample_points_in_region(mesh: TissueMesh, n: int, lo: Sequence[float], hi: Sequence[float], rng: np.random.Generator,
                             *, margin: float = 0.0) -> np.ndarray:
     """``n`` points drawn uniformly on the mesh's triangles inside the box [lo, hi] (rest positions) [m], shape (n, 2).

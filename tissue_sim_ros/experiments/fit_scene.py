@@ -42,6 +42,9 @@ BALL_X = 0.0
 DEPTH = 0.008
 GAP = 0.001
 PHASE = 1.5
+#: Mesh spacing of the recordings [m] and of the fits [m]: a fit never sees the mesh the truth was made on.
+RECORDING_SPACING = 0.0025
+FIT_SPACING = 0.004
 #: The truth of the demo and the benchmark.
 TRUTH = {"young_modulus": 5e3, "poisson_ratio": 0.30}
 #: Where the demo's fit starts.
@@ -77,7 +80,7 @@ def scene_params(image: str | Path, spacing: float = 0.004, **overrides: Any) ->
     values: dict[str, Any] = {
         "image": str(image), "spacing": float(spacing), "scale": SCALE,
         "origin_x": IMAGE_LO[0], "origin_y": IMAGE_LO[1], "threshold": -1.0,
-        "boundary_y_top": float("nan"), "boundary_y_bottom": 0.25 * spacing,
+        "boundary_y_top": 1.0, "boundary_y_bottom": 0.25 * spacing,  # no top line: 1 m is far above
         "material": "neo_hookean", "method": "xpbd", "contact_model": "projection", "substeps": 10,
         "iterations": 10, "dt": 0.01, "thickness": 0.005, "density": 1000.0, "damping": 0.0,
         "young_modulus": START["young_modulus"], "poisson_ratio": START["poisson_ratio"],

@@ -1,0 +1,487 @@
+"""``tissue-sim fit``: identify the tissue's material from a recording (tracked points + tool poses).
+
+Reads a bag with the tracked tissue points (``sensor_msgs/PointCloud2``, the
+same points in every cloud, NaN where a point was not seen, at the camera's own
+stamps) and the tool's poses (any type ``tissue-sim replay`` reads), binds
+each point to the mesh of the scene (``--params``) by barycentric coordinates
+at the first frame (or by ``--correspondence``), and fits the parameters named
+by ``--fit`` so that the simulated points, brought to the observation stamps by
+interpolation in time, match the observed ones in least squares. The
+simulation starts at the first frame from the mesh's rest (stress-free) shape.
+
+The last ``--holdout`` fraction of the recording is not fitted: its RMS error
+tells how well the fitted tissue predicts. Error bars are Gauss-Newton ones
+from the Jacobian, widened by the residuals' autocorrelation time; a parameter
+the recording cannot determine (the tool never touches, Poisson's ratio moves
+no observed point, only a combination of two is determined) is reported as
+such, held at its start value, and the others refitted.
+
+Writes into --out (all at once, at the end; nothing on an error):
+
+  fitted.yaml      the scene's parameters with the fitted values, a ``tissue_sim_node: ros__parameters:``
+                   file that the node (--params-file) and every command (--params) load
+  fit.json         values, error bars, identifiability, RMS errors, the optimiser's run
+  tracks.csv       observed and simulated position of every point at every frame
+  tracks.png       observed against simulated points over time
+  errors.png       RMS error per point, fitted and held-out part, and where the points are
+  cost.png         the cost along each parameter through the optimum (1D slices)
+
+``--demo`` makes its own recording first (the simulator with known
+parameters on a finer mesh, 0.5 mm noise; experiments/fit_scene.py), writes it
+as a bag into --out/recording/ and fits it.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.errors import InputError
+from ..core.fitting import FitParameter, FitResult, fit, make_parameter
+from ..core.tracking import (
+    PointBinding,
+    PoolTrackSimulator,
+    Recording,
+    SceneFactory,
+    Schedule,
+    SerialTrackSimulator,
+    bind_points,
+    binding_from_correspondence,
+)
+
+HELP = "identify the tissue's material (Young's modulus, Poisson's ratio, damping...) from a recorded bag"
+DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP
+
+DEFAULT_FIT = "young_modulus,poisson_ratio"
+POINTS_TOPIC = "/tracker/points"
+TOOL_TOPIC = "/tool/pose"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("bag", nargs="?", help="the recording: a rosbag2 directory or a .mcap/.db3 file")
+    parser.add_argument("--points-topic", default=None, help=f"PointCloud2 topic of the tracked points (--demo: {POINTS_TOPIC})")
+    parser.add_argument("--tool-topic", default=None, help="topic of the tool pose (default: the one pose topic in the bag)")
+    parser.add_argument("--frame", default=None, help="TF child frame that is the tool (TFMessage tool topics)")
+    parser.add_argument("--params", default=None,
+                        help="the scene's parameter YAML (mesh, tool, material, solver); default: the shipped "
+                             "config/tissue_sim.yaml; --demo: its own scene")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a parameter (repeatable)")
+    parser.add_argument("--fit", default=DEFAULT_FIT,
+                        help=f"comma-separated parameters to fit (default {DEFAULT_FIT}); e.g. "
+                             "young_modulus,poisson_ratio,damping; start values come from the parameters")
+    parser.add_argument("--bounds", action="append", default=[], metavar="NAME=LO:HI",
+                        help="bounds of a fitted parameter (default: start/100..start*100; poisson_ratio 0..0.49)")
+    parser.add_argument("--holdout", type=float, default=0.2,
+                        help="fraction of the recording (by frames, at its end) held out of the fit (default 0.2)")
+    parser.add_argument("--correspondence", default=None,
+                        help="CSV binding each tracked point (rows in cloud order) to the mesh: a column 'vertex', "
+                             "or columns 'triangle,w0,w1,w2' (default: barycentric at the first frame)")
+    parser.add_argument("--bind-tolerance", type=float, default=None,
+                        help="a point up to this far outside the mesh at the first frame is bound to the nearest "
+                             "triangle [m] (default: half the mesh spacing)")
+    parser.add_argument("--optimizer", choices=["least_squares", "cma"], default="least_squares",
+                        help="scipy least_squares (trust region, default) or CMA-ES (needs the fit extra) for a rough cost")
+    parser.add_argument("--max-evals", type=int, default=60, help="most cost evaluations of the optimiser (default 60)")
+    parser.add_argument("--diff-step", type=float, default=1e-2,
+                        help="finite-difference step in the scaled parameters (default 0.01: 1%% of a log-scaled one)")
+    parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
+                        help="worker processes for the rollouts (default: 2 or the cores; 1: in this process)")
+    parser.add_argument("--out", required=True, help="output directory (must not exist or be empty)")
+    parser.add_argument("--demo", action="store_true",
+                        help="make a recording with known parameters (experiments/fit_scene.py) and fit it")
+    parser.add_argument("--seed", type=int, default=0, help="--demo: noise and point seed; CMA-ES seed")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+# --------------------------------------------------------------------------- the pipeline
+
+
+@dataclass
+class FitSetup:
+    """Everything a fit needs, checked: recording, scene values, mesh, binding, schedule, parameters."""
+
+    recording: Recording
+    values: dict[str, Any]
+    """The scene's flat parameters (shipped defaults, the parameter file, overrides)."""
+    mesh: Any
+    binding: PointBinding
+    schedule: Schedule
+    parameters: list[FitParameter]
+    n_fit_frames: int
+
+    @property
+    def factory(self) -> SceneFactory:
+        return SceneFactory(self.values, self.mesh)
+
+
+def parse_fit_names(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise InputError(f"--fit {text!r}: expected comma-separated parameter names")
+    if len(set(names)) != len(names):
+        raise InputError(f"--fit {text!r}: a parameter is named twice")
+    for n in names:
+        if "@" in n:
+            raise InputError(f"--fit {n!r}: per-body values need a material value per body, which this build's "
+                             "model does not have (young_modulus, poisson_ratio... are one value for the scene)")
+    return names
+
+
+def parse_bounds(items: list[str]) -> dict[str, tuple[float, float]]:
+    out = {}
+    for item in items:
+        try:
+            name, rng = item.split("=", 1)
+            lo, hi = (float(v) for v in rng.split(":"))
+        except ValueError:
+            raise InputError(f"--bounds {item!r}: expected NAME=LO:HI") from None
+        out[name.strip()] = (lo, hi)
+    return out
+
+
+def read_correspondence(path: str | Path) -> np.ndarray:
+    """A correspondence CSV: header 'vertex' or 'triangle,w0,w1,w2', one row per tracked point."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"--correspondence {str(path)!r} does not exist")
+    lines = [ln.strip() for ln in path.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
+    if not lines:
+        raise InputError(f"--correspondence {str(path)!r} is empty")
+    header = [h.strip() for h in lines[0].split(",")]
+    if header not in (["vertex"], ["triangle", "w0", "w1", "w2"]):
+        raise InputError(f"--correspondence {str(path)!r}: header {lines[0]!r}: expected 'vertex' or 'triangle,w0,w1,w2'")
+    try:
+        return np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]], dtype=np.float64).reshape(-1, len(header))
+    except ValueError:
+        raise InputError(f"--correspondence {str(path)!r}: expected numbers in every row") from None
+
+
+def prepare(recording: Recording, values: dict[str, Any], names: list[str], *, holdout: float = 0.2,
+            bounds: dict[str, tuple[float, float]] | None = None, correspondence: np.ndarray | None = None,
+            bind_tolerance: float | None = None) -> FitSetup:
+    """Check everything and build the scene, the binding and the schedule (nothing is simulated yet)."""
+    from ..core.model import SimParams  # noqa: PLC0415
+    from ..core.scene import build_simulation, default_params  # noqa: PLC0415
+
+    if not (isinstance(holdout, (int, float)) and 0.0 <= holdout < 1.0):
+        raise InputError(f"--holdout {holdout!r}: expected a fraction in [0, 1)")
+    merged = {**default_params(), **values}
+    sim = build_simulation(values)
+    params = sim.params
+    known = set(SimParams.__dataclass_fields__)
+    for n in names:
+        if n not in known or not isinstance(getattr(params, n), float):
+            raise InputError(f"--fit {n!r}: expected a numeric simulation parameter (e.g. young_modulus, "
+                             "poisson_ratio, thickness, density, damping, stiffness_spring)")
+    if params.material == "neo_hookean":
+        ignored = [n for n in names if n in ("stiffness_spring", "stiffness_area", "k_spring", "k_area", "mass",
+                                              "mass_per_area")]
+    else:
+        ignored = [n for n in names if n in ("young_modulus", "poisson_ratio", "thickness", "density")]
+    if ignored:
+        raise InputError(f"--fit {','.join(ignored)}: material {params.material} does not use "
+                         f"{'it' if len(ignored) == 1 else 'them'}; set material (neo_hookean reads young_modulus, "
+                         "poisson_ratio, thickness, density; constraints the stiffnesses and masses)")
+    if sim.tool is None:
+        raise InputError("the scene has no tool: expected tool_shape and its size in the parameters")
+    recording.validate(params.dt)
+    mesh = sim.model.mesh
+    if correspondence is not None:
+        binding = binding_from_correspondence(correspondence, mesh.triangles, mesh.vertices.shape[0])
+        if binding.n_points != recording.n_points:
+            raise InputError(f"--correspondence has {binding.n_points} rows for {recording.n_points} tracked points: "
+                             "expected one row per point")
+    else:
+        tol = 0.5 * float(merged.get("spacing", 0.0)) if bind_tolerance is None else float(bind_tolerance)
+        binding = bind_points(sim.model.particle_q0, sim.model.tri_indices, recording.points[0], tolerance=tol)
+    n_fit = recording.n_frames - int(math.floor(holdout * recording.n_frames))
+    if n_fit < 3:
+        raise InputError(f"{recording.n_frames} frames with --holdout {holdout}: leaves {n_fit} to fit; too short, "
+                         "expected at least 3")
+    tool_end = float(recording.tool_t_ns[-1] - recording.t_ns[0]) * 1e-9
+    if tool_end < 0.5 * recording.duration:
+        raise InputError(f"the tool poses end {tool_end:.3f} s after the first frame, the points go on to "
+                         f"{recording.duration:.3f} s: expected the tool's trajectory over the recording")
+    bounds = bounds or {}
+    unknown = set(bounds) - set(names)
+    if unknown:
+        raise InputError(f"--bounds for {', '.join(sorted(unknown))}, which --fit does not name")
+    parameters = [make_parameter(n, float(getattr(params, n)), bounds.get(n)) for n in names]
+    # the scene as the fit will build it: the caller's values, the shipped file underneath
+    return FitSetup(recording=recording, values=dict(values), mesh=mesh, binding=binding,
+                    schedule=Schedule.from_recording(recording, params.dt), parameters=parameters,
+                    n_fit_frames=n_fit)
+
+
+def run_fit(setup: FitSetup, *, jobs: int = 1, optimizer: str = "least_squares", max_evals: int = 60,
+            diff_step: float = 1e-2, seed: int = 0, progress: bool = False, slices: int = 9) -> FitResult:
+    """Fit with a serial simulator (``jobs`` 1) or a pool of ``jobs`` worker processes."""
+    from tqdm import tqdm  # noqa: PLC0415
+
+    bar = tqdm(desc="fit", unit="rollout", disable=not progress, mininterval=0.25, leave=False)
+
+    def tick() -> None:
+        bar.update(1)
+
+    def on_iter(cost: float) -> None:
+        bar.set_postfix_str(f"cost {cost:.4g} mm^2", refresh=False)
+
+    try:
+        if jobs > 1:
+            with PoolTrackSimulator(setup.factory, setup.binding, setup.schedule, jobs, on_rollout=tick) as sim:
+                return fit(sim, setup.recording.points, setup.parameters, n_fit_frames=setup.n_fit_frames,
+                           optimizer=optimizer, max_nfev=max_evals, diff_step=diff_step, seed=seed,
+                           slices=slices, on_iter=on_iter)
+        sim = SerialTrackSimulator(setup.factory, setup.binding, setup.schedule, on_rollout=tick)
+        return fit(sim, setup.recording.points, setup.parameters, n_fit_frames=setup.n_fit_frames,
+                   optimizer=optimizer, max_nfev=max_evals, diff_step=diff_step, seed=seed, slices=slices,
+                   on_iter=on_iter)
+    finally:
+        bar.close()
+
+
+# --------------------------------------------------------------------------- outputs
+
+
+def fitted_parameters(setup: FitSetup, result: FitResult) -> dict[str, Any]:
+    """The scene's flat parameters (shipped file + the user's) with the fitted values."""
+    from ..core.scene import default_params  # noqa: PLC0415
+
+    merged = {**default_params(), **setup.values}
+    for e in result.estimates:
+        if e.value is not None:
+            merged[e.name] = float(e.value)
+    return merged
+
+
+def write_parameter_file(path: Path, values: dict[str, Any], result: FitResult, source: str,
+                         moved: tuple[Path, Path] | None = None) -> None:
+    """A ``tissue_sim_node: ros__parameters:`` YAML, with the fit's outcome in comments.
+
+    ``moved = (staging, final)``: file paths under the staging directory are written as under the final one.
+    """
+    import yaml  # noqa: PLC0415
+
+    lines = [f"# tissue-sim fit of {source}",
+             f"# RMS tracking error {result.rms_fit_mm:.3f} mm fitted"
+             + (f", {result.rms_holdout_mm:.3f} mm held out" if result.rms_holdout_mm is not None else "")]
+    for e in result.estimates:
+        if e.value is None:
+            lines.append(f"# {e.name}: not identifiable ({e.reason}); kept at its start value {e.initial:g}")
+        else:
+            lines.append(f"# {e.name} = {e.value:.6g} +- {e.sigma:.3g} (95%: {e.low95:.6g} .. {e.high95:.6g})")
+    clean = {}
+    for k, v in values.items():
+        if isinstance(v, float) and not math.isfinite(v):
+            raise InputError(f"parameter {k}={v}: a ROS parameter file cannot hold it; give a finite value")
+        v = v.item() if isinstance(v, np.generic) else v
+        if moved is not None and isinstance(v, str) and v.startswith(str(moved[0])):
+            v = str(moved[1]) + v[len(str(moved[0])):]
+        clean[k] = v
+    body = yaml.safe_dump({"tissue_sim_node": {"ros__parameters": clean}}, sort_keys=False, default_flow_style=False)
+    path.write_text("\n".join(lines) + "\n" + body)
+
+
+def write_tracks_csv(path: Path, rec: Recording, simulated: np.ndarray, n_fit: int) -> None:
+    f, p = rec.points.shape[:2]
+    t = (rec.t_ns - rec.t_ns[0]) * 1e-9
+    rows = np.column_stack([np.repeat(np.arange(f), p), np.repeat(t, p), np.tile(np.arange(p), f),
+                            rec.points.reshape(-1, 2), simulated.reshape(-1, 2),
+                            np.repeat((np.arange(f) >= n_fit).astype(float), p)])
+    np.savetxt(path, rows, delimiter=",", comments="", fmt="%.10g",
+               header="frame,time_s,point,observed_x,observed_y,simulated_x,simulated_y,held_out")
+
+
+def result_json(setup: FitSetup, result: FitResult, extra: dict | None = None) -> dict:
+    rec = setup.recording
+    return {
+        "source": rec.source, "frames": rec.n_frames, "points": rec.n_points, "fitted_frames": setup.n_fit_frames,
+        "duration_s": rec.duration, "steps": setup.schedule.n_steps,
+        "parameters": [e.as_dict() for e in result.estimates],
+        "rms_fit_mm": result.rms_fit_mm, "rms_holdout_mm": result.rms_holdout_mm, "cost_mm2": result.cost,
+        "residuals": result.n_residuals, "autocorrelation_time": result.tau,
+        "relative_singular_values": [float(v) for v in result.singular_values],
+        "contact_steps": result.contact_steps, "rollouts": result.n_rollouts, "evaluations": result.n_iterations,
+        "optimizer": result.optimizer, "message": result.message, "wall_s": result.wall_time,
+        "max_bind_outside_mm": float(setup.binding.outside.max() * 1e3) if setup.binding.n_points else 0.0,
+        **(extra or {}),
+    }
+
+
+def summary_lines(setup: FitSetup, result: FitResult, truth: dict | None = None) -> list[str]:
+    rec = setup.recording
+    out = [f"recording: {rec.n_points} points x {rec.n_frames} frames over {rec.duration:.2f} s, "
+           f"{setup.n_fit_frames} fitted, {rec.n_frames - setup.n_fit_frames} held out; "
+           f"{setup.schedule.n_steps} steps of {setup.values.get('dt', 'dt')} s"]
+    head = f"{'parameter':<16} {'start':>11} {'fitted':>11} {'+-1 sigma':>10} {'95% interval':>25}"
+    if truth:
+        head += f" {'truth':>11}"
+    out.append(head)
+    for e in result.estimates:
+        if e.value is None:
+            row = f"{e.name:<16} {e.initial:>11.5g} {'-':>11} {'-':>10} {'not identifiable':>25}"
+        else:
+            row = (f"{e.name:<16} {e.initial:>11.5g} {e.value:>11.5g} {e.sigma:>10.3g} "
+                   f"{f'{e.low95:.5g} .. {e.high95:.5g}':>25}")
+        if truth:
+            row += f" {truth.get(e.name, float('nan')):>11.5g}"
+        out.append(row)
+        if e.value is None:
+            out.append(f"  {e.name}: {e.reason}")
+    hold = f", held out {result.rms_holdout_mm:.3f} mm" if result.rms_holdout_mm is not None else ""
+    out.append(f"RMS tracking error: fitted {result.rms_fit_mm:.3f} mm{hold}")
+    out.append(f"{result.optimizer}: {result.n_iterations} evaluations, {result.n_rollouts} rollouts in "
+               f"{result.wall_time:.1f} s ({result.message}); residual autocorrelation time {result.tau:.2f}")
+    if result.contact_steps == 0:
+        out.append("note: the tool never touches the tissue in the fitted part of the recording")
+    return out
+
+
+def write_outputs(out: Path, setup: FitSetup, result: FitResult, *, truth: dict | None = None,
+                  extra: dict | None = None, final: Path | None = None) -> list[str]:
+    """Write every output into ``out`` (which exists and is empty; ``final``: where it will be renamed to).
+
+    Returns the file names.
+    """
+    from ..render_fit import plot_cost_slices, plot_point_errors, plot_tracks  # noqa: PLC0415
+
+    rec = setup.recording
+    sim_points = result.simulated
+    write_parameter_file(out / "fitted.yaml", fitted_parameters(setup, result), result, rec.source,
+                         moved=(out, final.resolve()) if final is not None else None)
+    data = result_json(setup, result, extra)
+    if truth:
+        data["truth"] = truth
+    (out / "fit.json").write_text(json.dumps(data, indent=2, default=float) + "\n")
+    write_tracks_csv(out / "tracks.csv", rec, sim_points, setup.n_fit_frames)
+    t = (rec.t_ns - rec.t_ns[0]) * 1e-9
+    names = {e.name: e for e in result.estimates}
+    fitted = ", ".join(f"{e.name} {e.value:.4g}" for e in result.estimates if e.value is not None) or "nothing identifiable"
+    plot_tracks(out / "tracks.png", t, rec.points, sim_points, setup.n_fit_frames,
+                title=f"observed and simulated points ({fitted})")
+    plot_point_errors(out / "errors.png", rec.points, sim_points, setup.n_fit_frames,
+                      vertices=setup.mesh.vertices, triangles=setup.mesh.triangles,
+                      title=f"RMS {result.rms_fit_mm:.2f} mm fitted"
+                            + (f", {result.rms_holdout_mm:.2f} mm held out" if result.rms_holdout_mm is not None else ""))
+    plot_cost_slices(out / "cost.png", result.slices, names, truth)
+    (out / "summary.txt").write_text("\n".join(summary_lines(setup, result, truth)) + "\n")
+    return ["fitted.yaml", "fit.json", "tracks.csv", "tracks.png", "errors.png", "cost.png", "summary.txt"]
+
+
+def _staging_dir(out: Path) -> Path:
+    """A temporary directory beside ``out`` (same file system, so the final rename is atomic)."""
+    if out.exists():
+        if not out.is_dir():
+            raise InputError(f"--out {str(out)!r} exists and is not a directory")
+        if any(out.iterdir()):
+            raise InputError(f"--out {str(out)!r} exists and is not empty: choose another (nothing is overwritten)")
+    parent = out.resolve().parent
+    parent.mkdir(parents=True, exist_ok=True)
+    return Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=parent))
+
+
+def _commit(staging: Path, out: Path) -> None:
+    if out.exists():
+        out.rmdir()  # empty, checked before
+    os.replace(staging, out)
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def make_demo_recording(directory: Path, seed: int = 0) -> tuple[Path, Path, dict]:
+    """The demo's scene image, parameter file and recording bag in ``directory``; returns (bag, params, truth)."""
+    from ..experiments import fit_scene as fs  # noqa: PLC0415
+    from .recording import write_recording  # noqa: PLC0415
+
+    directory.mkdir(parents=True, exist_ok=True)
+    image = fs.write_scene_image(directory / "scene.png")
+    truth_values = fs.scene_params(image, spacing=fs.RECORDING_SPACING, **fs.TRUTH)
+    rec = fs.synthesize(truth_values, n_points=20, noise=5e-4, seed=seed)
+    bag = write_recording(directory / "bag", rec.t_ns, rec.points, rec.tool_t_ns, rec.tool_pose,
+                          points_topic=POINTS_TOPIC, tool_topic=TOOL_TOPIC)
+    import yaml  # noqa: PLC0415
+
+    scene = fs.scene_params("scene.png", spacing=fs.FIT_SPACING)
+    params = directory / "scene.yaml"
+    params.write_text("# the demo's scene (experiments/fit_scene.py); image relative to this file\n"
+                      + yaml.safe_dump({"tissue_sim_node": {"ros__parameters": scene}}, sort_keys=False))
+    return bag, params, dict(fs.TRUTH)
+
+
+def load_scene_values(params: str | None, overrides: list[str]) -> dict[str, Any]:
+    """The parameter file's flat values (image and mesh paths made absolute) and the overrides."""
+    from ..core.scene import load_params_file  # noqa: PLC0415
+    from ..experiments.cli import parse_overrides  # noqa: PLC0415
+
+    values: dict[str, Any] = {}
+    if params:
+        values = load_params_file(params)
+        for key in ("image", "mesh_file"):
+            # a relative path: beside the parameter file, else from the working directory; written absolute
+            # into fitted.yaml so that it loads from anywhere
+            v = values.get(key)
+            if isinstance(v, str) and v and not Path(v).is_absolute():
+                beside = Path(params).resolve().parent / v
+                values[key] = str(beside if beside.exists() else Path(v).resolve())
+    values.update(parse_overrides(overrides))
+    return values
+
+
+def run(args: argparse.Namespace) -> int:
+    from .recording import read_recording  # noqa: PLC0415
+
+    out = Path(args.out)
+    staging = _staging_dir(out)
+    try:
+        truth = None
+        bag, params = args.bag, args.params
+        points_topic, tool_topic = args.points_topic, args.tool_topic
+        if args.demo:
+            if bag is not None:
+                raise InputError("--demo makes its own recording: give no BAG")
+            print("demo: simulating a recording with known parameters (finer mesh, 0.5 mm noise) ...")
+            bag_path, params_path, truth = make_demo_recording(staging / "recording", seed=args.seed)
+            bag, params = str(bag_path), str(params_path) if params is None else params
+            points_topic = points_topic or POINTS_TOPIC
+            tool_topic = tool_topic or TOOL_TOPIC
+        if bag is None:
+            raise InputError("expected a BAG (or --demo)")
+        if points_topic is None:
+            raise InputError("expected --points-topic (the PointCloud2 topic of the tracked points)")
+        names = parse_fit_names(args.fit)
+        if args.max_evals < 2:
+            raise InputError(f"--max-evals {args.max_evals}: expected at least 2")
+        if args.jobs < 1:
+            raise InputError(f"--jobs {args.jobs}: expected at least 1")
+        recording = read_recording(bag, points_topic, tool_topic, frame=args.frame)
+        recording.source = recording.source.replace(str(staging), str(out))  # --demo: where it will be
+        values = load_scene_values(params, args.set)
+        setup = prepare(recording, values, names, holdout=args.holdout, bounds=parse_bounds(args.bounds),
+                        correspondence=read_correspondence(args.correspondence) if args.correspondence else None,
+                        bind_tolerance=args.bind_tolerance)
+        print(f"recording: {recording.n_points} points x {recording.n_frames} frames over {recording.duration:.2f} s "
+              f"({recording.source}); fitting {', '.join(names)} on {setup.schedule.n_steps} steps, "
+              f"{setup.mesh.vertices.shape[0]} particles, {args.jobs} worker(s)")
+        t0 = time.perf_counter()
+        result = run_fit(setup, jobs=args.jobs, optimizer=args.optimizer, max_evals=args.max_evals,
+                         diff_step=args.diff_step, seed=args.seed, progress=not args.no_progress)
+        files = write_outputs(staging, setup, result, truth=truth, final=out,
+                              extra={"jobs": args.jobs, "total_wall_s": time.perf_counter() - t0})
+        _commit(staging, out)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    for line in summary_lines(setup, result, truth):
+        print(line)
+    print(f"wrote {out}/: {', '.join(files)}" + (", recording/" if args.demo else ""))
+    return 0
