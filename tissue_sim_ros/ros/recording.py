@@ -102,7 +102,8 @@ def write_recording(path: str | Path, t_ns: np.ndarray, points: np.ndarray, tool
         cloud = np.zeros(points.shape[1], TRACKED_DTYPE)
         cloud["x"], cloud["y"] = points[i, :, 0], points[i, :, 1]
         stamp = (t // 1_000_000_000, t % 1_000_000_000)
-        items.append((t, 1, points_topic, msgs.encode_point_cloud(stamp, frame_id, cloud)))
+        dense = bool(np.isfinite(points[i]).all())
+        items.append((t, 1, points_topic, msgs.encode_point_cloud(stamp, frame_id, cloud, dense=dense)))
     for i, t in enumerate(tool_t_ns.tolist()):
         stamp = (t // 1_000_000_000, t % 1_000_000_000)
         items.append((t, 0, tool_topic, msgs.encode_pose_stamped(stamp, frame_id, *map(float, tool_pose[i]))))
