@@ -262,9 +262,10 @@ def test_cli_fit_writes_a_parameter_file_every_command_loads(tmp_path, scene_ima
     # the parameter file: the node's format, loaded by every command and by the node's checks
     values = load_params_file(out / "fitted.yaml")
     assert values["young_modulus"] == pytest.approx(est["young_modulus"]["value"])
-    from tissue_sim_ros.ros.parameters import validate
+    from tissue_sim_ros.core.config import resolve_config
 
-    validate(values)
+    cfg = resolve_config(params_file=out / "fitted.yaml")  # the node's and every command's front door
+    assert cfg.sim.young_modulus == pytest.approx(est["young_modulus"]["value"])
     sim = build_simulation(values)
     assert sim.params.young_modulus == pytest.approx(est["young_modulus"]["value"])
     assert sim.params.material == "neo_hookean"
@@ -278,11 +279,13 @@ def _cloud_bag(path, t_ns, widths, tool=True, tool_t=None):
         w.add_topic("/tracker/points", POINT_CLOUD_TYPE)
         if tool:
             w.add_topic("/tool/pose", "geometry_msgs/msg/PoseStamped")
-        for t, n in zip(t_ns, widths):
+        for i, (t, n) in enumerate(zip(t_ns, widths)):
             cloud = np.zeros(n, TRACKED_DTYPE)
             cloud["x"] = np.linspace(-0.02, 0.02, n)
             cloud["y"] = 0.02
-            w.write("/tracker/points", m.encode_point_cloud((int(t) // 10**9, int(t) % 10**9), "world", cloud), int(t))
+            # stamped with t, received in order (a tracker whose frames arrive late keeps their capture stamps)
+            w.write("/tracker/points", m.encode_point_cloud((int(t) // 10**9, int(t) % 10**9), "world", cloud),
+                    int(t_ns.min()) + i * 40_000_000)
         if tool:
             for t in (tool_t if tool_t is not None else t_ns):
                 w.write("/tool/pose", m.encode_pose_stamped((int(t) // 10**9, int(t) % 10**9), "world", 0.0, 0.06, 0.0),
@@ -294,7 +297,7 @@ def _cloud_bag(path, t_ns, widths, tool=True, tool_t=None):
     ("no_points_topic", "has no points topic '/tracker/points'"),
     ("no_tool", "has no topic carrying a tool pose"),
     ("width", "cloud 2 has 4 points, the first had 3"),
-    ("order", "observation stamps out of order: frame 2"),
+    ("order", "observation stamps out of order: frame 3 at 1000000000066000000 ns is not after frame 2"),
     ("short", "2 observation frame(s): too short"),
     ("outside", "tracked point 0 at (0.2000, 0.0200) m is outside the tissue"),
     ("holdout", "--holdout 1.5: expected a fraction in [0, 1)"),

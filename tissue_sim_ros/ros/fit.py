@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from ..cli_config import add_config_arguments
 from ..core.errors import InputError
 from ..core.fitting import FitParameter, FitResult, fit, make_parameter
 from ..core.tracking import (
@@ -71,10 +72,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--points-topic", default=None, help=f"PointCloud2 topic of the tracked points (--demo: {POINTS_TOPIC})")
     parser.add_argument("--tool-topic", default=None, help="topic of the tool pose (default: the one pose topic in the bag)")
     parser.add_argument("--frame", default=None, help="TF child frame that is the tool (TFMessage tool topics)")
-    parser.add_argument("--params", default=None,
-                        help="the scene's parameter YAML (mesh, tool, material, solver); default: the shipped "
-                             "config/tissue_sim.yaml; --demo: its own scene")
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a parameter (repeatable)")
+    add_config_arguments(parser)  # --params FILE (the scene: mesh, tool, material, solver; --demo: its own), --set
     parser.add_argument("--fit", default=DEFAULT_FIT,
                         help=f"comma-separated parameters to fit (default {DEFAULT_FIT}); e.g. "
                              "young_modulus,poisson_ratio,damping; start values come from the parameters")
@@ -91,9 +89,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--optimizer", choices=["least_squares", "cma"], default="least_squares",
                         help="scipy least_squares (trust region, default) or CMA-ES (needs the fit extra) for a rough cost")
     parser.add_argument("--max-evals", type=int, default=60, help="most cost evaluations of the optimiser (default 60)")
-    parser.add_argument("--diff-step", type=float, default=0.05,
-                        help="finite-difference step in the scaled parameters (default 0.05: 5%% of a log-scaled "
-                             "one, 0.02 of Poisson's ratio; contact makes rollouts rough below about 1%%)")
+    parser.add_argument("--diff-step", type=float, default=0.1,
+                        help="finite-difference step in the scaled parameters (default 0.1: 10%% of a log-scaled "
+                             "one, 0.04 of Poisson's ratio; contact makes rollouts rough at the micrometre level)")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                         help="worker processes for the rollouts (default: 2 or the cores; 1: in this process)")
     parser.add_argument("--out", required=True, help="output directory (must not exist or be empty)")
@@ -122,6 +120,18 @@ class FitSetup:
     @property
     def factory(self) -> SceneFactory:
         return SceneFactory(self.values, self.mesh)
+
+    def refined(self) -> SerialTrackSimulator | None:
+        """The scene on half the mesh spacing, the points bound to it at rest (None for a mesh from a file)."""
+        from ..core.scene import build_simulation  # noqa: PLC0415
+
+        if self.values.get("mesh_file"):
+            return None
+        values = {**self.values, "spacing": 0.5 * float(self.values["spacing"])}
+        sim = build_simulation(values)
+        tol = max(0.5 * float(self.values["spacing"]), float(self.binding.outside.max()) + 1e-9)
+        binding = bind_points(sim.model.particle_q0, sim.model.tri_indices, self.recording.points[0], tolerance=tol)
+        return SerialTrackSimulator(SceneFactory(values, sim.model.mesh), binding, self.schedule)
 
 
 def parse_fit_names(text: str) -> list[str]:
@@ -170,8 +180,9 @@ def prepare(recording: Recording, values: dict[str, Any], names: list[str], *, h
             bounds: dict[str, tuple[float, float]] | None = None, correspondence: np.ndarray | None = None,
             bind_tolerance: float | None = None) -> FitSetup:
     """Check everything and build the scene, the binding and the schedule (nothing is simulated yet)."""
+    from ..core.config import default_params  # noqa: PLC0415
     from ..core.model import SimParams  # noqa: PLC0415
-    from ..core.scene import build_simulation, default_params  # noqa: PLC0415
+    from ..core.scene import build_simulation  # noqa: PLC0415
 
     if not (isinstance(holdout, (int, float)) and 0.0 <= holdout < 1.0):
         raise InputError(f"--holdout {holdout!r}: expected a fraction in [0, 1)")
@@ -224,8 +235,13 @@ def prepare(recording: Recording, values: dict[str, Any], names: list[str], *, h
 
 
 def run_fit(setup: FitSetup, *, jobs: int = 1, optimizer: str = "least_squares", max_evals: int = 60,
-            diff_step: float = 0.05, seed: int = 0, progress: bool = False, slices: int = 9) -> FitResult:
-    """Fit with a serial simulator (``jobs`` 1) or a pool of ``jobs`` worker processes."""
+            diff_step: float = 0.1, seed: int = 0, progress: bool = False, slices: int = 9,
+            mesh_check: bool = True) -> FitResult:
+    """Fit with a serial simulator (``jobs`` 1) or a pool of ``jobs`` worker processes.
+
+    ``mesh_check``: also roll the optimum out on half the mesh spacing and add the estimate's shift there
+    to its error bar (not for a mesh from a file).
+    """
     from tqdm import tqdm  # noqa: PLC0415
 
     bar = tqdm(desc="fit", unit="rollout", disable=not progress, mininterval=0.25, leave=False)
@@ -236,16 +252,17 @@ def run_fit(setup: FitSetup, *, jobs: int = 1, optimizer: str = "least_squares",
     def on_iter(cost: float) -> None:
         bar.set_postfix_str(f"cost {cost:.4g} mm^2", refresh=False)
 
+    refined = setup.refined() if mesh_check else None
     try:
         if jobs > 1:
             with PoolTrackSimulator(setup.factory, setup.binding, setup.schedule, jobs, on_rollout=tick) as sim:
                 return fit(sim, setup.recording.points, setup.parameters, n_fit_frames=setup.n_fit_frames,
                            optimizer=optimizer, max_nfev=max_evals, diff_step=diff_step, seed=seed,
-                           slices=slices, on_iter=on_iter)
+                           slices=slices, on_iter=on_iter, refined=refined)
         sim = SerialTrackSimulator(setup.factory, setup.binding, setup.schedule, on_rollout=tick)
         return fit(sim, setup.recording.points, setup.parameters, n_fit_frames=setup.n_fit_frames,
                    optimizer=optimizer, max_nfev=max_evals, diff_step=diff_step, seed=seed, slices=slices,
-                   on_iter=on_iter)
+                   on_iter=on_iter, refined=refined)
     finally:
         bar.close()
 
@@ -253,25 +270,20 @@ def run_fit(setup: FitSetup, *, jobs: int = 1, optimizer: str = "least_squares",
 # --------------------------------------------------------------------------- outputs
 
 
-def fitted_parameters(setup: FitSetup, result: FitResult) -> dict[str, Any]:
-    """The scene's flat parameters (shipped file + the user's) with the fitted values."""
-    from ..core.scene import default_params  # noqa: PLC0415
+def fitted_config(setup: FitSetup, result: FitResult) -> Any:
+    """The scene's resolved configuration with the fitted values (those not identifiable keep their start)."""
+    from ..core.config import resolve_config  # noqa: PLC0415
 
-    merged = {**default_params(), **setup.values}
-    for e in result.estimates:
-        if e.value is not None:
-            merged[e.name] = float(e.value)
-    return merged
+    fitted = {e.name: float(e.value) for e in result.estimates if e.value is not None}
+    return resolve_config(overrides=fitted, base=setup.values)
 
 
-def write_parameter_file(path: Path, values: dict[str, Any], result: FitResult, source: str,
+def write_parameter_file(path: Path, cfg: Any, result: FitResult, source: str,
                          moved: tuple[Path, Path] | None = None) -> None:
-    """A ``tissue_sim_node: ros__parameters:`` YAML, with the fit's outcome in comments.
+    """The configuration as a ``tissue_sim_node: ros__parameters:`` YAML, the fit's outcome in comments first.
 
     ``moved = (staging, final)``: file paths under the staging directory are written as under the final one.
     """
-    import yaml  # noqa: PLC0415
-
     lines = [f"# tissue-sim fit of {source}",
              f"# RMS tracking error {result.rms_fit_mm:.3f} mm fitted"
              + (f", {result.rms_holdout_mm:.3f} mm held out" if result.rms_holdout_mm is not None else "")]
@@ -280,16 +292,14 @@ def write_parameter_file(path: Path, values: dict[str, Any], result: FitResult, 
             lines.append(f"# {e.name}: not identifiable ({e.reason}); kept at its start value {e.initial:g}")
         else:
             lines.append(f"# {e.name} = {e.value:.6g} +- {e.sigma:.3g} (95%: {e.low95:.6g} .. {e.high95:.6g})")
-    clean = {}
-    for k, v in values.items():
-        if isinstance(v, float) and not math.isfinite(v):
-            raise InputError(f"parameter {k}={v}: a ROS parameter file cannot hold it; give a finite value")
-        v = v.item() if isinstance(v, np.generic) else v
-        if moved is not None and isinstance(v, str) and v.startswith(str(moved[0])):
-            v = str(moved[1]) + v[len(str(moved[0])):]
-        clean[k] = v
-    body = yaml.safe_dump({"tissue_sim_node": {"ros__parameters": clean}}, sort_keys=False, default_flow_style=False)
-    path.write_text("\n".join(lines) + "\n" + body)
+    if moved is not None:
+        changes = {k: str(moved[1]) + v[len(str(moved[0])):] for k, v in cfg.flat().items()
+                   if isinstance(v, str) and v.startswith(str(moved[0]))}
+        if changes:
+            from ..core.config import resolve_config  # noqa: PLC0415
+
+            cfg = resolve_config(overrides=changes, base={**cfg.flat(), **changes})
+    path.write_text("\n".join(lines) + "\n" + cfg.to_yaml())
 
 
 def write_tracks_csv(path: Path, rec: Recording, simulated: np.ndarray, n_fit: int) -> None:
@@ -357,7 +367,7 @@ def write_outputs(out: Path, setup: FitSetup, result: FitResult, *, truth: dict 
 
     rec = setup.recording
     sim_points = result.simulated
-    write_parameter_file(out / "fitted.yaml", fitted_parameters(setup, result), result, rec.source,
+    write_parameter_file(out / "fitted.yaml", fitted_config(setup, result), result, rec.source,
                          moved=(out, final.resolve()) if final is not None else None)
     data = result_json(setup, result, extra)
     if truth:
@@ -420,22 +430,22 @@ def make_demo_recording(directory: Path, seed: int = 0) -> tuple[Path, Path, dic
 
 
 def load_scene_values(params: str | None, overrides: list[str]) -> dict[str, Any]:
-    """The parameter file's flat values (image and mesh paths made absolute) and the overrides."""
-    from ..core.scene import load_params_file  # noqa: PLC0415
-    from ..experiments.cli import parse_overrides  # noqa: PLC0415
+    """The resolved flat configuration of the scene (shipped file < ``params`` < ``overrides``).
 
-    values: dict[str, Any] = {}
+    A relative image or mesh path is taken beside the parameter file when it is there (else from the
+    working directory) and made absolute, so that fitted.yaml loads from anywhere.
+    """
+    from ..core.config import load_params_file, parse_assignments, resolve_config  # noqa: PLC0415
+
+    extra = parse_assignments(overrides)
     if params:
-        values = load_params_file(params)
+        data = load_params_file(params)
         for key in ("image", "mesh_file"):
-            # a relative path: beside the parameter file, else from the working directory; written absolute
-            # into fitted.yaml so that it loads from anywhere
-            v = values.get(key)
+            v = extra.get(key, data.get(key))
             if isinstance(v, str) and v and not Path(v).is_absolute():
                 beside = Path(params).resolve().parent / v
-                values[key] = str(beside if beside.exists() else Path(v).resolve())
-    values.update(parse_overrides(overrides))
-    return values
+                extra[key] = str(beside if key not in extra and beside.exists() else Path(v).resolve())
+    return resolve_config(overrides=extra, params_file=params, source="--set").flat()
 
 
 def run(args: argparse.Namespace) -> int:
