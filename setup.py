@@ -55,9 +55,10 @@ setup(
     ],
     extras_require={
         "ros": ROS_WHEELS,
-        "test": ["pytest>=7", "ruff>=0.6", "mcap>=1.1", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5", "scikit-fem>=10"],
+        "test": ["pytest>=7", "ruff>=0.6", "mcap>=1.1", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5", "scikit-fem>=10", "cma>=3.3"],
         # the independent static plane-stress FEM reference (bench/fem_reference.py)
         "fem": ["scikit-fem>=10"],
+        "fit": ["cma>=3.3"],  # tissue-sim fit --optimizer cma (CMA-ES for a rough cost)
         "video": ["imageio>=2.30", "imageio-ffmpeg>=0.4"],
         "peers": ["mujoco>=4.0", "taichi>=1.7"],  # flexcomp dof="2d" is not in older MuJoCo (measured: 4.0.0, taichi 1.7.4)
     },

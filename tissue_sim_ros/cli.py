@@ -38,6 +38,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
         "node": ("tissue_sim_ros.bench.node", "sustained rate, overruns and pose-to-mesh latency of the ROS node"),
         "accuracy": ("tissue_sim_ros.bench.accuracy", "error against an exact Newton solve versus time per step, Pareto front"),
         "stability": ("tissue_sim_ros.bench.stability", "where each method fails over dt, stiffness, tool speed and mesh quality"),
+        "fit": ("tissue_sim_ros.bench.fit", "fit known parameters back from simulated recordings on another mesh: error, coverage, time"),
         "peers": ("tissue_sim_ros.bench.peers", "time per step against Taichi, MuJoCo flex and the NumPy baseline (optional extras)"),
     },
 }
