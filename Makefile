@@ -41,6 +41,9 @@ figures: $(STAMP)
 	$(VENV)/bin/tissue-sim experiment b --out $(OUT)/figures --contact paper --no-progress
 	$(VENV)/bin/tissue-sim plan --out $(OUT)/figures --set contact_model=projection --no-progress
 	$(VENV)/bin/tissue-sim mesh --out $(OUT)/figures/mesh.npz --png $(OUT)/figures/mesh.png
+	$(VENV)/bin/tissue-sim fit --demo --out $(OUT)/figures/fit --no-progress
+	cp $(OUT)/figures/fit/tracks.png $(OUT)/figures/fit_tracks.png
+	cp $(OUT)/figures/fit/cost.png $(OUT)/figures/fit_cost.png
 	cp $(OUT)/figures/*.png docs/img/
 
 clean:

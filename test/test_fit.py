@@ -179,6 +179,17 @@ def test_fit_recovers_the_material_on_another_mesh(scene_image, truth_recording)
         assert np.argmin(s.cost) == len(s.cost) // 2
 
 
+def test_cma_es_finds_the_same_modulus(scene_image, truth_recording):
+    # the optional optimiser for a rough cost: the same problem, the same answer within the error bar
+    setup = fitcli.prepare(_recording(truth_recording), fs.scene_params(scene_image, spacing=FIT_SPACING),
+                           ["young_modulus"], holdout=0.2)
+    ls = fitcli.run_fit(setup, jobs=1, slices=0, mesh_check=False).estimate("young_modulus")
+    es = fitcli.run_fit(setup, jobs=1, slices=0, mesh_check=False, optimizer="cma", max_evals=40,
+                        seed=1).estimate("young_modulus")
+    assert es.identifiable and abs(es.value - ls.value) < 2 * ls.sigma
+    assert abs(es.value / fs.TRUTH["young_modulus"] - 1) < 0.05
+
+
 def test_start_values_far_off_fit_worse(scene_image, truth_recording):
     # the same recording simulated with the start values misses by far more than the noise: the fit did work
     rec = _recording(truth_recording)
@@ -225,6 +236,71 @@ def test_only_a_combination(scene_image, truth_recording):
     reasons = {e.name: e.reason for e in res.estimates}
     assert "only a combination with density" in reasons["young_modulus"], reasons
     assert "only a combination with young_modulus" in reasons["density"], reasons
+
+
+def _two_blocks(spacing: float):
+    """Two 45 mm x 40 mm blocks side by side with a 10 mm gap: two bodies."""
+    from tissue_sim_ros.core.mesh import mesh_from_arrays
+
+    a = mesh_rectangle(0.045, 0.04, spacing, origin=(-0.05, 0.0))
+    b = mesh_rectangle(0.045, 0.04, spacing, origin=(0.005, 0.0))
+    v = np.concatenate([a.vertices, b.vertices])
+    t = np.concatenate([a.triangles, b.triangles + a.vertices.shape[0]])
+    return mesh_from_arrays(v, t)
+
+
+def test_body_values_build_what_the_scene_builds(scene_image):
+    from tissue_sim_ros.core.tracking import with_body_values
+
+    mesh = _two_blocks(0.01)
+    base = fs.scene_params(scene_image, spacing=0.01)
+    sim = build_simulation(base, mesh=mesh)
+    assert sim.model.n_bodies == 2
+    same = with_body_values(sim.model, {0: {"young_modulus": sim.params.young_modulus}, 1: {}})
+    assert np.array_equal(same.tri_elastic, sim.model.tri_elastic)
+    assert np.array_equal(same.particle_inv_mass, sim.model.particle_inv_mass)
+    # every body at E = 7 kPa and density 800 is the scene built with those values
+    ref = build_simulation({**base, "young_modulus": 7e3, "density": 800.0}, mesh=mesh).model
+    both = with_body_values(sim.model, {b: {"young_modulus": 7e3, "density": 800.0} for b in (0, 1)})
+    np.testing.assert_allclose(both.tri_elastic, ref.tri_elastic, rtol=1e-15)
+    np.testing.assert_allclose(both.particle_mass, ref.particle_mass, rtol=1e-15)
+    with pytest.raises(InputError, match="bodies 0..1"):
+        with_body_values(sim.model, {2: {"young_modulus": 1e3}})
+
+
+def test_per_body_fit(scene_image):
+    # two tissues of different stiffness, one recording: each body's modulus comes back
+    truth = {"young_modulus@0": 4e3, "young_modulus@1": 8e3}
+    base = fs.scene_params(scene_image, spacing=0.006)
+    fine = _two_blocks(0.006)
+    syn = fs.synthesize(base, n_points=4, noise=0.0, duration=DURATION)  # its stamps and tool track
+    rng = np.random.default_rng(5)
+    pts = np.concatenate([rng.uniform([-0.045, 0.01], [-0.01, 0.036], (10, 2)),
+                          rng.uniform([0.01, 0.01], [0.045, 0.036], (10, 2))])
+    rec0 = Recording(syn.t_ns, np.repeat(pts[None], syn.t_ns.size, axis=0), syn.tool_t_ns, syn.tool_pose)
+    sched = Schedule.from_recording(rec0, 0.01)
+    b = bind_points(fine.vertices, fine.triangles, pts)
+    run = rollout_tracks(SceneFactory(base, fine)(truth), b, sched, syn.t_ns.size)
+    obs = run.points + np.concatenate([np.zeros((1, 20, 2)), rng.normal(0, 5e-4, (syn.t_ns.size - 1, 20, 2))])
+    rec = Recording(syn.t_ns, obs, syn.tool_t_ns, syn.tool_pose, source="two blocks")
+    coarse = _two_blocks(FIT_SPACING)
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as tmp:
+        mesh_file = Path(tmp) / "blocks.npz"
+        coarse.save(mesh_file)
+        setup = fitcli.prepare(rec, {**fs.scene_params(scene_image, spacing=FIT_SPACING), "mesh_file": str(mesh_file)},
+                               ["young_modulus@0", "young_modulus@1"], holdout=0.2)
+        res = fitcli.run_fit(setup, jobs=1, slices=0)
+        with pytest.raises(InputError, match="the scene has bodies 0..1"):
+            fitcli.prepare(rec, setup.values, ["young_modulus@3"])
+        with pytest.raises(InputError, match="not both"):
+            fitcli.prepare(rec, setup.values, ["young_modulus", "young_modulus@1"])
+    for name, value in truth.items():
+        e = res.estimate(name)
+        assert e.identifiable and abs(e.value / value - 1) < 0.05, e
+        assert e.low95 <= value <= e.high95, e
 
 
 # --------------------------------------------------------------------------- bags and the command

@@ -103,11 +103,16 @@ class FitParameter:
         return self.to_z(self.lower), self.to_z(self.upper)
 
 
-def make_parameter(name: str, initial: float, bounds: tuple[float, float] | None = None) -> FitParameter:
-    """A :class:`FitParameter` with the scaling of :data:`KNOWN_PARAMETERS` (log for other positive values)."""
+def make_parameter(name: str, initial: float, bounds: tuple[float, float] | None = None,
+                   kind_of: str | None = None) -> FitParameter:
+    """A :class:`FitParameter` with the scaling of :data:`KNOWN_PARAMETERS` (log for other positive values).
+
+    ``kind_of``: the parameter whose scaling to use (``young_modulus`` for ``young_modulus@1``).
+    """
     if not (isinstance(initial, (int, float)) and not isinstance(initial, bool) and math.isfinite(initial)):
         raise InputError(f"parameter {name}={initial!r}: expected a finite number to start the fit from")
-    kind, scale, default_bounds = KNOWN_PARAMETERS.get(name, ("log" if initial > 0 else "lin", None, None))
+    kind, scale, default_bounds = KNOWN_PARAMETERS.get(kind_of or name,
+                                                       ("log" if initial > 0 else "lin", None, None))
     if kind == "log" and initial <= 0:
         raise InputError(f"parameter {name}={initial!r}: expected a value > 0 to fit (it is fitted on a log scale)")
     if bounds is None:

@@ -321,11 +321,63 @@ class SerialTrackSimulator:
         return out
 
 
+#: Material values a candidate may give per body, as ``NAME@BODY`` (``young_modulus@1``).
+BODY_PARAMETERS = ("young_modulus", "poisson_ratio", "thickness", "density")
+
+
+def split_body_name(name: str) -> tuple[str, int | None]:
+    """``young_modulus@1`` -> ("young_modulus", 1); ``young_modulus`` -> ("young_modulus", None)."""
+    if "@" not in name:
+        return name, None
+    base, _, body = name.partition("@")
+    if base not in BODY_PARAMETERS or not body.isdigit():
+        raise InputError(f"parameter {name!r}: a per-body value is NAME@BODY with NAME one of "
+                         f"{', '.join(BODY_PARAMETERS)} and BODY a body index (0, 1, ...)")
+    return base, int(body)
+
+
+def with_body_values(model: Any, body_values: Mapping[int, Mapping[str, float]]) -> Any:
+    """A Model whose bodies' elements and masses use their own material values (``material: neo_hookean``).
+
+    ``body_values``: body -> {young_modulus, poisson_ratio, thickness, density} (missing ones: the scene's).
+    Each body's triangles get their rest data from :func:`~tissue_sim_ros.core.material.elastic_table` with
+    the body's values, and its particles their masses from its density x thickness (particles belong to one
+    body), exactly as the Model builds them for the whole scene.
+    """
+    from dataclasses import replace  # noqa: PLC0415
+
+    from .material import elastic_table, lumped_mass  # noqa: PLC0415
+
+    if not body_values:
+        return model
+    p = model.params
+    if p.material != "neo_hookean":
+        raise InputError(f"per-body material values need material neo_hookean (the scene's is {p.material})")
+    bad = [b for b in body_values if not 0 <= b < model.n_bodies]
+    if bad:
+        raise InputError(f"body {bad[0]}: the scene has bodies 0..{model.n_bodies - 1}")
+    q0, tris = model.particle_q0, model.tri_indices
+    elastic = np.array(model.tri_elastic, dtype=np.float64, copy=True)
+    mass = np.array(model.particle_mass, dtype=np.float64, copy=True)
+    for b, vals in body_values.items():
+        v = {k: float(vals.get(k, getattr(p, k))) for k in BODY_PARAMETERS}
+        sel = np.flatnonzero(model.tri_body == b)
+        elastic[sel] = elastic_table(q0, tris[sel], v["young_modulus"], v["poisson_ratio"], v["thickness"])
+        lumped = lumped_mass(q0, tris[sel], v["density"], v["thickness"])
+        mine = (model.particle_body == b) & (lumped > 0)
+        mass[mine] = lumped[mine]
+    inv = np.where(model.particle_pinned, 0.0, 1.0 / mass)
+    for arr in (elastic, mass, inv):
+        arr.setflags(write=False)
+    return replace(model, tri_elastic=elastic, particle_mass=mass, particle_inv_mass=inv)
+
+
 @dataclass
 class SceneFactory:
     """Builds the scene at rest for candidate values: ``build_simulation({**values, **candidate}, mesh=mesh)``.
 
-    Plain data, so it travels to worker processes.
+    A candidate's ``NAME@BODY`` values (:data:`BODY_PARAMETERS`) set that body's material
+    (:func:`with_body_values`). Plain data, so it travels to worker processes.
     """
 
     values: dict[str, Any]
@@ -334,7 +386,18 @@ class SceneFactory:
     def __call__(self, candidate: Mapping[str, float]) -> Any:
         from .scene import build_simulation  # noqa: PLC0415  (scene imports the solvers; tracking stays light)
 
-        return build_simulation({**self.values, **candidate}, mesh=self.mesh)
+        scene: dict[str, Any] = {}
+        bodies: dict[int, dict[str, float]] = {}
+        for name, value in candidate.items():
+            base, body = split_body_name(name)
+            if body is None:
+                scene[base] = value
+            else:
+                bodies.setdefault(body, {})[base] = value
+        sim = build_simulation({**self.values, **scene}, mesh=self.mesh)
+        if not bodies:
+            return sim
+        return type(sim)(with_body_values(sim.model, bodies), tool=sim.tool, config=sim.config)
 
 
 _WORKER: dict[str, Any] = {}

@@ -9,6 +9,10 @@ by ``--fit`` so that the simulated points, brought to the observation stamps by
 interpolation in time, match the observed ones in least squares. The
 simulation starts at the first frame from the mesh's rest (stress-free) shape.
 
+Several tissues (bodies of the mesh) get their own material values with
+``NAME@BODY`` (``--fit young_modulus@0,young_modulus@1``); those are reported
+in fit.json and fitted.yaml's comments (the node takes one value per scene).
+
 The last ``--holdout`` fraction of the recording is not fitted: its RMS error
 tells how well the fitted tissue predicts. Error bars are Gauss-Newton ones
 from the Jacobian, widened by the residuals' autocorrelation time; a parameter
@@ -57,6 +61,7 @@ from ..core.tracking import (
     SerialTrackSimulator,
     bind_points,
     binding_from_correspondence,
+    split_body_name,
 )
 
 HELP = "identify the tissue's material (Young's modulus, Poisson's ratio, damping...) from a recorded bag"
@@ -75,7 +80,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_config_arguments(parser)  # --params FILE (the scene: mesh, tool, material, solver; --demo: its own), --set
     parser.add_argument("--fit", default=DEFAULT_FIT,
                         help=f"comma-separated parameters to fit (default {DEFAULT_FIT}); e.g. "
-                             "young_modulus,poisson_ratio,damping; start values come from the parameters")
+                             "young_modulus,poisson_ratio,damping; per body (several tissues): "
+                             "young_modulus@0,young_modulus@1; start values come from the parameters")
     parser.add_argument("--bounds", action="append", default=[], metavar="NAME=LO:HI",
                         help="bounds of a fitted parameter (default: start/100..start*100; poisson_ratio 0..0.49)")
     parser.add_argument("--holdout", type=float, default=0.2,
@@ -141,9 +147,7 @@ def parse_fit_names(text: str) -> list[str]:
     if len(set(names)) != len(names):
         raise InputError(f"--fit {text!r}: a parameter is named twice")
     for n in names:
-        if "@" in n:
-            raise InputError(f"--fit {n!r}: per-body values need a material value per body, which this build's "
-                             "model does not have (young_modulus, poisson_ratio... are one value for the scene)")
+        split_body_name(n)  # NAME@BODY: a per-body material value (checked here, the body later)
     return names
 
 
@@ -190,15 +194,21 @@ def prepare(recording: Recording, values: dict[str, Any], names: list[str], *, h
     sim = build_simulation(values)
     params = sim.params
     known = set(SimParams.__dataclass_fields__)
-    for n in names:
-        if n not in known or not isinstance(getattr(params, n), float):
+    bases = {n: split_body_name(n) for n in names}
+    for n, (base, body) in bases.items():
+        if base not in known or not isinstance(getattr(params, base), float):
             raise InputError(f"--fit {n!r}: expected a numeric simulation parameter (e.g. young_modulus, "
                              "poisson_ratio, thickness, density, damping, stiffness_spring)")
+        if body is not None and body >= sim.model.n_bodies:
+            raise InputError(f"--fit {n!r}: the scene has bodies 0..{sim.model.n_bodies - 1}")
+        if body is not None and base in names:
+            raise InputError(f"--fit names {base} and {n}: fit the scene's value or per-body ones, not both")
     if params.material == "neo_hookean":
-        ignored = [n for n in names if n in ("stiffness_spring", "stiffness_area", "k_spring", "k_area", "mass",
-                                              "mass_per_area")]
+        ignored = [n for n, (b, _) in bases.items() if b in ("stiffness_spring", "stiffness_area", "k_spring",
+                                                               "k_area", "mass", "mass_per_area")]
     else:
-        ignored = [n for n in names if n in ("young_modulus", "poisson_ratio", "thickness", "density")]
+        ignored = [n for n, (b, _) in bases.items() if b in ("young_modulus", "poisson_ratio", "thickness",
+                                                               "density")]
     if ignored:
         raise InputError(f"--fit {','.join(ignored)}: material {params.material} does not use "
                          f"{'it' if len(ignored) == 1 else 'them'}; set material (neo_hookean reads young_modulus, "
@@ -227,7 +237,8 @@ def prepare(recording: Recording, values: dict[str, Any], names: list[str], *, h
     unknown = set(bounds) - set(names)
     if unknown:
         raise InputError(f"--bounds for {', '.join(sorted(unknown))}, which --fit does not name")
-    parameters = [make_parameter(n, float(getattr(params, n)), bounds.get(n)) for n in names]
+    parameters = [make_parameter(n, float(getattr(params, bases[n][0])), bounds.get(n), kind_of=bases[n][0])
+                  for n in names]
     # the scene as the fit will build it: the caller's values, the shipped file underneath
     return FitSetup(recording=recording, values=dict(values), mesh=mesh, binding=binding,
                     schedule=Schedule.from_recording(recording, params.dt), parameters=parameters,
@@ -274,7 +285,7 @@ def fitted_config(setup: FitSetup, result: FitResult) -> Any:
     """The scene's resolved configuration with the fitted values (those not identifiable keep their start)."""
     from ..core.config import resolve_config  # noqa: PLC0415
 
-    fitted = {e.name: float(e.value) for e in result.estimates if e.value is not None}
+    fitted = {e.name: float(e.value) for e in result.estimates if e.value is not None and "@" not in e.name}
     return resolve_config(overrides=fitted, base=setup.values)
 
 
@@ -291,7 +302,9 @@ def write_parameter_file(path: Path, cfg: Any, result: FitResult, source: str,
         if e.value is None:
             lines.append(f"# {e.name}: not identifiable ({e.reason}); kept at its start value {e.initial:g}")
         else:
-            lines.append(f"# {e.name} = {e.value:.6g} +- {e.sigma:.3g} (95%: {e.low95:.6g} .. {e.high95:.6g})")
+            lines.append(f"# {e.name} = {e.value:.6g} +- {e.sigma:.3g} (95%: {e.low95:.6g} .. {e.high95:.6g})"
+                         + ("  (per body: the node takes one value for the scene; not set below)"
+                            if "@" in e.name else ""))
     if moved is not None:
         changes = {k: str(moved[1]) + v[len(str(moved[0])):] for k, v in cfg.flat().items()
                    if isinstance(v, str) and v.startswith(str(moved[0]))}
