@@ -15,7 +15,8 @@ in fit.json and fitted.yaml's comments (the node takes one value per scene).
 
 The last ``--holdout`` fraction of the recording is not fitted: its RMS error
 tells how well the fitted tissue predicts. Error bars are Gauss-Newton ones
-from the Jacobian, widened by the residuals' autocorrelation time; a parameter
+from the Jacobian, widened by the residuals' autocorrelation time and by how
+far the estimate moves on a mesh of half the spacing (one rollout); a parameter
 the recording cannot determine (the tool never touches, Poisson's ratio moves
 no observed point, only a combination of two is determined) is reported as
 such, held at its start value, and the others refitted.
@@ -98,6 +99,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--diff-step", type=float, default=0.1,
                         help="finite-difference step in the scaled parameters (default 0.1: 10%% of a log-scaled "
                              "one, 0.04 of Poisson's ratio; contact makes rollouts rough at the micrometre level)")
+    parser.add_argument("--no-mesh-check", action="store_true",
+                        help="skip the rollout on half the mesh spacing whose shift of the estimate joins its error bar")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                         help="worker processes for the rollouts (default: 2 or the cores; 1: in this process)")
     parser.add_argument("--out", required=True, help="output directory (must not exist or be empty)")
@@ -498,7 +501,8 @@ def run(args: argparse.Namespace) -> int:
               f"{setup.mesh.vertices.shape[0]} particles, {args.jobs} worker(s)")
         t0 = time.perf_counter()
         result = run_fit(setup, jobs=args.jobs, optimizer=args.optimizer, max_evals=args.max_evals,
-                         diff_step=args.diff_step, seed=args.seed, progress=not args.no_progress)
+                         diff_step=args.diff_step, seed=args.seed, progress=not args.no_progress,
+                         mesh_check=not args.no_mesh_check)
         files = write_outputs(staging, setup, result, truth=truth, final=out,
                               extra={"jobs": args.jobs, "total_wall_s": time.perf_counter() - t0})
         _commit(staging, out)
