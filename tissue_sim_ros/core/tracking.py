@@ -459,46 +459,6 @@ class PoolTrackSimulator:
         self.close()
 
 
-def sample_points_in_region(mesh: TissueMesh, n: int, lo: Sequence[float], hi: Sequence[float], rng: np.random.Generator,
-                            *, margin: float = 0.0) -> np.ndarray:
-    """``n`` points drawn uniformly on the mesh's triangles inside the box [lo, hi] (rest positions) [m], shape (n, 2).
-
-    ``margin``: keep only points at least this far inside the tissue's outline (so a coarser mesh holds them too).
-    """
-    q = mesh.vertices
-    tris = mesh.triangles
-    c = q[tris].mean(axis=1)
-    sel = np.flatnonzero((c[:, 0] >= lo[0]) & (c[:, 0] <= hi[0]) & (c[:, 1] >= lo[1]) & (c[:, 1] <= hi[1]))
-    if sel.size == 0:
-        raise InputError(f"no tissue in the box {tuple(lo)}-{tuple(hi)} m: expected a region on the tissue")
-    a, b, cc = q[tris[sel, 0]], q[tris[sel, 1]], q[tris[sel, 2]]
-    area = 0.5 * np.abs((b[:, 0] - a[:, 0]) * (cc[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (cc[:, 0] - a[:, 0]))
-    out = np.empty((0, 2))
-    edges = _boundary_segments(mesh) if margin > 0 else None
-    for _ in range(100):
-        k = rng.choice(sel.size, size=4 * n, p=area / area.sum())
-        r1, r2 = rng.random(4 * n), rng.random(4 * n)
-        s = np.sqrt(r1)
-        pts = (1 - s)[:, None] * a[k] + (s * (1 - r2))[:, None] * b[k] + (s * r2)[:, None] * cc[k]
-        if edges is not None:
-            d = _segment_distance(pts, edges[0], edges[1]).min(axis=1)
-            pts = pts[d >= margin]
-        out = np.concatenate([out, pts])
-        if out.shape[0] >= n:
-            return out[:n]
-    raise InputError(f"could not place {n} points {margin} m inside the tissue in {tuple(lo)}-{tuple(hi)} m")
-
-
-def _boundary_segments(mesh: TissueMesh) -> tuple[np.ndarray, np.ndarray]:
-    """End points of the mesh's boundary edges (edges of one triangle), each shape (B, 2)."""
-    tris = np.asarray(mesh.triangles, dtype=np.int64)
-    e = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
-    e.sort(axis=1)
-    uniq, counts = np.unique(e, axis=0, return_counts=True)
-    b = uniq[counts == 1]
-    return mesh.vertices[b[:, 0]], mesh.vertices[b[:, 1]]
-
-
 def rms_mm(sim: np.ndarray, obs: np.ndarray) -> float:
     """RMS of the 2D distance between simulated and observed points [mm], over the finite observations."""
     d2 = ((sim - obs) ** 2).sum(axis=-1)

@@ -1,19 +1,20 @@
 """A real-size scene for material fits, and recordings of it made by the simulator.
 
-The scene: a soft-tissue overhang (``material: neo_hookean``, 5 mm thick,
-1000 kg/m^3): a 20 mm x 40 mm pillar standing on a plate (its bottom edge
-pinned) carrying a 20 mm thick arm that reaches 60 mm beyond it, drawn as an
-image (so the mesh spacing is a parameter). At the first frame the tissue is
-released from its drawn (stress-free) shape: the arm sags under its own weight
-and swings, by an amount that falls as 1/E. A 16 mm ball then presses the
-arm's tip 15 mm down and lifts off (1.5 s each way, 300 steps of 10 ms). A
-camera tracks points on the tissue at 30 Hz, the robot reports the tool pose
-at 125 Hz, neither on the simulation's steps.
+The scene: a 100 mm x 40 mm block of soft tissue (``material: neo_hookean``,
+5 mm thick, 1000 kg/m^3) resting on a plate (its bottom edge pinned), drawn as
+an image so that the mesh spacing is a parameter. At the first frame the
+tissue is released from its drawn (stress-free) shape and settles under its
+weight, by an amount that falls as 1/E; a 16 mm ball, 1 mm above the top
+surface at the middle, presses 8 mm below that surface and lifts off again
+(1.5 s each way, 300 steps of 10 ms). A camera tracks points on the tissue at
+30 Hz, 4 ms off the simulation's steps; the robot reports the tool pose at
+125 Hz.
 
-Why an overhang: where the tool prescribes the tissue's displacement, a linear
-elastic body's displacement field does not depend on Young's modulus at all
-(only forces would tell E); the positions determine E only through a load the
+Why the weight matters: where the tool prescribes the tissue's displacement,
+a linear elastic body's displacement field does not depend on Young's modulus
+(E scales the forces only), so the positions tell E only through a load the
 tissue carries itself, its weight (and its inertia), against its density.
+Poisson's ratio shapes the field around the ball (the bulge beside it).
 
 :func:`synthesize` makes a recording of that run with known parameters (any
 mesh spacing, Gaussian noise on the tracked points) as arrays; the ROS layer
@@ -30,13 +31,14 @@ import numpy as np
 from ..core.errors import InputError
 from ..core.tool import WaypointTrajectory
 
-#: The tissue's rectangles [m] as (x0, y0, x1, y1): the pillar and the arm.
+#: The block [m] as (x0, y0, x1, y1).
 BLOCK = (-0.05, 0.0, 0.05, 0.04)
 #: Image scale [m per pixel] and the image's extent [m] (background all round).
 SCALE = 2e-4
 IMAGE_LO = (-0.06, -0.01)
 IMAGE_HI = (0.06, 0.05)
-#: Indenter: a ball of this radius [m] above the arm's tip, pressed DEPTH below the rest surface.
+#: Indenter: a ball of this radius [m] at x = BALL_X, GAP above the top surface, pressed DEPTH below it [m],
+#: PHASE seconds down and as long up.
 BALL_RADIUS = 0.008
 BALL_X = 0.0
 DEPTH = 0.008
@@ -52,7 +54,7 @@ START = {"young_modulus": 2e3, "poisson_ratio": 0.45}
 
 
 def _inside(p: np.ndarray, margin: float) -> np.ndarray:
-    """True for points at least ``margin`` inside the tissue (union of the rectangles, away from its outline)."""
+    """True for points at least ``margin`` inside the block's outline."""
     r = BLOCK
     return (p[:, 0] >= r[0] + margin) & (p[:, 0] <= r[2] - margin) & (p[:, 1] >= r[1] + margin) & \
         (p[:, 1] <= r[3] - margin)
@@ -102,7 +104,7 @@ def sample_points(n: int, rng: np.random.Generator, margin: float = 0.002) -> np
 
 
 def indenter_trajectory() -> WaypointTrajectory:
-    """The ball from just above the arm's tip to DEPTH below its rest surface and back, PHASE seconds each way."""
+    """The ball from just above the top surface to DEPTH below it and back, PHASE seconds each way."""
     y_top = BLOCK[3] + BALL_RADIUS + GAP
     y_low = BLOCK[3] + BALL_RADIUS - DEPTH
     times = np.array([0.0, PHASE, 2 * PHASE])
