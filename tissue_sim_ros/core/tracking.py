@@ -384,7 +384,8 @@ class SceneFactory:
     mesh: TissueMesh
 
     def __call__(self, candidate: Mapping[str, float]) -> Any:
-        from .scene import build_simulation  # noqa: PLC0415  (scene imports the solvers; tracking stays light)
+        from .config import resolve_config  # noqa: PLC0415  (the solvers load numba; tracking stays light)
+        from .simulation import Simulation  # noqa: PLC0415
 
         scene: dict[str, Any] = {}
         bodies: dict[int, dict[str, float]] = {}
@@ -394,10 +395,19 @@ class SceneFactory:
                 scene[base] = value
             else:
                 bodies.setdefault(body, {})[base] = value
-        sim = build_simulation({**self.values, **scene}, mesh=self.mesh)
+        cfg = resolve_config({**self.values, **scene}, source="the fit's candidate values")
+        sim = Simulation.from_config(cfg, mesh=self.mesh, solver=_serial_solver)
         if not bodies:
             return sim
-        return type(sim)(with_body_values(sim.model, bodies), tool=sim.tool, config=sim.config)
+        return Simulation(with_body_values(sim.model, bodies), tool=sim.tool, solver=_serial_solver, config=cfg)
+
+
+def _serial_solver(model: Any) -> Any:
+    """The scene's solver on one thread: a candidate per core, the same numbers in a worker and in this process."""
+    from .simulation import default_solver  # noqa: PLC0415
+    from .solvers import Solver  # noqa: PLC0415
+
+    return default_solver(model) if model.params.sleep_speed > 0 else Solver(model, parallel=False)
 
 
 _WORKER: dict[str, Any] = {}
