@@ -321,7 +321,9 @@ def test_recording_bag_round_trip(tmp_path, truth_recording):
 
 def test_cli_fit_writes_a_parameter_file_every_command_loads(tmp_path, scene_image, truth_recording, capsys):
     syn = truth_recording
-    bag = write_recording(tmp_path / "bag", syn.t_ns, syn.points, syn.tool_t_ns, syn.tool_pose)
+    pts = syn.points.copy()
+    pts[10:20, 4] = np.nan  # point 4 lost for ten frames: those coordinates are left out of the fit
+    bag = write_recording(tmp_path / "bag", syn.t_ns, pts, syn.tool_t_ns, syn.tool_pose)
     scene = _write_scene(tmp_path / "scene.yaml", scene_image)
     out = tmp_path / "out"
     assert cli(["fit", str(bag), "--points-topic", "/tracker/points", "--tool-topic", "/tool/pose", "--params",
@@ -335,6 +337,7 @@ def test_cli_fit_writes_a_parameter_file_every_command_loads(tmp_path, scene_ima
     est = {p["name"]: p for p in data["parameters"]}
     assert abs(est["young_modulus"]["value"] / fs.TRUTH["young_modulus"] - 1) < 0.05
     assert data["fitted_frames"] == syn.t_ns.size - math.floor(0.25 * syn.t_ns.size)
+    assert data["residuals"] == 2 * (20 * (data["fitted_frames"] - 1) - 10)
     # the parameter file: the node's format, loaded by every command and by the node's checks
     values = load_params_file(out / "fitted.yaml")
     assert values["young_modulus"] == pytest.approx(est["young_modulus"]["value"])
