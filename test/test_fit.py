@@ -422,3 +422,12 @@ def test_cli_bad_input(tmp_path, scene_image, capsys, case, match):
     else:
         assert not out.exists()
     assert not list(tmp_path.glob(".out.*")), "nothing half written"
+
+
+def test_bench_fit_quick(tmp_path, capsys):
+    assert cli(["bench", "fit", "--quick", "--jobs", "1", "--out", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert "E within 5%:" in text and "fit wall time median" in text
+    rows = (tmp_path / "fit.csv").read_text().splitlines()
+    assert len(rows) == 2 and rows[0].startswith("points,seed,steps")
+    assert (tmp_path / "fit.png").stat().st_size > 0
