@@ -45,6 +45,9 @@ figures: $(STAMP)
 	$(VENV)/bin/tissue-sim plan --out $(OUT)/figures --set contact_model=projection --no-progress
 	$(VENV)/bin/tissue-sim mesh --out $(OUT)/figures/mesh.npz --png $(OUT)/figures/mesh.png
 	$(VENV)/bin/tissue-sim bench refinement --out $(OUT)/figures
+	$(VENV)/bin/tissue-sim fit --demo --out $(OUT)/figures/fit --no-progress
+	cp $(OUT)/figures/fit/tracks.png $(OUT)/figures/fit_tracks.png
+	cp $(OUT)/figures/fit/cost.png $(OUT)/figures/fit_cost.png
 	cp $(OUT)/figures/*.png docs/img/
 
 clean:

@@ -57,11 +57,12 @@ setup(
     ],
     extras_require={
         "ros": ROS_WHEELS,
-        "test": ["pytest>=7", "ruff>=0.6", "mcap>=1.1", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5", "scikit-fem>=10",
+        "test": ["pytest>=7", "ruff>=0.6", "mcap>=1.1", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5", "scikit-fem>=10", "cma>=3.3",
                  "ray>=2.40"],  # the --backend ray tests on a local cluster (measured: +254 MB, ~10 s to install)
         # the independent static plane-stress FEM reference (bench/fem_reference.py)
         "fem": ["scikit-fem>=10"],
         "ray": ["ray>=2.40"],  # --backend ray: plan, bench stability on a Ray cluster
+        "fit": ["cma>=3.3"],  # tissue-sim fit --optimizer cma (CMA-ES for a rough cost)
         "video": ["imageio>=2.30", "imageio-ffmpeg>=0.4"],
         # what scripts/build_tf2_msgs.sh needs to generate tf2_msgs (no PyPI wheel) with CMake
         "tf2": ["ros-jazzy-ament-cmake", "ros-jazzy-ament-package", "ros-jazzy-ament-cmake-include-directories",

@@ -30,6 +30,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
     "record": ("tissue_sim_ros.cli_record", "record the node's topics to a rosbag2 bag (MCAP or sqlite3)"),
     "replay": ("tissue_sim_ros.cli_replay", "run the simulation offline on a bag's tool trajectory; write a bag, CSV, plots, frames"),
     "play": ("tissue_sim_ros.cli_play", "publish a bag's tool topics into a live ROS graph with the recorded timing"),
+    "fit": ("tissue_sim_ros.cli_fit", "identify the tissue's material from a recording (tracked points + tool poses)"),
     "tune": ("tissue_sim_ros.bench.tune", "pick the cheapest mesh spacing/method/iterations meeting an error tolerance"),
     "bench": {
         "solver": ("tissue_sim_ros.bench.solver", "ms per step, ns per projection and ratio to NumPy, per method and mesh size"),
@@ -41,6 +42,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
         "refinement": ("tissue_sim_ros.bench.refinement", "the material run to rest vs the scikit-fem reference: errors vs mesh spacing and dt"),
         "material": ("tissue_sim_ros.bench.material_accuracy", "the material's solve vs its exact Newton minimiser: step and response errors (median, max) vs time, Pareto"),
         "plan": ("tissue_sim_ros.bench.plan", "batch rollouts per second (serial, 1 and 2 workers); the planner service's latency and node rate"),
+        "fit": ("tissue_sim_ros.bench.fit", "fit known parameters back from simulated recordings on another mesh: error, coverage, time"),
         "peers": ("tissue_sim_ros.bench.peers", "time per step against Taichi, MuJoCo flex and the NumPy baseline (optional extras)"),
     },
 }

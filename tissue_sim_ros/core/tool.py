@@ -138,6 +138,30 @@ def twist_from_poses(prev: ToolPose | None, pose: ToolPose, dt: float) -> ToolTw
     return ToolTwist((pose.x - prev.x) / dt, (pose.y - prev.y) / dt, wrap_angle(pose.yaw - prev.yaw) / dt)
 
 
+def interpolate_poses(t_src: np.ndarray, poses: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Poses at times ``t``, linear in x, y and unwrapped yaw between samples, clamped outside their span.
+
+    Parameters
+    ----------
+    t_src : sample times, shape (M,), strictly increasing (any unit; int64 ns are made relative first).
+    poses : x [m], y [m], yaw [rad] per sample, shape (M, 3).
+    t : query times in the unit of ``t_src``, shape (K,).
+
+    Returns shape (K, 3), float64, yaw wrapped to [-pi, pi].
+    """
+    t_src = np.asarray(t_src)
+    origin = t_src[0]
+    ts = (t_src - origin).astype(np.float64)
+    tq = (np.asarray(t) - origin).astype(np.float64)
+    poses = np.asarray(poses, dtype=np.float64)
+    out = np.empty((tq.shape[0], 3))
+    out[:, 0] = np.interp(tq, ts, poses[:, 0])
+    out[:, 1] = np.interp(tq, ts, poses[:, 1])
+    yaw = np.interp(tq, ts, np.unwrap(poses[:, 2]))
+    out[:, 2] = np.arctan2(np.sin(yaw), np.cos(yaw))
+    return out
+
+
 def _check_point(name: str, p: object) -> tuple[float, float]:
     try:
         x, y = (float(v) for v in p)  # type: ignore[union-attr]

@@ -53,7 +53,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.stamps import stamp_to_ns
-from ..core.tool import yaw_from_quaternion
+from ..core.tool import interpolate_poses, yaw_from_quaternion
 
 if TYPE_CHECKING:
     from rosbags.interfaces import Connection
@@ -588,15 +588,7 @@ class ToolTrack:
 
         Returns shape (K, 3), float64.
         """
-        t = (np.asarray(t_ns, dtype=np.int64) - self.t_ns[0]).astype(np.float64)
-        ts = (self.t_ns - self.t_ns[0]).astype(np.float64)
-        yaw = np.unwrap(self.pose[:, 2])
-        out = np.empty((t.shape[0], 3))
-        out[:, 0] = np.interp(t, ts, self.pose[:, 0])
-        out[:, 1] = np.interp(t, ts, self.pose[:, 1])
-        y = np.interp(t, ts, yaw)
-        out[:, 2] = np.arctan2(np.sin(y), np.cos(y))
-        return out
+        return interpolate_poses(self.t_ns, self.pose, np.asarray(t_ns, dtype=np.int64))
 
     def summary(self) -> str:
         """One line: topic, frame, samples, duration, rate, skips."""

@@ -444,7 +444,7 @@ def decode_marker_array(data: bytes) -> list[DecodedMarker]:
 # --------------------------------------------------------------------------- point cloud
 
 
-def encode_point_cloud(stamp: Stamp, frame_id: str, points: np.ndarray) -> bytes:
+def encode_point_cloud(stamp: Stamp, frame_id: str, points: np.ndarray, dense: bool = True) -> bytes:
     """sensor_msgs/PointCloud2 of a structured array (one row, unordered cloud).
 
     Parameters
@@ -452,7 +452,8 @@ def encode_point_cloud(stamp: Stamp, frame_id: str, points: np.ndarray) -> bytes
     points : ndarray
         Structured array, shape (N,), little-endian fields of the PointField
         types (e.g. :data:`POINT_DTYPE`); written as is, ``point_step = itemsize``.
-        Must hold finite numbers only (``is_dense`` is set true).
+        ``dense`` (``is_dense``): True when every value is finite (the node's clouds); a tracker's cloud with
+        NaN for points it lost in a frame passes False.
     """
     dtype = points.dtype
     w = CdrWriter()
@@ -471,7 +472,7 @@ def encode_point_cloud(stamp: Stamp, frame_id: str, points: np.ndarray) -> bytes
     w.u32(dtype.itemsize * points.shape[0])  # row_step
     raw = np.ascontiguousarray(points).view(np.uint8)
     w.sequence(raw, raw.size, 1)
-    w.bool(True)  # is_dense: we never publish NaN
+    w.bool(dense)  # is_dense: the node never publishes NaN
     return w.getvalue()
 
 
