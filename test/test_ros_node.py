@@ -801,4 +801,7 @@ def test_play_into_a_node_started_plainly_moves_the_tool(ros_client: RosClient, 
     applied.clear()
     ros_client.spin_until(lambda: applied.messages, TIMEOUT, proc, "steps on the system clock")
     s, _, p, _ = M.decode_pose_stamped(applied.messages[-1])
-    assert abs(s[0] + s[1] * 1e-9 - _time.time()) < 5.0 and p[0] == xs[-1]
+    # tool/pose is best-effort in timer mode (msg_docs/topics.md): the bag's last message may be lost on the way,
+    # so the tool holds at the last pose that arrived, at or after the last one stepped on the bag's clock
+    assert abs(s[0] + s[1] * 1e-9 - _time.time()) < 5.0
+    assert p[0] in xs[-3:] and p[0] >= in_bag_time[-1][1][0]
