@@ -1,32 +1,14 @@
-"""``tissue-sim play``: publish a bag's tool topics into a live ROS graph with the recorded timing.
-
-The bytes stored in the bag are published as they are (rclpy's
-``Publisher.publish`` accepts serialized messages), so nothing is decoded or
-re-encoded and header stamps stay as recorded. By default the tool topics are
-played: every topic of a pose or twist type (PoseStamped, Pose,
-TransformStamped, TFMessage, TwistStamped, Twist...); ``--topics`` chooses
-others. ``--remap FROM:=TO`` publishes a bag topic under another name (a
-robot's ``/ee_pose`` as the node's ``/tool/pose``).
-
-Timing: message i goes out at start + (t_i - t_0) / rate of the bag's receive
-times; ``--rate 2`` plays twice as fast. ``--loop`` repeats. By default play
-publishes ``/clock`` (rosgraph_msgs/Clock) at ``--clock-rate`` Hz with the bag
-time (continuing across loops; ``--no-clock``: none), so the recorded stamps
-are current on that clock: ``tissue_sim_node`` follows it by itself
-(parameter ``follow_clock``), other nodes with ``use_sim_time:=true``. Before
-starting, play waits up to ``--wait`` seconds for every played topic to have
-``--min-subscribers`` subscribers, then up to 2 s more for a ``/clock``
-subscriber, so the first messages are not lost.
-"""
+"""``tissue-sim play``: the command line of :func:`tissue_sim_ros.ros.play.play` (its docstring says what it does)."""
 from __future__ import annotations
 
 import argparse
 
 from .core.errors import InputError
+from .ros import play as _play_module
 from .ros.play import play
 
 HELP = "publish a bag's tool topics into a live ROS graph with the recorded timing"
-DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP
+DESCRIPTION = _play_module.__doc__.split("\n\n", 1)[1] if _play_module.__doc__ else HELP
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
