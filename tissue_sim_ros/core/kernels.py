@@ -375,14 +375,9 @@ def solve_areas_coloured(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, 
 
 
 @njit(cache=True)
-def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray,
-                            edges: np.ndarray, rest: np.ndarray, k_e: float, alpha_e: float, lam_e: np.ndarray,
-                            edge_offsets: np.ndarray,
-                            tris: np.ndarray, area0: np.ndarray, k_t: float, alpha_t: float, lam_t: np.ndarray,
-                            tri_offsets: np.ndarray,
-                            signed: bool, iterations: int, mode: int,
-                            x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
-                            dx_accum: np.ndarray, surface_edges: np.ndarray, edge_side_tol: float) -> None:
+def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple, tri_set: tuple, tool: tuple,
+                            k_e: float, alpha_e: float, lam_e: np.ndarray, k_t: float, alpha_t: float,
+                            lam_t: np.ndarray, signed: bool, iterations: int, mode: int) -> None:
     """``iterations`` Gauss-Seidel sweeps: all edges, then all triangles, then the tool.
 
     Pass empty ``edges``/``tris`` to switch a constraint type off. ``mode``:
@@ -396,7 +391,16 @@ def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray,
     particle ends inside it; an empty ``candidates`` skips it. Then the
     boundary edges ``surface_edges`` (K, 2) int32 (body on the left; empty:
     none) are kept out of it (:func:`~tissue_sim_ros.core.collision.project_edges`).
+
+    The constant arrays come packed: ``edge_set`` = (edges (E, 2) int32, rest
+    lengths (E,) [m], offsets (G + 1,) int64), ``tri_set`` = (triangles (T, 3)
+    int32, signed rest areas (T,) [m^2], offsets), and ``tool`` = (x_start
+    (N, 2), candidates (C,) int32, shape0 (7,), shape1 (7,), dx_accum (N, 2)
+    out, surface_edges (K, 2) int32, edge_side_tol [m]) (:func:`tool_pack`).
     """
+    edges, rest, edge_offsets = edge_set
+    tris, area0, tri_offsets = tri_set
+    x_start, candidates, shape0, shape1, dx_accum, surface_edges, edge_side_tol = tool
     for _ in range(iterations):
         if mode == GS_COLOURED:
             solve_edges_coloured(x, inv_mass, edges, rest, k_e, alpha_e, lam_e, edge_offsets)
@@ -610,22 +614,22 @@ def jacobi_relaxation(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, al
 
 
 @njit(cache=True)
-def jacobi_iterations(x: np.ndarray, inv_mass: np.ndarray,
-                      edges: np.ndarray, rest: np.ndarray, k_e: float, alpha_e: float, lam_e: np.ndarray,
-                      omega_e: np.ndarray,
-                      tris: np.ndarray, area0: np.ndarray, k_t: float, alpha_t: float, lam_t: np.ndarray,
-                      omega_t: np.ndarray,
-                      signed: bool, iterations: int, particle_scale: np.ndarray, dx_acc: np.ndarray,
-                      x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
-                      dx_accum: np.ndarray, surface_edges: np.ndarray, edge_side_tol: float) -> None:
+def jacobi_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple, tri_set: tuple, tool: tuple,
+                      k_e: float, alpha_e: float, lam_e: np.ndarray, omega_e: np.ndarray,
+                      k_t: float, alpha_t: float, lam_t: np.ndarray, omega_t: np.ndarray,
+                      signed: bool, iterations: int, particle_scale: np.ndarray, dx_acc: np.ndarray) -> None:
     """``iterations`` Jacobi sweeps: every constraint sees the positions of the sweep's start.
 
     Corrections are summed per particle and applied as
     ``x += particle_scale * sum`` (``1 / constraint count`` for the paper
     authors' averaging, 1 with per-constraint relaxation ``omega_*``); then
     the tool projection, as in :func:`gauss_seidel_iterations`.
-    ``dx_acc`` (N, 2) must be zero on entry and is zero on exit.
+    ``dx_acc`` (N, 2) must be zero on entry and is zero on exit. The packed
+    arrays are those of :func:`gauss_seidel_iterations` (offsets unused).
     """
+    edges, rest, _edge_offsets = edge_set
+    tris, area0, _tri_offsets = tri_set
+    x_start, candidates, shape0, shape1, dx_accum, surface_edges, edge_side_tol = tool
     for _ in range(iterations):
         jacobi_edges(x, inv_mass, edges, rest, k_e, alpha_e, lam_e, omega_e, dx_acc)
         jacobi_areas(x, inv_mass, tris, area0, k_t, alpha_t, lam_t, signed, omega_t, dx_acc)
@@ -634,6 +638,12 @@ def jacobi_iterations(x: np.ndarray, inv_mass: np.ndarray,
             project_tool(x, x_start, inv_mass, candidates, shape0, shape1, dx_accum)
         if surface_edges.shape[0] > 0:
             project_edges(x, x_start, inv_mass, surface_edges, shape0, shape1, edge_side_tol, dx_accum)
+
+
+def tool_pack(x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
+              dx_accum: np.ndarray, surface_edges: np.ndarray, edge_side_tol: float) -> tuple:
+    """The projection contact's arrays of a (sub)step, packed for the iteration kernels (order as documented there)."""
+    return (x_start, candidates, shape0, shape1, dx_accum, surface_edges, float(edge_side_tol))
 
 
 # ----------------------------------------------------------------------------- velocity and boundary

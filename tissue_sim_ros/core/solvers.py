@@ -476,19 +476,18 @@ class Solver:
                 if self.jacobi and p.method == "xpbd" and self.jacobi_relaxation == "stiffness":
                     kernels.jacobi_relaxation(x, w, edges, alpha_e, tris, alpha_t, self.signed, self.relaxation_scale,
                                               self._node_sum, self.omega_e, self.omega_t)
+                edge_set = (edges, rest, self.edge_offsets)
+                tri_set = (tris, area0, self.tri_offsets)
+                tool = kernels.tool_pack(self.x_start, cand, self._shape0, self._shape1, self.contact_dx, surf,
+                                         contacts.edge_side_tol)
                 for iters in sweeps:
                     if self.jacobi:
-                        kernels.jacobi_iterations(x, w, edges, rest, k_e, alpha_e, self.lam_e, self.omega_e,
-                                                  tris, area0, k_t, alpha_t, self.lam_t, self.omega_t,
-                                                  self.signed, iters, self.particle_scale, self._dx_acc,
-                                                  self.x_start, cand, self._shape0, self._shape1, self.contact_dx,
-                                                  surf, float(contacts.edge_side_tol))
+                        kernels.jacobi_iterations(x, w, edge_set, tri_set, tool, k_e, alpha_e, self.lam_e,
+                                                  self.omega_e, k_t, alpha_t, self.lam_t, self.omega_t,
+                                                  self.signed, iters, self.particle_scale, self._dx_acc)
                     else:
-                        kernels.gauss_seidel_iterations(x, w, edges, rest, k_e, alpha_e, self.lam_e,
-                                                        self.edge_offsets, tris, area0, k_t, alpha_t, self.lam_t,
-                                                        self.tri_offsets, self.signed, iters, self.gs_mode,
-                                                        self.x_start, cand, self._shape0, self._shape1,
-                                                        self.contact_dx, surf, float(contacts.edge_side_tol))
+                        kernels.gauss_seidel_iterations(x, w, edge_set, tri_set, tool, k_e, alpha_e, self.lam_e,
+                                                        k_t, alpha_t, self.lam_t, self.signed, iters, self.gs_mode)
                     if self.walls:
                         apply_walls(x, p.wall_y_bottom, p.wall_y_top)
             kernels.update_velocity(x, self.x_start, h, v)
