@@ -143,6 +143,17 @@ def _node_command() -> list[str]:
     return [str(script)] if script.exists() else [sys.executable, "-m", "tissue_sim_ros.ros.node"]
 
 
+def _stop_node(proc: subprocess.Popen) -> None:
+    """End a node process started by a benchmark: SIGTERM (a clean shutdown), SIGKILL after 15 s."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
 def _tool_y(t: float) -> float:
     """The tool centre's y [m]: from the gap (0.5) down to 0.36 (4 cm into the lower tissue) and back, 3 s period."""
     return 0.43 + 0.07 * math.cos(2.0 * math.pi * t / 3.0)
@@ -328,13 +339,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        _stop_node(proc)
 
     # the steps between the two diagnostics readings (each covers up to its publication)
     result.seconds = t1 - t0

@@ -34,7 +34,6 @@ import argparse
 import csv
 import math
 import os
-import signal
 import subprocess
 import time
 from pathlib import Path
@@ -147,7 +146,7 @@ def bench_node(cfg: Config, seconds: float, out: Path, domain_id: int, workers: 
     from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
 
     from ..ros import qos  # noqa: PLC0415
-    from .node import _isolated_env, _node_command, _write_params  # noqa: PLC0415
+    from .node import _isolated_env, _node_command, _stop_node, _write_params  # noqa: PLC0415
 
     params = cfg.replace(**{"marker_rate": 100.0, "points_rate": 100.0, "diagnostics_rate": 1.0,
                              "plan_angle_min": -40.0, "plan_angle_max": 35.0, "plan_angle_step": 5.0,
@@ -232,13 +231,7 @@ def bench_node(cfg: Config, seconds: float, out: Path, domain_id: int, workers: 
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        _stop_node(proc)
     lat = np.array(busy["latencies"])
     return {"candidates": 64, "plan_workers": workers, "first_request_s": first, "requests": int(lat.size),
             "latency_s_median": float(np.median(lat)), "latency_s_min": float(lat.min()),
