@@ -18,7 +18,8 @@ extrapolated.
 
 With ``material: neo_hookean`` (e.g. ``--params config/scenes/liver_probe.yaml``) the error is the
 material's physical one instead, mesh plus solver error at rest under the scene's instrument, over
-spacings, substeps and iterations (:mod:`~tissue_sim_ros.bench.tune_material`).
+uniform and graded meshes (finer near the instrument), substeps and iterations
+(:mod:`~tissue_sim_ros.bench.tune_material`).
 """
 from __future__ import annotations
 
@@ -64,6 +65,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="two coarse spacings, few counts (smoke test)")
     parser.add_argument("--material-spacings", default="0.005,0.0035,0.0025",
                         help="material neo_hookean: candidate spacings [m] (the reference mesh is half the finest)")
+    parser.add_argument("--grade-spacings", default="0.00125,0.000875,0.000625",
+                        help="material neo_hookean: candidate spacings near the instrument [m] for graded meshes "
+                             "(each with every coarser spacing; uniform meshes are always candidates; the "
+                             "reference is graded to half the finest); empty = uniform only")
+    parser.add_argument("--png", default="", help="material neo_hookean: write the error-time chart to this PNG")
+    parser.add_argument("--verify", action="store_true",
+                        help="material neo_hookean: measure the --params file as it is against the reference of "
+                             "--material-spacings/--grade-spacings (exit 1 when an error exceeds --tolerance)")
     parser.add_argument("--depth", type=float, default=0.003,
                         help="material neo_hookean: how far the instrument presses into the tissue [m]")
 

@@ -154,6 +154,14 @@ class SceneConfig:
     """Grey threshold separating tissue from background; < 0 = automatic (Otsu)."""
     max_particles: int = MAX_PARTICLES
     """Largest mesh meshing an image may make; a larger estimate (area and spacing) is refused before meshing."""
+    grade_spacing: float = 0.0
+    """Graded mesh: target edge length within ``grade_radius`` of (``grade_x``, ``grade_y``) [m]; 0 = uniform."""
+    grade_x: float = 0.0
+    """Graded mesh: world x of the fine region's centre [m]."""
+    grade_y: float = 0.0
+    """Graded mesh: world y of the fine region's centre [m]."""
+    grade_radius: float = 0.0
+    """Graded mesh: radius of the disc meshed at ``grade_spacing`` [m] (the spacing then grows by 0.3 m/m)."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mesh_file", mesh_file_value(self.mesh_file))
@@ -161,6 +169,15 @@ class SceneConfig:
             v = getattr(self, k)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
                 raise InputError(f"parameter {k}={v!r}: expected a number > 0")
+        for k in ("grade_spacing", "grade_x", "grade_y", "grade_radius"):
+            v = getattr(self, k)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise InputError(f"parameter {k}={v!r}: expected a finite number")
+        if not 0.0 <= self.grade_spacing <= self.spacing:
+            raise InputError(f"parameter grade_spacing={self.grade_spacing!r}: expected 0 (uniform) or a spacing "
+                             f"in (0, spacing={self.spacing!r}] m")
+        if self.grade_radius < 0:
+            raise InputError(f"parameter grade_radius={self.grade_radius!r}: expected a radius >= 0 m")
         v = self.max_particles
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
             raise InputError(f"parameter max_particles={v!r}: expected a whole number >= 1")
@@ -170,7 +187,8 @@ class SceneConfig:
         """The scene fields of a flat mapping (other names are not the scene's and are skipped)."""
         names = {f.name for f in fields(cls)}
         kwargs = {k: v for k, v in values.items() if k in names}
-        for k in ("spacing", "scale", "origin_x", "origin_y", "threshold"):
+        for k in ("spacing", "scale", "origin_x", "origin_y", "threshold", "grade_spacing", "grade_x", "grade_y",
+                  "grade_radius"):
             if k in kwargs and isinstance(kwargs[k], int) and not isinstance(kwargs[k], bool):
                 kwargs[k] = float(kwargs[k])
         return cls(**kwargs)
@@ -192,7 +210,14 @@ class SceneConfig:
         return mesh_from_image(image, spacing=self.spacing, scale=self.scale,
                                origin=(self.origin_x, self.origin_y),
                                threshold=None if self.threshold < 0 else self.threshold,
-                               max_particles=self.max_particles)
+                               grading=self.grading, max_particles=self.max_particles)
+
+    @property
+    def grading(self) -> tuple[float, float, float, float] | None:
+        """(x, y, radius, fine_spacing) for :func:`~tissue_sim_ros.core.mesh.mesh_from_image`; None when uniform."""
+        if self.grade_spacing <= 0:
+            return None
+        return (self.grade_x, self.grade_y, self.grade_radius, self.grade_spacing)
 
 
 @dataclass(frozen=True)
@@ -229,6 +254,10 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("origin_y", float, _SCENE.origin_y, "m", "World y of the image's bottom edge.", True, "scene"),
     ParamSpec("threshold", float, _SCENE.threshold, "grey level", "Grey threshold separating tissue from background; < 0 = automatic (Otsu).", True, "scene"),
     ParamSpec("max_particles", int, _SCENE.max_particles, "", "Largest mesh an image may be meshed into: a spacing whose estimated vertex count (2 A / (sqrt(3) spacing^2) over the tissue area A) exceeds it is refused before meshing.", True, "scene"),
+    ParamSpec("grade_spacing", float, _SCENE.grade_spacing, "m", "Graded mesh: target edge length within grade_radius of (grade_x, grade_y), growing by 0.3 m per m outside it up to spacing (mesh finer where the tool works); 0 = uniform at spacing.", True, "scene"),
+    ParamSpec("grade_x", float, _SCENE.grade_x, "m", "Graded mesh: world x of the fine region's centre.", True, "scene"),
+    ParamSpec("grade_y", float, _SCENE.grade_y, "m", "Graded mesh: world y of the fine region's centre.", True, "scene"),
+    ParamSpec("grade_radius", float, _SCENE.grade_radius, "m", "Graded mesh: radius of the disc meshed at grade_spacing.", True, "scene"),
     ParamSpec("boundary_y_top", float, _SIM.boundary_y_top, "m", "Particles at or above this y are pinned (the paper's upper line); NaN = none.", True, "scene"),
     ParamSpec("boundary_y_bottom", float, _SIM.boundary_y_bottom, "m", "Particles at or below this y are pinned (the paper's lower line); NaN = none.", True, "scene"),
     ParamSpec("pin_y_top", float, _SIM.pin_y_top, "m", "Particles whose rest y is at or above this are pinned (no wall); NaN = none.", True, "scene"),
