@@ -13,6 +13,7 @@ from tissue_sim_ros.bench.material_reference import MembraneEnergy, lame
 from tissue_sim_ros.bench.reference import minimize_step
 from tissue_sim_ros.cli import main
 from tissue_sim_ros.core.config import resolve_config
+from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_rectangle
 from tissue_sim_ros.core.simulation import Simulation
 
@@ -172,23 +173,58 @@ def test_material_stability_poses_press_a_third_deep():
     assert ps[-1] == ps[-20]  # held at the end
 
 
-def test_tune_material_quick_writes_a_loadable_choice(tmp_path, capsys):
-    # the real-size scene: mesh error (vs a finer converged mesh) + solver error (vs converged on the same mesh)
+def test_tune_material_quick_writes_a_file_that_reproduces_its_setting(tmp_path, capsys):
+    # the real-size scene through the same path as the full run, on a tiny candidate set: a uniform and a
+    # graded 6 mm mesh against a 3 mm reference graded to 1.5 mm at the instrument
+    from tissue_sim_ros.bench import tune_material as tm
     from tissue_sim_ros.resources import scene_params_file
 
+    scene = scene_params_file("liver_probe")
     out = tmp_path / "tuned.yaml"
     csv_path = tmp_path / "tune.csv"
-    code = main(["tune", "--params", str(scene_params_file("liver_probe")), "--tolerance", "0.3", "--budget-ms", "1e6",
-                 "--quick", "--out", str(out), "--csv", str(csv_path)])
+    code = main(["tune", "--params", str(scene), "--tolerance", "0.7", "--budget-ms", "1e6", "--quick",
+                 "--out", str(out), "--csv", str(csv_path), "--png", str(tmp_path / "tune.png")])
     assert code == 0
+    printed = capsys.readouterr().out
+    assert "chosen:" in printed and "verified" in printed
+    assert (tmp_path / "tune.png").stat().st_size > 0
     rows = list(csv.DictReader(open(csv_path)))
-    # errors fall with refinement at the converged setting, and the converged solver has ~no solver error
-    conv = [r for r in rows if (r["substeps"], r["iterations"]) == ("10", "10")]
-    assert float(conv[1]["err_mesh"]) < float(conv[0]["err_mesh"])
-    assert all(float(r["err_solver"]) < 1e-3 for r in conv)
+    uniform = [r for r in rows if float(r["grade_spacing"]) == 0]
+    graded = [r for r in rows if float(r["grade_spacing"]) > 0]
+    assert uniform and graded
+    # the graded mesh's mesh error is below the uniform one's in every quantity (the contact resolved)
+    for q in tm.QUANTITIES:
+        assert float(graded[0][f"mesh_{q}"]) < float(uniform[0][f"mesh_{q}"])
+    # the error is the worst quantity's mesh + solver sum
+    for r in rows:
+        sums = [float(r[f"mesh_{q}"]) + float(r[f"solver_{q}"]) for q in tm.QUANTITIES]
+        assert float(r["error"]) == pytest.approx(max(sums), rel=1e-12)
+    # the written file resolves through the front door and reproduces the chosen setting and mesh
     cfg = resolve_config(params_file=out)
-    chosen = [r for r in rows if float(r["spacing"]) == cfg.scene.spacing and int(r["substeps"]) == cfg.sim.substeps
+    chosen = [r for r in rows if float(r["spacing"]) == cfg.scene.spacing
+              and float(r["grade_spacing"]) == cfg.scene.grade_spacing and int(r["substeps"]) == cfg.sim.substeps
               and int(r["iterations"]) == cfg.sim.iterations]
-    assert len(chosen) == 1 and float(chosen[0]["error"]) <= 0.3
+    assert len(chosen) == 1 and float(chosen[0]["error"]) <= 0.7
+    assert cfg.scene.grade_spacing > 0 and cfg.scene.grade_radius == pytest.approx(2 * cfg.tool.radius)
+    assert len(cfg.scene.build_mesh().vertices) == int(chosen[0]["particles"])
     assert cfg.sim.material == "neo_hookean" and cfg.sim.young_modulus == 4000.0
-    assert "chosen:" in capsys.readouterr().out
+    # run as written, against the same reference directly: within the mesh + solver bound, per quantity
+    ref = tm.build_reference(resolve_config(params_file=scene), *tm.reference_meshes([0.006], [0.003]), 0.003,
+                             tm.QUICK_CONVERGED, progress=lambda _: None)
+    assert (ref["press"].x, ref["press"].top) == \
+        pytest.approx((cfg.scene.grade_x, cfg.scene.grade_y))
+    direct = tm.verify(cfg, ref)
+    for q in tm.QUANTITIES:
+        assert direct[f"err_{q}"] <= float(chosen[0][f"err_{q}"]) + 1e-9
+    assert main(["tune", "--params", str(out), "--verify", "--quick", "--tolerance", "0.7", "--budget-ms", "1"]) == 0
+
+
+def test_graded_scene_parameters_are_checked():
+    base = {"spacing": 0.005}
+    with pytest.raises(InputError, match="grade_spacing=0.01: expected 0 .uniform. or a spacing in"):
+        resolve_config({**base, "grade_spacing": 0.01})
+    with pytest.raises(InputError, match="grade_radius=-0.001: expected a radius >= 0"):
+        resolve_config({**base, "grade_spacing": 0.001, "grade_radius": -0.001})
+    assert resolve_config(base).scene.grading is None
+    assert resolve_config({**base, "grade_spacing": 0.001, "grade_x": 0.1, "grade_y": 0.2,
+                           "grade_radius": 0.01}).scene.grading == (0.1, 0.2, 0.01, 0.001)
