@@ -300,16 +300,24 @@ def run_tune_material(args: Any, cfg: Config) -> int:
         Path(args.csv).parent.mkdir(parents=True, exist_ok=True)
         write_csv(Path(args.csv), rows)
     title = (f"tune, material {cfg.sim.material}, E {cfg.sim.young_modulus:g} Pa, instrument {args.depth * 1e3:g} mm "
-             f"in; reference {reference['spacing'] * 1e3:g} mm, {reference['grade_spacing'] * 1e3:g} mm at the tool")
+             f"in;\nreference {reference['spacing'] * 1e3:.3g} mm, {reference['grade_spacing'] * 1e3:.3g} mm at the tool")
     if args.png:
         Path(args.png).parent.mkdir(parents=True, exist_ok=True)
         plot(Path(args.png), rows, best, args.tolerance, title)
-    print(f"\n{title}; error = mesh (converged {converged[0]} x {converged[1]} vs the reference, plus the reference's "
+    print(f"\n{title.replace(chr(10), ' ')}; error = mesh (converged {converged[0]} x {converged[1]} vs the reference, plus the reference's "
           f"own error: " + ", ".join(f"{q} {v:.2g}" for q, v in reference["error"].items())
           + f") + solver (vs {converged[0]} x {converged[1]} on the same mesh), per quantity; 'error' is the worst:")
     print(format_table(rows, TABLE))
     if best is None:
-        print(f"\nno setting meets error <= {args.tolerance:g} within {args.budget_ms:g} ms per step")
+        within = [r for r in rows if r["ms_per_step"] <= args.budget_ms and r["at_rest"]]
+        hint = min(within, key=lambda r: r["error"]) if within else None
+        msg = f"\nno setting meets error <= {args.tolerance:g} within {args.budget_ms:g} ms per step"
+        if hint:
+            msg += (f"; the most accurate within budget: spacing {hint['spacing']:g} m, grade_spacing "
+                    f"{hint['grade_spacing']:g} m, {hint['substeps']} x {hint['iterations']} (error field "
+                    f"{hint['err_field']:.3g}, force {hint['err_force']:.3g}, energy {hint['err_energy']:.3g}, "
+                    f"{hint['ms_per_step']:.3g} ms)")
+        print(msg)
         return 1
     print(f"\nchosen: spacing {best['spacing']:g} m" + (f", {best['grade_spacing']:g} m near the tool"
                                                        if best["grade_spacing"] else "")
