@@ -187,8 +187,7 @@ class SceneConfig:
         """The scene fields of a flat mapping (other names are not the scene's and are skipped)."""
         names = {f.name for f in fields(cls)}
         kwargs = {k: v for k, v in values.items() if k in names}
-        for k in ("spacing", "scale", "origin_x", "origin_y", "threshold", "grade_spacing", "grade_x", "grade_y",
-                  "grade_radius"):
+        for k in (f.name for f in fields(cls) if f.type in (float, "float")):
             if k in kwargs and isinstance(kwargs[k], int) and not isinstance(kwargs[k], bool):
                 kwargs[k] = float(kwargs[k])
         return cls(**kwargs)
