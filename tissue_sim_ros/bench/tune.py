@@ -64,7 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--csv", default="", help="also write every measured setting to this CSV")
     parser.add_argument("--quick", action="store_true", help="two coarse spacings, few counts (smoke test)")
     parser.add_argument("--material-spacings", default="0.005,0.0035,0.0025",
-                        help="material neo_hookean: candidate spacings [m] (the reference mesh is half the finest)")
+                        help="material neo_hookean: candidate spacings [m] (the reference mesh is 2 sqrt(2) x finer than the finest)")
     parser.add_argument("--grade-spacings", default="0.00125,0.000875,0.000625",
                         help="material neo_hookean: candidate spacings near the instrument [m] for graded meshes "
                              "(each with every coarser spacing; uniform meshes are always candidates; the "

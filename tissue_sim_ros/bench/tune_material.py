@@ -63,6 +63,22 @@ RAMP = 40
 REFINE = 2.0 ** 1.5
 
 
+def _reach(cfg: Config) -> float:
+    """The tool's half thickness across its axis [m] (box: width/2; capsule, sphere: radius)."""
+    _, hy, r = cfg.tool.rounded_box()
+    return hy + r
+
+
+def _half_length(cfg: Config) -> float:
+    """From the tool's centre to the end of its straight part along the axis [m] (0 for a sphere)."""
+    return cfg.tool.rounded_box()[0]
+
+
+def _listing(values: dict[str, float], fmt: str = ".2g") -> str:
+    """``name value, ...`` for a quantity -> error mapping."""
+    return ", ".join(f"{q} {v:{fmt}}" for q, v in values.items())
+
+
 @dataclass(frozen=True)
 class Press:
     """The load: the instrument's tip pressed to ``tip_y`` at ``x`` (world, the same on every mesh)."""
@@ -74,9 +90,7 @@ class Press:
 
     def pose(self, cfg: Config, s: float) -> ToolPose:
         """The instrument's pose at ramp fraction ``s`` (0: 2 mm above the top, 1: ``depth`` below it)."""
-        tool = cfg.tool
-        half = 0.5 * tool.length if tool.kind in ("box", "capsule") else 0.0
-        reach = tool.radius if tool.kind != "box" else 0.5 * tool.width
+        half, reach = _half_length(cfg), _reach(cfg)
         start, end = self.top + reach + 0.002, self.top + reach - self.depth
         return ToolPose(self.x, start + s * (end - start) + half, -0.5 * math.pi)
 
@@ -93,9 +107,8 @@ def mesh_config(cfg: Config, press: Press, spacing: float, grade_spacing: float)
     """``cfg`` meshed at ``spacing``, graded to ``grade_spacing`` around the press point (0: uniform)."""
     if grade_spacing <= 0 or grade_spacing >= spacing:
         return cfg.replace(spacing=spacing, grade_spacing=0.0, grade_x=0.0, grade_y=0.0, grade_radius=0.0)
-    reach = cfg.tool.radius if cfg.tool.kind != "box" else 0.5 * cfg.tool.width
     return cfg.replace(spacing=spacing, grade_spacing=grade_spacing, grade_x=press.x, grade_y=press.top,
-                       grade_radius=GRADE_RADIUS_TOOLS * reach)
+                       grade_radius=GRADE_RADIUS_TOOLS * _reach(cfg))
 
 
 def press_to_rest(cfg: Config, press: Press, max_steps: int = 3000) -> dict[str, Any]:
@@ -180,9 +193,9 @@ def build_reference(cfg: Config, spacing: float, grade_spacing: float, depth: fl
     progress(f"reference: {ref['particles']} particles (spacing {spacing * 1e3:.4g} mm, {grade_spacing * 1e3:.4g} mm "
              f"near the tool), {n_c} x {it_c}: force {ref['force'][1]:.5g} N, strain energy {ref['energy']:.5g} J, "
              f"RMS displacement {rms(ref['u'], ref['mass']):.4g} m; its own error, solver (vs {2 * n_c} x {it_c}): "
-             + ", ".join(f"{q} {v:.2g}" for q, v in solver.items())
+             + _listing(solver)
              + f"; mesh (2.4 x the change from {coarser['particles']} particles): "
-             + ", ".join(f"{q} {v:.2g}" for q, v in mesh.items()))
+             + _listing(mesh))
     return reference
 
 
@@ -209,7 +222,7 @@ def tune_material(cfg: Config, tolerance: float, budget_ms: float, spacings: Seq
             worst_mesh = max(mesh_err[q] + reference["error"][q] for q in QUANTITIES)
             progress(f"mesh {h * 1e3:g} mm" + (f", {g * 1e3:g} mm near the tool" if g else "")
                      + f" ({conv['particles']} particles): against the reference "
-                     + ", ".join(f"{q} {v:.3g}" for q, v in mesh_err.items()))
+                     + _listing(mesh_err, ".3g"))
             runs = [(n_c, it_c, conv)] if worst_mesh > tolerance else \
                 [(n, it, press_to_rest(mesh_cfg.replace(substeps=n, iterations=it), press)) for n, it in settings]
             for n, it, run in runs:
@@ -290,7 +303,7 @@ def run_tune_material(args: Any, cfg: Config) -> int:
         spacings, grades, settings, converged = [0.006], [0.003], QUICK_SETTINGS, QUICK_CONVERGED
     else:
         spacings = _parse_spacings(args.material_spacings)
-        grades = [g for g in _parse_spacings(args.grade_spacings)] if args.grade_spacings else []
+        grades = _parse_spacings(args.grade_spacings) if args.grade_spacings else []
         settings, converged = SETTINGS, CONVERGED
     if args.verify:
         return run_verify(args, cfg, spacings, grades, converged)
@@ -305,7 +318,7 @@ def run_tune_material(args: Any, cfg: Config) -> int:
         Path(args.png).parent.mkdir(parents=True, exist_ok=True)
         plot(Path(args.png), rows, best, args.tolerance, title)
     print(f"\n{title.replace(chr(10), ' ')}; error = mesh (converged {converged[0]} x {converged[1]} vs the reference, plus the reference's "
-          f"own error: " + ", ".join(f"{q} {v:.2g}" for q, v in reference["error"].items())
+          f"own error: " + _listing(reference["error"])
           + f") + solver (vs {converged[0]} x {converged[1]} on the same mesh), per quantity; 'error' is the worst:")
     print(format_table(rows, TABLE))
     if best is None:
@@ -338,18 +351,18 @@ def run_tune_material(args: Any, cfg: Config) -> int:
         print(f"verified {path}: {check['particles']} particles, {check['ms_per_step']:.3g} ms per step, error "
               f"against the reference field {check['err_field']:.3g}, force {check['err_force']:.3g}, energy "
               f"{check['err_energy']:.3g} (the reference's own: "
-              + ", ".join(f"{q} {v:.2g}" for q, v in reference["error"].items()) + ")")
+              + _listing(reference["error"]) + ")")
     return 0
 
 
 def run_verify(args: Any, cfg: Config, spacings: Sequence[float], grades: Sequence[float],
                converged: tuple[int, int]) -> int:
-    """``--verify``: the parameter file as it is, against a reference (half the finest of the candidates)."""
+    """``--verify``: the parameter file as it is, against the reference tune would build for these candidates."""
     reference = build_reference(cfg, *reference_meshes(spacings, grades), args.depth, converged)
     check = verify(cfg, reference)
     print(f"\n{args.params}: {check['particles']} particles (spacing {cfg.scene.spacing:g} m, grade_spacing "
           f"{cfg.scene.grade_spacing:g} m), {cfg.sim.substeps} x {cfg.sim.iterations}: {check['ms_per_step']:.3g} ms "
           f"per step, error against the reference field {check['err_field']:.3g}, force {check['err_force']:.3g}, "
           f"energy {check['err_energy']:.3g}" + ("" if check["at_rest"] else " (not at rest)")
-          + " (the reference's own: " + ", ".join(f"{q} {v:.2g}" for q, v in reference["error"].items()) + ")")
+          + " (the reference's own: " + _listing(reference["error"]) + ")")
     return 0 if check["error"] <= args.tolerance and check["at_rest"] else 1
