@@ -515,3 +515,61 @@ def test_max_particles_is_a_scene_parameter() -> None:
         build_simulation({"max_particles": 100})
     with pytest.raises(InputError, match="max_particles"):
         build_simulation({"max_particles": 0})
+
+
+# --------------------------------------------------------------------------- outline corners
+
+def _has_vertex(mesh: TissueMesh, xy, tol: float = 1e-9) -> bool:
+    return bool(np.any(np.hypot(mesh.vertices[:, 0] - xy[0], mesh.vertices[:, 1] - xy[1]) <= tol))
+
+
+@pytest.mark.parametrize("spacing,grading", [(0.05, None), (0.035, None), (0.08, None), (0.05, (0.4, 0.3, 0.1, 0.02))])
+def test_sharp_corners_are_vertices_on_the_pixel_corners(spacing, grading):
+    img = l_shape()
+    H = img.shape[0]
+    mesh = mesh_from_image(img, spacing=spacing, scale=SCALE, grading=grading, corners="sharp")
+    check_mesh(mesh, img)
+    # fillPoly covers pixels 20..70 x 20..180 and 71..180 x 130..180: the staircase's corners in continuous
+    # pixel coordinates (column, row), the concave one included
+    for c, r in ((20, 20), (71, 20), (71, 130), (181, 130), (181, 181), (20, 181)):
+        assert _has_vertex(mesh, (c * SCALE, (H - r) * SCALE)), (c, r)
+
+
+def test_sharp_corners_keep_a_straight_face_at_every_spacing_where_smoothing_does_not():
+    img = strip()  # pixels 10..229 x 40..64: the bottom face is row edge 65, from column 10 to 230
+    H = img.shape[0]
+    ends = {"sharp": set(), "smooth": set()}
+    for corners in ends:
+        for spacing in (0.03, 0.04, 0.05, 0.06):
+            mesh = mesh_from_image(img, spacing=spacing, scale=SCALE, corners=corners)
+            v = mesh.vertices[mesh.boundary]
+            bottom = v[np.abs(v[:, 1] - (H - 65) * SCALE) < 0.5 * SCALE]
+            ends[corners].add((round(bottom[:, 0].min() / SCALE, 6), round(bottom[:, 0].max() / SCALE, 6)))
+    assert ends["sharp"] == {(10.0, 230.0)}
+    assert len(ends["smooth"]) > 1 or ends["smooth"] != {(10.0, 230.0)}  # the smoothed outline cuts them off
+
+
+def test_curved_outlines_have_no_corners():
+    # a disc has no straight runs meeting at an angle: sharp and smooth give the same mesh
+    a = mesh_from_image(disc(), spacing=SPACING, scale=SCALE, corners="sharp")
+    b = mesh_from_image(disc(), spacing=SPACING, scale=SCALE)
+    assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.triangles, b.triangles)
+
+
+def test_default_image_is_meshed_as_before_with_smooth_corners():
+    # the paper's scene keeps its mesh: smooth is the default
+    from tissue_sim_ros.core.config import SceneConfig
+
+    a = SceneConfig().build_mesh()
+    b = mesh_from_image(str(config_path(DEFAULT_IMAGE)), spacing=0.05, scale=0.002, corners="smooth")
+    assert np.array_equal(a.vertices, b.vertices)
+    assert len(a.vertices) == 320 and len(a.triangles) == 535  # the shipped paper mesh
+
+
+def test_bad_outline_corners():
+    from tissue_sim_ros.core.config import SceneConfig
+
+    with pytest.raises(InputError, match="corners='round'"):
+        mesh_from_image(disc(), spacing=SPACING, scale=SCALE, corners="round")
+    with pytest.raises(InputError, match="outline_corners='round': expected one of smooth, sharp"):
+        SceneConfig(outline_corners="round")

@@ -46,9 +46,12 @@ def test_liver_scene_is_real_tissue_at_real_size(liver):
     e1, e2 = q0[t[:, 1]] - q0[t[:, 0]], q0[t[:, 2]] - q0[t[:, 0]]
     area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
     assert liver.model.particle_mass.sum() == pytest.approx(p.density * p.thickness * area, rel=1e-9)
-    # the support pins the underside only
+    # the support pins the bottom face only: a straight row at y = 3.8 mm from corner to corner (x = 10 to
+    # 70.2 mm, the image's pixel corners, kept by outline_corners: sharp), nothing of the sides
     pinned = liver.model.particle_pinned
     assert pinned.any() and np.all(q0[pinned, 1] <= p.boundary_y_bottom)
+    assert np.allclose(q0[pinned, 1], 0.0038, atol=2e-5)
+    assert q0[pinned, 0].min() == pytest.approx(0.010, abs=1e-9) and q0[pinned, 0].max() == pytest.approx(0.0702, abs=1e-9)
 
 
 def test_scene_image_found_from_any_directory(tmp_path, monkeypatch):

@@ -65,10 +65,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="two coarse spacings, few counts (smoke test)")
     parser.add_argument("--material-spacings", default="0.005,0.0035,0.0025",
                         help="material neo_hookean: candidate spacings [m] (the reference mesh is 2 sqrt(2) x finer than the finest)")
-    parser.add_argument("--grade-spacings", default="0.00125,0.000875,0.000625",
+    parser.add_argument("--grade-spacings", default="0.00125,0.000875,0.000625,0.00044",
                         help="material neo_hookean: candidate spacings near the instrument [m] for graded meshes "
                              "(each with every coarser spacing; uniform meshes are always candidates; the "
-                             "reference is graded to half the finest); empty = uniform only")
+                             "reference is graded 2 sqrt(2) x finer than the finest); empty = uniform only")
     parser.add_argument("--png", default="", help="material neo_hookean: write the error-time chart to this PNG")
     parser.add_argument("--verify", action="store_true",
                         help="material neo_hookean: measure the --params file as it is against the reference of "

@@ -41,7 +41,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import yaml
 
 from .errors import InputError
-from .mesh import MAX_PARTICLES, TissueMesh, load_meshes
+from .mesh import MAX_PARTICLES, OUTLINE_CORNERS, TissueMesh, load_meshes
 from .model import (
     AREA_MODES,
     CONTACT_MODELS,
@@ -162,6 +162,10 @@ class SceneConfig:
     """Graded mesh: world y of the fine region's centre [m]."""
     grade_radius: float = 0.0
     """Graded mesh: radius of the disc meshed at ``grade_spacing`` [m] (the spacing then grows by 0.3 m/m)."""
+    outline_corners: str = "smooth"
+    """Meshing an image: "smooth" (the outline smoothed and resampled by arc length, the paper's meshes) or
+    "sharp" (corners of the outline between straight runs stay vertices, so a straight face ends at the same
+    place at every spacing)."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mesh_file", mesh_file_value(self.mesh_file))
@@ -176,6 +180,9 @@ class SceneConfig:
         if not 0.0 <= self.grade_spacing <= self.spacing:
             raise InputError(f"parameter grade_spacing={self.grade_spacing!r}: expected 0 (uniform) or a spacing "
                              f"in (0, spacing={self.spacing!r}] m")
+        if self.outline_corners not in OUTLINE_CORNERS:
+            raise InputError(f"parameter outline_corners={self.outline_corners!r}: expected one of "
+                             f"{', '.join(OUTLINE_CORNERS)}")
         if self.grade_radius < 0:
             raise InputError(f"parameter grade_radius={self.grade_radius!r}: expected a radius >= 0 m")
         v = self.max_particles
@@ -209,7 +216,8 @@ class SceneConfig:
         return mesh_from_image(image, spacing=self.spacing, scale=self.scale,
                                origin=(self.origin_x, self.origin_y),
                                threshold=None if self.threshold < 0 else self.threshold,
-                               grading=self.grading, max_particles=self.max_particles)
+                               grading=self.grading, max_particles=self.max_particles,
+                               corners=self.outline_corners)
 
     @property
     def grading(self) -> tuple[float, float, float, float] | None:
@@ -257,6 +265,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("grade_x", float, _SCENE.grade_x, "m", "Graded mesh: world x of the fine region's centre.", True, "scene"),
     ParamSpec("grade_y", float, _SCENE.grade_y, "m", "Graded mesh: world y of the fine region's centre.", True, "scene"),
     ParamSpec("grade_radius", float, _SCENE.grade_radius, "m", "Graded mesh: radius of the disc meshed at grade_spacing.", True, "scene"),
+    ParamSpec("outline_corners", str, _SCENE.outline_corners, "", f"Meshing an image: {' or '.join(OUTLINE_CORNERS)}; smooth = the outline smoothed and resampled by arc length (the paper's meshes), sharp = corners where two straight runs of the outline meet at 60 degrees or more stay vertices on the pixel corners, so a straight face ends at the same place at every spacing (a slab on a support).", True, "scene"),
     ParamSpec("boundary_y_top", float, _SIM.boundary_y_top, "m", "Particles at or above this y are pinned (the paper's upper line); NaN = none.", True, "scene"),
     ParamSpec("boundary_y_bottom", float, _SIM.boundary_y_bottom, "m", "Particles at or below this y are pinned (the paper's lower line); NaN = none.", True, "scene"),
     ParamSpec("pin_y_top", float, _SIM.pin_y_top, "m", "Particles whose rest y is at or above this are pinned (no wall); NaN = none.", True, "scene"),

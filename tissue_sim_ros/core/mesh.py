@@ -687,7 +687,8 @@ def mesh_from_image(image: str | Path | np.ndarray, *, spacing: float = 0.05, sc
                     origin: tuple[float, float] = (0.0, 0.0), threshold: float | None = None,
                     tissue_color: tuple[int, int, int] | None = None, color_tolerance: float = 40.0,
                     grading: Grading | tuple[float, float, float, float] | None = None,
-                    max_pixels: int = MAX_PIXELS, max_particles: int | None = MAX_PARTICLES) -> TissueMesh:
+                    max_pixels: int = MAX_PIXELS, max_particles: int | None = MAX_PARTICLES,
+                    corners: str = "smooth") -> TissueMesh:
     """Triangle mesh of the tissue in an image (the paper's "Mesh Generation").
 
     Parameters
@@ -710,6 +711,11 @@ def mesh_from_image(image: str | Path | np.ndarray, *, spacing: float = 0.05, sc
         A mesh estimated (from the tissue's area and the spacing, see
         :func:`estimate_vertices`) to have more vertices is refused before any
         meshing is done; None: no limit.
+    corners : "smooth" or "sharp"
+        "sharp": where two straight runs of the outline meet at CORNER_TURN_DEG or more,
+        the pixel corner is a vertex and each run between corners is resampled on its
+        own, so a straight face ends at the same place at every spacing; "smooth"
+        (default, the paper's meshes): the whole outline is resampled by arc length.
 
     Returns
     -------
@@ -746,7 +752,7 @@ def mesh_from_image(image: str | Path | np.ndarray, *, spacing: float = 0.05, sc
     mask = tissue_mask(image, threshold=threshold, tissue_color=tissue_color, color_tolerance=color_tolerance,
                        max_pixels=max_pixels, name=name)
     return mesh_from_mask(mask, spacing=spacing, scale=scale, origin=(ox, oy), grading=g, name=name,
-                          max_particles=max_particles)
+                          max_particles=max_particles, corners=corners)
 
 
 def estimate_vertices(area: float, spacing: float) -> float:
@@ -792,9 +798,13 @@ def _positive(name: str, value: float) -> float:
 
 def mesh_from_mask(mask: np.ndarray, *, spacing: float = 0.05, scale: float = 0.002,
                    origin: tuple[float, float] = (0.0, 0.0), grading: Grading | tuple | None = None,
-                   name: str = "mask", max_particles: int | None = MAX_PARTICLES) -> TissueMesh:
+                   name: str = "mask", max_particles: int | None = MAX_PARTICLES,
+                   corners: str = "smooth") -> TissueMesh:
     """Mesh a boolean tissue mask (H, W); see :func:`mesh_from_image` for the method, world frame and limits."""
     import cv2  # noqa: PLC0415
+
+    if corners not in OUTLINE_CORNERS:
+        raise InputError(f"corners={corners!r}: expected one of {', '.join(OUTLINE_CORNERS)}")
 
     spacing, scale = _positive("spacing", spacing), _positive("scale", scale)
     max_particles = _max_particles(max_particles)
@@ -852,7 +862,8 @@ def mesh_from_mask(mask: np.ndarray, *, spacing: float = 0.05, scale: float = 0.
         # a hole whose rim is shorter than three local spacings cannot be resolved by the mesh: it is filled
         holes = [hc for hc in holes
                  if cv2.arcLength(hc, True) >= 3.0 * float(size(hc[:, 0, :].mean(axis=0) + 0.5)[0])]
-        loops = [_boundary_loop(c, size, outer=True)] + [_boundary_loop(hc, size, outer=False) for hc in holes]
+        loops = ([_boundary_loop(c, size, outer=True, corners=corners)]
+                 + [_boundary_loop(hc, size, outer=False, corners=corners) for hc in holes])
         pts, tris = _mesh_body(loops, size)
         if len(tris) < 3:
             raise InputError(f"{where} gives only {len(tris)} triangles at spacing {spacing:.4g} m: "
@@ -907,7 +918,79 @@ def _estimate_mask_vertices(mask: np.ndarray, size: _SizeField) -> float:
     return n if np.isfinite(n) else float("inf")
 
 
-def _boundary_loop(contour: np.ndarray, size: _SizeField, outer: bool) -> np.ndarray:
+#: A corner of the outline is kept as a vertex (``corners="sharp"``) where the outline turns by at least this
+#: many degrees between two straight runs (of the 1 px polygon approximation) each at least CORNER_RUN_PX long.
+CORNER_TURN_DEG = 60.0
+CORNER_RUN_PX = 5.0
+#: The outline's corners: "smooth" (every point smoothed and resampled by arc length; the paper scene's meshes)
+#: or "sharp" (corners between straight runs stay vertices; each run between two corners resampled on its own).
+OUTLINE_CORNERS = ("smooth", "sharp")
+
+
+def _outline_corners(contour: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sharp corners of a pixel contour: their contour indices (ascending) and positions [px] on the pixel edges.
+
+    A corner is a vertex of the contour's polygon approximation (Douglas-Peucker, 1 px) where the two
+    adjacent edges are each at least CORNER_RUN_PX long and the outline turns by at least CORNER_TURN_DEG.
+    Each of the two runs is the line fitted (principal axis) through its boundary pixels' centres, two pixels
+    trimmed at each end (where an 8-connected contour steps diagonally round a corner), moved out onto the
+    pixel edges by ``0.5 * max(|nx|, |ny|)`` as the rest of the loop; the corner is where the two lines meet:
+    the corner of the pixel staircase.
+    """
+    import cv2  # noqa: PLC0415
+
+    none = np.zeros(0, dtype=np.int64), np.zeros((0, 2))
+    c = contour[:, 0, :]
+    n_c = len(c)
+    poly = cv2.approxPolyDP(contour, 1.0, True)[:, 0, :]
+    n = len(poly)
+    if n < 3:
+        return none
+    at = [np.nonzero((c[:, 0] == v[0]) & (c[:, 1] == v[1]))[0] for v in poly]
+    if any(len(h) == 0 for h in at):
+        return none
+    vidx = np.array([int(h[0]) for h in at])
+    poly = poly.astype(np.float64)
+    # outward normal of an edge e = (ex, ey) is (ey, -ex) for a polygon of positive shoelace area
+    area2 = float(np.sum(poly[:, 0] * np.roll(poly[:, 1], -1) - np.roll(poly[:, 0], -1) * poly[:, 1]))
+    sign = 1.0 if area2 > 0 else -1.0
+
+    def run_line(k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Point and unit direction of polygon edge k (vertex k to k+1), on the pixel edges."""
+        e = poly[(k + 1) % n] - poly[k]
+        i0, i1 = int(vidx[k]), int(vidx[(k + 1) % n])
+        inner = np.arange(i0 + 2, (i1 if i1 > i0 else i1 + n_c) - 1) % n_c
+        pts = c[inner].astype(np.float64) + 0.5 if len(inner) >= 2 else poly[[k, (k + 1) % n]] + 0.5
+        mean = pts.mean(axis=0)
+        t = np.linalg.svd(pts - mean)[2][0]
+        t = t if float(t @ e) >= 0 else -t
+        nrm = sign * np.array([t[1], -t[0]])
+        return mean + 0.5 * max(abs(nrm[0]), abs(nrm[1])) * nrm, t
+
+    idx, pos = [], []
+    for i in range(n):
+        e1, e2 = poly[i] - poly[i - 1], poly[(i + 1) % n] - poly[i]
+        l1, l2 = float(np.hypot(*e1)), float(np.hypot(*e2))
+        if min(l1, l2) < CORNER_RUN_PX:
+            continue
+        turn = np.degrees(np.arctan2(e1[0] * e2[1] - e1[1] * e2[0], float(e1 @ e2)))
+        if abs(turn) < CORNER_TURN_DEG:
+            continue
+        (p1, t1), (p2, t2) = run_line(i - 1 if i > 0 else n - 1), run_line(i)
+        det = t1[1] * t2[0] - t1[0] * t2[1]  # p1 + s t1 = p2 + u t2, solved for s by Cramer's rule
+        if abs(det) < 1e-9:
+            continue
+        d = p2 - p1
+        s_ = (d[1] * t2[0] - d[0] * t2[1]) / det
+        idx.append(int(vidx[i]))
+        pos.append(p1 + s_ * t1)
+    if not idx:
+        return none
+    order = np.argsort(idx)
+    return np.asarray(idx, dtype=np.int64)[order], np.asarray(pos)[order]
+
+
+def _boundary_loop(contour: np.ndarray, size: _SizeField, outer: bool, corners: str = "smooth") -> np.ndarray:
     """One closed boundary loop [px], resampled at the local spacing, shape (n, 2), float64.
 
     The contour runs through the centres of the boundary pixels; it is smoothed
@@ -916,7 +999,12 @@ def _boundary_loop(contour: np.ndarray, size: _SizeField, outer: bool) -> np.nda
     pixel staircase), so the polygon's area matches the pixel count. Outer loops
     come out counter-clockwise in pixel coordinates (rows down), holes clockwise,
     i.e. the tissue is always on the same side.
+
+    ``corners="sharp"``: the outline's sharp corners (:func:`_outline_corners`) are vertices at the corners
+    of the pixel staircase, and each run between two corners is resampled on its own (its ends fixed), so
+    a straight face keeps its ends at every spacing; elsewhere the loop is as with ``"smooth"``.
     """
+    cidx, cpos = _outline_corners(contour) if corners == "sharp" else (np.zeros(0, dtype=np.int64), None)
     p = contour[:, 0, :].astype(np.float64) + 0.5  # pixel centres in continuous pixel coordinates
     if len(p) >= 5:
         k = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0  # binomial ~ Gaussian sigma 1 px
@@ -925,6 +1013,8 @@ def _boundary_loop(contour: np.ndarray, size: _SizeField, outer: bool) -> np.nda
     area2 = np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1])
     if (area2 < 0) == outer:
         p = p[::-1]
+        if len(cidx):
+            cidx, cpos = (len(p) - 1 - cidx)[::-1], cpos[::-1]
     if len(p) >= 3:
         tangent = np.roll(p, -1, axis=0) - np.roll(p, 1, axis=0)
         tn = np.hypot(tangent[:, 0], tangent[:, 1])
@@ -939,7 +1029,10 @@ def _boundary_loop(contour: np.ndarray, size: _SizeField, outer: bool) -> np.nda
         if not outer and np.mean(np.sum((p - probe) * normal, axis=1)) > 0:
             normal = -normal
         p = p + (0.5 * np.maximum(np.abs(normal[:, 0]), np.abs(normal[:, 1])))[:, None] * normal
-    q = _resample_loop(p, size)
+    if len(cidx):
+        q, fixed = _resample_runs(p, cidx, cpos, size)
+    else:
+        q, fixed = _resample_loop(p, size), np.zeros(0, dtype=np.int64)
     if len(q) >= 3:
         # chords cut off the bulges of a curved boundary (area ~ h^2 / (12 R) per edge); move the
         # resampled points out along the normal so the polygon keeps the contour's area, by at most
@@ -955,8 +1048,34 @@ def _boundary_loop(contour: np.ndarray, size: _SizeField, outer: bool) -> np.nda
         # orient n away from the tissue: outward for outer loops, into the hole for holes
         if (np.mean(np.sum((q - q.mean(axis=0)) * n, axis=1)) < 0) == outer:
             n = -n
-        q = q + np.clip(delta, -0.4, 0.4) * n
+        shift = np.clip(delta, -0.4, 0.4) * n
+        shift[fixed] = 0.0  # corners stay on the pixel staircase's corners
+        q = q + shift
     return q
+
+
+def _resample_runs(p: np.ndarray, cidx: np.ndarray, cpos: np.ndarray, size: _SizeField,
+                   skip: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Resample a closed loop run by run between its corners; the points and the indices of the corners in them.
+
+    Run k goes from corner k to corner k+1 (cyclically): the corner's position, the loop's points strictly
+    between the two corners except ``skip`` points next to each (rounded by the 1 px smoothing), the next
+    corner. Each run gets ``max(1, round(length in local spacings))`` equal steps of that length.
+    """
+    n, m = len(p), len(cidx)
+    out, fixed = [], []
+    for k in range(m):
+        i0, i1 = int(cidx[k]), int(cidx[(k + 1) % m])
+        inner = np.arange(i0 + 1 + skip, (i1 if i1 > i0 else i1 + n) - skip) % n
+        path = np.concatenate([cpos[k][None], p[inner], cpos[(k + 1) % m][None]])
+        seg = np.hypot(*np.diff(path, axis=0).T)
+        mid = 0.5 * (path[:-1] + path[1:])
+        s = np.concatenate([[0.0], np.cumsum(seg / size(mid))])
+        steps = max(1, int(round(s[-1])))
+        targets = np.arange(steps) * (s[-1] / steps)  # the run's start, not its end (the next run's start)
+        fixed.append(sum(len(o) for o in out))
+        out.append(np.stack([np.interp(targets, s, path[:, 0]), np.interp(targets, s, path[:, 1])], axis=1))
+    return np.concatenate(out), np.asarray(fixed, dtype=np.int64)
 
 
 def _resample_loop(p: np.ndarray, size: _SizeField) -> np.ndarray:
