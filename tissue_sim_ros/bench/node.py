@@ -317,7 +317,8 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
                                       "steps": int(d["steps"]) - int(d0["steps"]),
                                       "overruns": int(d["overruns"]) - int(d0["overruns"]),
                                       "missed_ticks": int(d["missed_ticks"]) - int(d0["missed_ticks"]),
-                                      "markers_published": int(d.get("markers_published", 0))})
+                                      "markers_published": int(d.get("markers_published", 0)),
+                                      "load1": os.getloadavg()[0]})  # the machine's load beside the soak
                     next_sample += SOAK_SAMPLE_PERIOD
                 if soak:  # keep the collected series small over an hour: only counts are needed
                     markers.clear()
@@ -334,7 +335,8 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
                               "steps": int(d1["steps"]) - int(d0["steps"]),
                               "overruns": int(d1["overruns"]) - int(d0["overruns"]),
                               "missed_ticks": int(d1["missed_ticks"]) - int(d0["missed_ticks"]),
-                              "markers_published": int(d1.get("markers_published", 0))})
+                              "markers_published": int(d1.get("markers_published", 0)),
+                              "load1": os.getloadavg()[0]})
     finally:
         executor.shutdown()
         node.destroy_node()
@@ -535,6 +537,8 @@ def _run_soak(args: argparse.Namespace, out: Path, domain_id: int) -> int:
     print(f"RSS {rss[0]:.2f} MiB after warm-up -> {rss[-1]:.2f} MiB at the end: growth {growth:+.2f} MiB "
           f"(max {rss.max():.2f} MiB; trend {slope:+.2f} MiB/h); target < 5 MiB: "
           f"{'met' if growth < 5.0 else 'MISSED'}")
+    load = np.array([row["load1"] for row in rows], dtype=float)
+    print(f"load average (1 min) beside it: median {np.median(load):.2f}, min {load.min():.2f}, max {load.max():.2f}")
     print(f"overruns {r.overruns}, missed ticks {r.missed_ticks} of {r.steps + r.missed_ticks} ticks "
           f"({100 * r.missed_fraction:.3f} %), divergences {r.divergences}")
     print(f"wrote {out / 'node_soak.csv'}, {out / 'node_soak.png'}")

@@ -164,6 +164,7 @@ class TissueSimNode(Node):
                                if not lock_step and self._values["follow_clock"]
                                and not self.get_parameter("use_sim_time").value else None)
         self.diagnostics_timer = self.create_timer(1.0 / self._values["diagnostics_rate"], self._publish_diagnostics)
+        self.heap_trimmer = HeapTrimmer()
         self.add_pre_set_parameters_callback(self._expand_alias)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -559,6 +560,7 @@ class TissueSimNode(Node):
     def _publish_diagnostics(self) -> None:
         s, w = self.stats, self.marker_worker
         now = time.monotonic()
+        self.heap_trimmer.maybe_trim(now)
         window = max(now - s.window_start, 1e-9)
         r = self.last_report
         level = DiagnosticStatus.OK
@@ -579,6 +581,8 @@ class TissueSimNode(Node):
             "markers_published": w.published,
             "markers_skipped": w.skipped,
             "marker_encode_ms_mean": 1e3 * w.encode_seconds / max(w.published + w.errors, 1),
+            "heap_trims": self.heap_trimmer.trims,
+            "heap_trim_ms_max": 1e3 * self.heap_trimmer.seconds_max,
             **{f"dropped_{k}": v for k, v in s.dropped.items()},
             "paused": self.paused,
             "lock_step": self._values["lock_step"],
@@ -656,6 +660,42 @@ def _fix_mmap_threshold() -> None:
 
 _M_MMAP_THRESHOLD = -3
 """glibc's mallopt() parameter number (malloc.h)."""
+
+
+class HeapTrimmer:
+    """Give the heap's free pages back to the system every ``period`` seconds (glibc ``malloc_trim(0)``).
+
+    Small allocations made and freed on two threads (step and markers) leave free
+    pages inside glibc's arenas that it keeps; over an hour they show as resident
+    memory that only grows under load. ``malloc_trim`` returns them (measured: a
+    fraction of a millisecond on the node). Called from the diagnostics timer,
+    never from the step. No-op where there is no glibc.
+    """
+
+    def __init__(self, period: float = 10.0) -> None:
+        import ctypes  # noqa: PLC0415
+        import ctypes.util  # noqa: PLC0415
+
+        self.period = period
+        self.trims = 0
+        self.seconds_max = 0.0
+        self._next = time.monotonic() + period
+        self._trim = None
+        name = ctypes.util.find_library("c")
+        if sys.platform == "linux" and name is not None:
+            try:
+                self._trim = ctypes.CDLL(name).malloc_trim
+            except (OSError, AttributeError):
+                self._trim = None
+
+    def maybe_trim(self, now: float) -> None:
+        if self._trim is None or now < self._next:
+            return
+        self._next = now + self.period
+        t0 = time.perf_counter()
+        self._trim(0)
+        self.seconds_max = max(self.seconds_max, time.perf_counter() - t0)
+        self.trims += 1
 
 
 def main(args: list[str] | None = None) -> int:
