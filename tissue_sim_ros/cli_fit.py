@@ -96,8 +96,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "one, 0.04 of Poisson's ratio; contact makes rollouts rough at the micrometre level)")
     parser.add_argument("--no-mesh-check", action="store_true",
                         help="skip the rollout on half the mesh spacing whose shift of the estimate joins its error bar")
-    parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
-                        help="worker processes for the rollouts (default: 2 or the cores; 1: in this process)")
+    from .core.backends import add_backend_arguments  # noqa: PLC0415
+
+    add_backend_arguments(parser, jobs_default=min(2, os.cpu_count() or 1),
+                          jobs_help="worker processes for the rollouts (default: 2 or the cores; 1: in this process)")
     parser.add_argument("--out", required=True, help="output directory (must not exist or be empty)")
     parser.add_argument("--demo", action="store_true",
                         help="make a recording with known parameters (experiments/fit_scene.py) and fit it")
@@ -155,8 +157,9 @@ def run(args: argparse.Namespace) -> int:
         names = parse_fit_names(args.fit)
         if args.max_evals < 2:
             raise InputError(f"--max-evals {args.max_evals}: expected at least 2")
-        if args.jobs < 1:
-            raise InputError(f"--jobs {args.jobs}: expected at least 1")
+        from .core.backends import check_backend_arguments  # noqa: PLC0415
+
+        jobs, backend, address = check_backend_arguments(args)
         recording = read_recording(bag, points_topic, tool_topic, frame=args.frame)
         recording.source = recording.source.replace(str(staging), str(out))  # --demo: where it will be
         values = load_scene_values(params, args.set)
@@ -165,9 +168,9 @@ def run(args: argparse.Namespace) -> int:
                         bind_tolerance=args.bind_tolerance)
         print(f"recording: {recording.n_points} points x {recording.n_frames} frames over {recording.duration:.2f} s "
               f"({recording.source}); fitting {', '.join(names)} on {setup.schedule.n_steps} steps, "
-              f"{setup.mesh.vertices.shape[0]} particles, {args.jobs} worker(s)")
+              f"{setup.mesh.vertices.shape[0]} particles, {jobs} {'Ray worker(s)' if backend == 'ray' else 'worker(s)'}")
         t0 = time.perf_counter()
-        result = run_fit(setup, jobs=args.jobs, optimizer=args.optimizer, max_evals=args.max_evals,
+        result = run_fit(setup, jobs=jobs, backend=backend, address=address, optimizer=args.optimizer, max_evals=args.max_evals,
                          diff_step=args.diff_step, seed=args.seed, progress=not args.no_progress,
                          mesh_check=not args.no_mesh_check)
         files = write_outputs(staging, setup, result, truth=truth, final=out,

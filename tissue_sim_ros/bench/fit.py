@@ -37,14 +37,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="out/bench_fit", help="output directory (default: out/bench_fit)")
     parser.add_argument("--points", default="10,20,30", help="tracked point counts, one recording each (default 10,20,30)")
     parser.add_argument("--seeds", type=int, default=2, help="recordings per point count, each its own noise and points")
-    parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1), help="worker processes per fit")
+    from ..core.backends import add_backend_arguments  # noqa: PLC0415
+
+    add_backend_arguments(parser, jobs_default=min(2, os.cpu_count() or 1), jobs_help="worker processes per fit")
     parser.add_argument("--record-spacing", type=float, default=None, help="mesh spacing of the recordings [m]")
     parser.add_argument("--fit-spacing", type=float, default=None, help="mesh spacing of the fits [m]")
     parser.add_argument("--quick", action="store_true", help="one short recording at coarse spacings (smoke test)")
 
 
 def measure(n_points: int, seed: int, *, record_spacing: float, fit_spacing: float, jobs: int, work: Path,
-            duration: float | None = None) -> dict[str, Any]:
+            duration: float | None = None, backend: str = "local", address: str | None = None) -> dict[str, Any]:
     """One recording (written as a bag and read back) and its fit; the row of the table."""
     from ..experiments import fit as fitcli  # noqa: PLC0415
     from ..experiments import fit_scene as fs  # noqa: PLC0415
@@ -59,7 +61,7 @@ def measure(n_points: int, seed: int, *, record_spacing: float, fit_spacing: flo
     setup = fitcli.prepare(rec, fs.scene_params(image, spacing=fit_spacing), ["young_modulus", "poisson_ratio"],
                            holdout=0.2)
     t0 = time.perf_counter()
-    res = fitcli.run_fit(setup, jobs=jobs, slices=0)
+    res = fitcli.run_fit(setup, jobs=jobs, slices=0, backend=backend, address=address)
     wall = time.perf_counter() - t0
     e, nu = res.estimate("young_modulus"), res.estimate("poisson_ratio")
     te, tnu = fs.TRUTH["young_modulus"], fs.TRUTH["poisson_ratio"]
@@ -86,8 +88,11 @@ def run(args: argparse.Namespace) -> int:
         counts = [int(v) for v in args.points.split(",") if v.strip()]
     except ValueError:
         raise InputError(f"--points {args.points!r}: expected comma-separated integers") from None
-    if not counts or min(counts) < 1 or args.seeds < 1 or args.jobs < 1:
-        raise InputError("--points, --seeds and --jobs: expected at least 1")
+    from ..core.backends import check_backend_arguments  # noqa: PLC0415
+
+    jobs, backend, address = check_backend_arguments(args)
+    if not counts or min(counts) < 1 or args.seeds < 1:
+        raise InputError("--points and --seeds: expected at least 1")
     rec_sp = args.record_spacing or (0.006 if args.quick else fs.RECORDING_SPACING)
     fit_sp = args.fit_spacing or (0.008 if args.quick else fs.FIT_SPACING)
     duration = 1.5 if args.quick else None
@@ -103,8 +108,8 @@ def run(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for n in counts:
             for seed in range(seeds):
-                row = measure(n, seed, record_spacing=rec_sp, fit_spacing=fit_sp, jobs=args.jobs, work=Path(tmp),
-                              duration=duration)
+                row = measure(n, seed, record_spacing=rec_sp, fit_spacing=fit_sp, jobs=jobs, work=Path(tmp),
+                              duration=duration, backend=backend, address=address)
                 rows.append(row)
                 print(f"  {n} points, seed {seed}: E {_num(row['E'], '.1f')} Pa ({row['E_err_pct']:+.2f}%), "
                       f"nu {_num(row['nu'], '.4f')} ({row['nu_err']:+.4f}), {row['fit_wall_s']:.1f} s"

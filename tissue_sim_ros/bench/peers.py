@@ -262,7 +262,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="the smallest mesh, few steps (smoke test)")
     parser.add_argument("--steps", type=int, default=30, help="timed steps per measurement (median)")
     parser.add_argument("--fem", action="store_true",
-                        help="instead: the material model and MuJoCo's flex membrane run to rest on the hanging strip, "
+                        help="instead: the material model (dynamic and static settle), MuJoCo's flex membrane and Newton's "
+                             "triangle FEM run to rest on the hanging strip, "
                              "errors against the scikit-fem reference and wall time to rest (bench/peers_fem.py)")
 
 
@@ -278,9 +279,10 @@ def run(args: argparse.Namespace) -> int:
     if args.fem:
         from .peers_fem import run_fem  # noqa: PLC0415
 
-        if not available("mujoco"):
-            print("mujoco is not installed: ours only (pip install '.[peers]')")
-        return run_fem(out, args.quick, available("mujoco"))
+        for name, pkg in (("mujoco", "mujoco"), ("newton", "newton")):
+            if not available(pkg):
+                print(f"{name} is not installed: skipped (pip install '.[peers]')")
+        return run_fem(out, args.quick, available("mujoco"), available("newton") and available("warp"))
     sizes = {"500": SIZES["500"]} if args.quick else SIZES
     n_steps = min(args.steps, 5) if args.quick else args.steps
     have = {name: available(name) for name in ("taichi", "mujoco")}

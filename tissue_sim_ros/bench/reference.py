@@ -31,7 +31,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
+
+from ..core.minimize import newton_minimize
 
 if TYPE_CHECKING:  # types only: at run time this module needs nothing but NumPy and SciPy
     from ..core.collision import Contacts
@@ -243,7 +244,8 @@ def predict(model: Model, state: State, contacts: Contacts | None, dt: float) ->
 
 def minimize_step(energy: ImplicitEulerEnergy, fixed: np.ndarray, x0: np.ndarray | None = None,
                   rtol: float = 1e-10, max_iterations: int = 200) -> tuple[np.ndarray, dict]:
-    """Minimise ``energy`` over the free particles by damped Newton; fixed particles stay at x*.
+    """Minimise ``energy`` over the free particles by damped Newton (:func:`~tissue_sim_ros.core.minimize.newton_minimize`,
+    shared with the core's static settle); fixed particles stay at x*.
 
     Parameters
     ----------
@@ -265,68 +267,12 @@ def minimize_step(energy: ImplicitEulerEnergy, fixed: np.ndarray, x0: np.ndarray
         ``grad_norm``, ``grad_norm0``, ``iterations``, ``projected``, ``converged``, ``energy``.
     """
     x_pred = energy.x_pred
-    free_dofs = np.repeat(~np.asarray(fixed, dtype=bool), 2)
+    fixed = np.asarray(fixed, dtype=bool)
+    free_dofs = np.repeat(~fixed, 2)
     x = x_pred.copy() if x0 is None else np.array(x0, dtype=np.float64)
     x[fixed] = x_pred[fixed]
     g0 = float(np.linalg.norm(energy.gradient(x_pred).ravel()[free_dofs]))
-    e = energy.value(x)
-    g = energy.gradient(x).ravel()[free_dofs]
-    gnorm = float(np.linalg.norm(g))
-    target = rtol * g0
-    iterations = projected = 0
-    # The exact Hessian is tried first (quadratic convergence; a physical step from a physical state takes
-    # 3-5 iterations). When it gives no descent direction, or its step had to be cut below 1/4 by the line
-    # search, the next iterations use the projected Hessian, which gives robust steps far from the
-    # minimiser, until a full projected step is taken with a small gradient.
-    exact_first = True
-    while gnorm > target and iterations < max_iterations and free_dofs.any():
-        iterations += 1
-        step = None
-        used_exact = False
-        for project in ((False, True) if exact_first else (True,)):
-            h = energy.hessian(x, project=project)[free_dofs][:, free_dofs].tocsc()
-            try:
-                p = spla.spsolve(h, -g)
-            except RuntimeError:  # singular factor
-                continue
-            if np.all(np.isfinite(p)) and g @ p < -1e-14 * gnorm * np.linalg.norm(p):
-                step = p
-                projected += int(project)
-                used_exact = not project
-                break
-        if step is None:  # the projected Hessian (M + PSD) is positive definite: should not happen
-            step = -g / np.repeat(np.asarray(energy.mass), 2)[free_dofs]
-        # backtracking Armijo line search; near the minimiser E changes below its round-off,
-        # where a step that reduces the gradient norm is accepted instead
-        slope = float(g @ step)
-        t = 1.0
-        accepted = False
-        for _ in range(60):
-            x_try = x.copy()
-            x_try.ravel()[free_dofs] += t * step
-            e_try = energy.value(x_try)
-            if e_try <= e + 1e-4 * t * slope:
-                accepted = True
-            elif abs(e_try - e) <= 1e-13 * max(abs(e), 1e-300):
-                g_try = energy.gradient(x_try).ravel()[free_dofs]
-                accepted = float(np.linalg.norm(g_try)) < gnorm
-            if accepted:
-                break
-            t *= 0.5
-        if not accepted:
-            if not exact_first:
-                exact_first = True  # at round-off with the projected Hessian: let the exact one finish
-                continue
-            break  # no further progress possible in float64
-        x, e = x_try, e_try
-        g = energy.gradient(x).ravel()[free_dofs]
-        gnorm = float(np.linalg.norm(g))
-        if used_exact and t < 0.25:
-            exact_first = False
-        elif not used_exact and t == 1.0 and gnorm <= 1e-3 * max(g0, 1e-300):
-            exact_first = True
-    return x, {"grad_norm": gnorm, "grad_norm0": g0, "iterations": iterations, "projected": projected,
-               "converged": bool(gnorm <= target), "energy": e}
+    return newton_minimize(energy, x, fixed, g_scale=g0, rtol=rtol, max_iterations=max_iterations)
 
 
 def reference_step(model: Model, state_in: State, contacts: Contacts | None = None, dt: float | None = None,

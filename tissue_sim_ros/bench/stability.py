@@ -328,17 +328,13 @@ def inversion_rows(n_steps: int) -> list[dict[str, Any]]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from ..core.backends import add_backend_arguments  # noqa: PLC0415
     parser.add_argument("--out", default="bench_out/stability", help="output directory (CSV, PNG)")
     parser.add_argument("--quick", action="store_true", help="a few runs (smoke test)")
     parser.add_argument("--material", action="store_true",
                         help="instead: the neo_hookean material over dt, E 1 kPa-1 MPa, tool speed and mesh quality "
                              "on a real-size strip (bench/material_stability.py)")
-    parser.add_argument("--jobs", type=int, default=1,
-                        help="worker processes, or Ray tasks at a time with --backend ray (default 1: in this process)")
-    parser.add_argument("--backend", choices=("local", "ray"), default="local",
-                        help="local: this machine; ray: Ray tasks on a cluster (pip install '.[ray]'); same rows")
-    parser.add_argument("--address", default=None, help="--backend ray: the cluster (default RAY_ADDRESS or a "
-                                                        "private local cluster)")
+    add_backend_arguments(parser, jobs_default=1, jobs_help="worker processes (default 1: in this process)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -355,11 +351,12 @@ def run(args: argparse.Namespace) -> int:
     configs = [RunConfig(m, c, dt, s, v, q, n_steps=sweep.n_steps)
                for m in sweep.methods for c in sweep.contact_models for dt in sweep.dts
                for s in sweep.stiffness_scales for v in sweep.tool_speeds for q in sweep.mesh_qualities]
-    from ..core.backends import map_calls  # noqa: PLC0415
+    from ..core.backends import check_backend_arguments, map_calls  # noqa: PLC0415
 
+    jobs, backend, address = check_backend_arguments(args)
     with tqdm(total=len(configs), desc="stability", unit="run", dynamic_ncols=True) as bar:
-        rows = map_calls(run_one, [(cfg, meshes[cfg.mesh_quality]) for cfg in configs], backend=args.backend,
-                         workers=args.jobs, address=args.address, progress=lambda: bar.update(1))
+        rows = map_calls(run_one, [(cfg, meshes[cfg.mesh_quality]) for cfg in configs], backend=backend,
+                         workers=jobs, address=address, progress=lambda: bar.update(1))
     rows += inversion_rows(10 if args.quick else 30)
     write_csv(out / "stability.csv", rows)
     for method in sweep.methods:

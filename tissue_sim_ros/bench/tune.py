@@ -28,6 +28,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from ..core.config import resolve_config
@@ -75,6 +76,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "--material-spacings/--grade-spacings (exit 1 when an error exceeds --tolerance)")
     parser.add_argument("--depth", type=float, default=0.003,
                         help="material neo_hookean: how far the instrument presses into the tissue [m]")
+    from ..core.backends import add_backend_arguments  # noqa: PLC0415
+
+    add_backend_arguments(parser, jobs_default=1,
+                          jobs_help="worker processes for independent runs (default 1: in this process; the errors "
+                                    "are the same with more, the times are measured beside the other workers)")
 
 
 def _parse_spacings(text: str) -> list[float]:
@@ -87,32 +93,62 @@ def _parse_spacings(text: str) -> list[float]:
     return values
 
 
+def _chain(scene: Any, method: str, counts: tuple[int, ...], ref_run: list[np.ndarray], disc: float,
+           newton_ms: float, tolerance: float, budget_ms: float,
+           progress: Any = None) -> list[dict[str, Any]]:
+    """One method on one mesh at growing counts until it meets the tolerance, exceeds the budget or diverges
+    (more iterations then only cost more): the rows. Independent of every other chain (a unit of work)."""
+    rows = []
+    for count in counts:
+        row = measure_setting(scene, Setting(method, count), ref_run, per_step_every=0, progress=progress)
+        row["err_discretisation"] = disc
+        row["error"] = row["err_accum_final"] + disc
+        row["newton_ms"] = newton_ms
+        rows.append(row)
+        if row["ms_per_step"] > budget_ms or row["error"] <= tolerance or row["diverged"]:
+            break
+    return rows
+
+
+def _reference(scene: Any, progress: Any = None) -> tuple[list[np.ndarray], float]:
+    return reference_run(scene, progress)
+
+
 def tune(values: dict[str, Any], tolerance: float, budget_ms: float, spacings: list[float], n_steps: int,
          counts: tuple[int, ...] = COUNTS, methods: tuple[str, ...] = METHODS,
-         progress: Any = None) -> tuple[dict[str, Any] | None, list[dict[str, Any]]]:
+         progress: Any = None, *, jobs: int = 1, backend: str = "local",
+         address: str | None = None) -> tuple[dict[str, Any] | None, list[dict[str, Any]]]:
     """Measure the candidates; return the chosen row (None if none qualifies) and every row.
 
     Counts grow per method and spacing until the method meets the tolerance
     (more iterations then only cost more) or its time exceeds the budget.
+    ``jobs`` > 1 or ``backend="ray"``: the exact reference runs, then the (spacing, method) chains, run as
+    independent calls (:func:`~tissue_sim_ros.core.backends.map_calls`); the errors are those of ``jobs=1``
+    exactly, the times are measured with the other workers running beside (``progress`` then counts calls).
     """
+    from ..core.backends import map_calls  # noqa: PLC0415
+
     base = default_scene(spacings[0], float(values.get("dt", 0.01)), n_steps, overrides=values)
     finest = default_scene(spacings[-1] / 2, base.params.dt, n_steps, overrides=values, like=base)
-    finest_run, _ = reference_run(finest, progress)
-    rows: list[dict[str, Any]] = []
-    for spacing in spacings:
-        scene = base if spacing == spacings[0] else default_scene(spacing, base.params.dt, n_steps,
-                                                                   overrides=values, like=base)
-        ref_run, newton_ms = reference_run(scene, progress)
+    scenes = [base if spacing == spacings[0] else default_scene(spacing, base.params.dt, n_steps,
+                                                                  overrides=values, like=base)
+              for spacing in spacings]
+    here = jobs == 1 and backend == "local"
+
+    def calls(fn: Any, args: list[tuple]) -> list[Any]:
+        if here:  # in this process, with a progress tick per step
+            return [fn(*a, progress=progress) for a in args]
+        return map_calls(fn, args, backend=backend, workers=jobs, address=address,
+                         progress=(lambda: progress(1)) if progress else None)
+
+    refs = calls(_reference, [(finest,)] + [(scene,) for scene in scenes])
+    finest_run = refs[0][0]
+    chains = []
+    for scene, (ref_run, newton_ms) in zip(scenes, refs[1:]):
         disc = displacement_error(scene, ref_run[-1], finest, finest_run[-1])
-        for method in methods:
-            for count in counts:
-                row = measure_setting(scene, Setting(method, count), ref_run, per_step_every=0, progress=progress)
-                row["err_discretisation"] = disc
-                row["error"] = row["err_accum_final"] + disc
-                row["newton_ms"] = newton_ms
-                rows.append(row)
-                if row["ms_per_step"] > budget_ms or row["error"] <= tolerance or row["diverged"]:
-                    break
+        chains += [(scene, method, tuple(counts), ref_run, disc, newton_ms, tolerance, budget_ms)
+                   for method in methods]
+    rows = [row for chain in calls(_chain, chains) for row in chain]
     ok = [r for r in rows if r["error"] <= tolerance and r["ms_per_step"] <= budget_ms and not r["diverged"]]
     return (min(ok, key=lambda r: r["ms_per_step"]) if ok else None), rows
 
@@ -135,6 +171,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--budget-ms={args.budget_ms}: expected a time > 0 ms")
     if args.steps < 1:
         raise InputError(f"--steps={args.steps}: expected at least 1 step")
+    from ..core.backends import check_backend_arguments  # noqa: PLC0415
+
+    jobs, backend, address = check_backend_arguments(args)
     cfg = resolve_config(params_file=args.params or None)
     if cfg.sim.material == "neo_hookean":
         # a physical material: mesh + solver error at rest under the instrument (bench/tune_material.py)
@@ -142,14 +181,15 @@ def run(args: argparse.Namespace) -> int:
 
         if not (math.isfinite(args.depth) and args.depth > 0):
             raise InputError(f"--depth={args.depth}: expected a depth > 0 m")
-        return run_tune_material(args, cfg)
+        return run_tune_material(args, cfg, jobs=jobs, backend=backend, address=address)
     values = cfg.flat()
     spacings = [0.1, 0.05] if args.quick else _parse_spacings(args.spacings)
     counts = (1, 10) if args.quick else COUNTS
     n_steps = min(args.steps, 4) if args.quick else args.steps
 
     with tqdm(desc="tune", unit="step", dynamic_ncols=True) as bar:
-        best, rows = tune(values, args.tolerance, args.budget_ms, spacings, n_steps, counts, METHODS, bar.update)
+        best, rows = tune(values, args.tolerance, args.budget_ms, spacings, n_steps, counts, METHODS, bar.update,
+                           jobs=jobs, backend=backend, address=address)
     if args.csv:
         Path(args.csv).parent.mkdir(parents=True, exist_ok=True)
         write_csv(Path(args.csv), rows)

@@ -133,6 +133,15 @@ def press_to_rest(cfg: Config, press: Press, max_steps: int = 3000) -> dict[str,
             "at_rest": steps < max_steps}
 
 
+def rest_runs(runs: Sequence[tuple[Config, Press]], jobs: int = 1, backend: str = "local",
+              address: str | None = None) -> list[dict[str, Any]]:
+    """:func:`press_to_rest` of each ``(cfg, press)``, independent calls: in this process (``jobs`` 1, local), on
+    worker processes or on Ray (:func:`~tissue_sim_ros.core.backends.map_calls`); the same numbers."""
+    from ..core.backends import map_calls  # noqa: PLC0415
+
+    return map_calls(press_to_rest, list(runs), backend=backend, workers=jobs, address=address)
+
+
 def rms(a: np.ndarray, weight: np.ndarray | None = None) -> float:
     """RMS length of the rows of ``a``, weighted by ``weight`` (e.g. the lumped masses: the tissue's L2 mean)."""
     sq = (a * a).sum(axis=1)
@@ -166,7 +175,8 @@ def reference_meshes(spacings: Sequence[float], grades: Sequence[float]) -> tupl
 
 
 def build_reference(cfg: Config, spacing: float, grade_spacing: float, depth: float,
-                    converged: tuple[int, int] = CONVERGED, progress: Any = print) -> dict[str, Any]:
+                    converged: tuple[int, int] = CONVERGED, progress: Any = print,
+                    **backend: Any) -> dict[str, Any]:
     """The press solved with ``converged`` on a mesh of ``spacing`` graded to ``grade_spacing`` (the press point
     from this mesh's outline), and the reference's own errors.
 
@@ -178,10 +188,11 @@ def build_reference(cfg: Config, spacing: float, grade_spacing: float, depth: fl
     n_c, it_c = converged
     press = press_point(cfg.replace(spacing=spacing, grade_spacing=0.0), depth)
     ref_cfg = mesh_config(cfg, press, spacing, grade_spacing)
-    ref = press_to_rest(ref_cfg.replace(substeps=n_c, iterations=it_c), press)
-    check = press_to_rest(ref_cfg.replace(substeps=2 * n_c, iterations=it_c), press)
-    coarser = press_to_rest(mesh_config(cfg, press, spacing * math.sqrt(2), grade_spacing * math.sqrt(2)).replace(
-        substeps=n_c, iterations=it_c), press)
+    ref, check, coarser = rest_runs([
+        (ref_cfg.replace(substeps=n_c, iterations=it_c), press),
+        (ref_cfg.replace(substeps=2 * n_c, iterations=it_c), press),
+        (mesh_config(cfg, press, spacing * math.sqrt(2), grade_spacing * math.sqrt(2)).replace(
+            substeps=n_c, iterations=it_c), press)], **backend)
     solver = errors(ref, check, same_mesh=True)
     change = errors(coarser, ref)
     mesh = {q: v / (math.sqrt(2) - 1) for q, v in change.items()}
@@ -202,40 +213,47 @@ def build_reference(cfg: Config, spacing: float, grade_spacing: float, depth: fl
 def tune_material(cfg: Config, tolerance: float, budget_ms: float, spacings: Sequence[float],
                   grades: Sequence[float], depth: float, settings: Sequence[tuple[int, int]] = SETTINGS,
                   converged: tuple[int, int] = CONVERGED,
-                  progress: Any = print) -> tuple[dict[str, Any] | None, list[dict[str, Any]], dict[str, Any]]:
+                  progress: Any = print,
+                  **backend: Any) -> tuple[dict[str, Any] | None, list[dict[str, Any]], dict[str, Any]]:
     """Measure every mesh x setting; the cheapest row meeting tolerance and budget (None if none), rows, reference.
 
     A mesh whose mesh error alone exceeds the tolerance gets one row (its converged setting): no setting
-    on it can qualify.
+    on it can qualify. ``backend``: ``jobs``, ``backend``, ``address`` of :func:`rest_runs` (the runs of each
+    stage, reference, converged per mesh, settings, are independent calls; the same numbers).
     """
     n_c, it_c = converged
     t0 = time.perf_counter()
-    reference = build_reference(cfg, *reference_meshes(spacings, grades), depth, converged, progress)
+    reference = build_reference(cfg, *reference_meshes(spacings, grades), depth, converged, progress, **backend)
     press, ref = reference["press"], reference["run"]
     ref_h, ref_g = reference["spacing"], reference["grade_spacing"]
+    meshes = [(h, g, mesh_config(cfg, press, h, g)) for h in sorted(spacings, reverse=True)
+              for g in sorted({0.0, *(g for g in grades if 0 < g < h)}, reverse=True)]
+    convs = rest_runs([(m.replace(substeps=n_c, iterations=it_c), press) for _, _, m in meshes], **backend)
+    plans = []
+    for (h, g, mesh_cfg), conv in zip(meshes, convs):
+        mesh_err = errors(conv, ref)
+        worst_mesh = max(mesh_err[q] + reference["error"][q] for q in QUANTITIES)
+        progress(f"mesh {h * 1e3:g} mm" + (f", {g * 1e3:g} mm near the tool" if g else "")
+                 + f" ({conv['particles']} particles): against the reference "
+                 + _listing(mesh_err, ".3g"))
+        plans.append((h, g, mesh_cfg, conv, mesh_err, [] if worst_mesh > tolerance else list(settings)))
+    todo = [(mesh_cfg.replace(substeps=n, iterations=it), press) for _, _, mesh_cfg, _, _, sets in plans
+            for n, it in sets]
+    done = iter(rest_runs(todo, **backend))
     rows: list[dict[str, Any]] = []
-    for h in sorted(spacings, reverse=True):
-        for g in sorted({0.0, *(g for g in grades if 0 < g < h)}, reverse=True):
-            mesh_cfg = mesh_config(cfg, press, h, g)
-            conv = press_to_rest(mesh_cfg.replace(substeps=n_c, iterations=it_c), press)
-            mesh_err = errors(conv, ref)
-            worst_mesh = max(mesh_err[q] + reference["error"][q] for q in QUANTITIES)
-            progress(f"mesh {h * 1e3:g} mm" + (f", {g * 1e3:g} mm near the tool" if g else "")
-                     + f" ({conv['particles']} particles): against the reference "
-                     + _listing(mesh_err, ".3g"))
-            runs = [(n_c, it_c, conv)] if worst_mesh > tolerance else \
-                [(n, it, press_to_rest(mesh_cfg.replace(substeps=n, iterations=it), press)) for n, it in settings]
-            for n, it, run in runs:
-                solver_err = errors(run, conv, same_mesh=True)
-                row: dict[str, Any] = {"spacing": h, "grade_spacing": g, "particles": run["particles"],
-                                       "substeps": n, "iterations": it, "ms_per_step": run["solve_ms"]}
-                for q in QUANTITIES:
-                    row[f"mesh_{q}"] = mesh_err[q] + reference["error"][q]
-                    row[f"solver_{q}"] = solver_err[q]
-                    row[f"err_{q}"] = row[f"mesh_{q}"] + solver_err[q]
-                row["error"] = max(row[f"err_{q}"] for q in QUANTITIES)
-                row["at_rest"] = run["at_rest"] and conv["at_rest"]
-                rows.append(row)
+    for h, g, _, conv, mesh_err, sets in plans:
+        runs = [(n, it, next(done)) for n, it in sets] or [(n_c, it_c, conv)]
+        for n, it, run in runs:
+            solver_err = errors(run, conv, same_mesh=True)
+            row: dict[str, Any] = {"spacing": h, "grade_spacing": g, "particles": run["particles"],
+                                   "substeps": n, "iterations": it, "ms_per_step": run["solve_ms"]}
+            for q in QUANTITIES:
+                row[f"mesh_{q}"] = mesh_err[q] + reference["error"][q]
+                row[f"solver_{q}"] = solver_err[q]
+                row[f"err_{q}"] = row[f"mesh_{q}"] + solver_err[q]
+            row["error"] = max(row[f"err_{q}"] for q in QUANTITIES)
+            row["at_rest"] = run["at_rest"] and conv["at_rest"]
+            rows.append(row)
     ok = [r for r in rows if r["error"] <= tolerance and r["ms_per_step"] <= budget_ms and r["at_rest"]]
     best = min(ok, key=lambda r: r["ms_per_step"]) if ok else None
     for r in rows:
@@ -294,7 +312,7 @@ TABLE = ["spacing", "grade_spacing", "particles", "substeps", "iterations", "ms_
          "solver_field", "mesh_force", "solver_force", "mesh_energy", "solver_energy", "error", "at_rest"]
 
 
-def run_tune_material(args: Any, cfg: Config) -> int:
+def run_tune_material(args: Any, cfg: Config, **backend: Any) -> int:
     from ..core.config import resolve_config  # noqa: PLC0415
     from .accuracy import format_table, write_csv  # noqa: PLC0415
     from .tune import _parse_spacings  # noqa: PLC0415
@@ -306,9 +324,9 @@ def run_tune_material(args: Any, cfg: Config) -> int:
         grades = _parse_spacings(args.grade_spacings) if args.grade_spacings else []
         settings, converged = SETTINGS, CONVERGED
     if args.verify:
-        return run_verify(args, cfg, spacings, grades, converged)
+        return run_verify(args, cfg, spacings, grades, converged, **backend)
     best, rows, reference = tune_material(cfg, args.tolerance, args.budget_ms, spacings, grades, args.depth,
-                                          settings, converged)
+                                          settings, converged, **backend)
     if args.csv:
         Path(args.csv).parent.mkdir(parents=True, exist_ok=True)
         write_csv(Path(args.csv), rows)
@@ -356,9 +374,9 @@ def run_tune_material(args: Any, cfg: Config) -> int:
 
 
 def run_verify(args: Any, cfg: Config, spacings: Sequence[float], grades: Sequence[float],
-               converged: tuple[int, int]) -> int:
+               converged: tuple[int, int], **backend: Any) -> int:
     """``--verify``: the parameter file as it is, against the reference tune would build for these candidates."""
-    reference = build_reference(cfg, *reference_meshes(spacings, grades), args.depth, converged)
+    reference = build_reference(cfg, *reference_meshes(spacings, grades), args.depth, converged, **backend)
     check = verify(cfg, reference)
     print(f"\n{args.params}: {check['particles']} particles (spacing {cfg.scene.spacing:g} m, grade_spacing "
           f"{cfg.scene.grade_spacing:g} m), {cfg.sim.substeps} x {cfg.sim.iterations}: {check['ms_per_step']:.3g} ms "

@@ -52,6 +52,7 @@ from .model import (
     MATERIALS,
     METHODS,
     SCHEMES,
+    SETTLE_MODES,
     SimParams,
 )
 from .tool import TOOL_SHAPES, ToolShape
@@ -280,6 +281,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("poisson_ratio", float, _SIM.poisson_ratio, "", "neo_hookean: Poisson's ratio nu in [0, 0.5); ignored by constraints.", False, "physics"),
     ParamSpec("thickness", float, _SIM.thickness, "m", "neo_hookean: membrane thickness (> 0); ignored by constraints.", True, "physics"),
     ParamSpec("density", float, _SIM.density, "kg/m^3", "neo_hookean: density (> 0); each particle's mass is density x thickness x a third of its triangles' rest area (replaces mass and mass_per_area); ignored by constraints.", True, "physics"),
+    ParamSpec("settle", str, _SIM.settle, "", f"How the simulation starts and every reset puts it: {' or '.join(SETTLE_MODES)}; none = the rest shape, static = the static equilibrium under gravity and the pins, at rest (Newton's method on strain energy + gravity; material neo_hookean only).", True, "scene"),
     ParamSpec("gravity", float, _SIM.gravity, "m/s^2", "Gravity along world y (Table I: -9.8).", False, "physics"),
     ParamSpec("dt", float, _SIM.dt, "s", "Time step; the node steps at 1/dt of its clock (Table I: 0.01).", True, "physics"),
     ParamSpec("damping", float, _SIM.damping, "1/s", "Velocity damping rate c, applied before each prediction (damping_mode); 0 = off (paper; the authors' code: 8).", False, "physics"),

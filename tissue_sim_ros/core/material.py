@@ -536,3 +536,63 @@ def internal_forces(model, x: np.ndarray) -> np.ndarray:
         elastic_forces(np.ascontiguousarray(x, dtype=np.float64), model.tri_indices, model.tri_elastic, out)
     return out
 
+
+
+@njit(cache=True)
+def element_hessians(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, out: np.ndarray) -> None:
+    """Hessian of each element's strain energy V0 Psi(F) in its corners' coordinates, written to ``out`` (T, 6, 6).
+
+    Dofs ordered (a_x, a_y, b_x, b_y, c_x, c_y). With E_t = 1/2 (|g|^2 / alpha_D + C_H^2 / alpha_H)
+    (the packed compliances alpha = ``elastic[:, 4:6]``) and g linear in x::
+
+        d2E_t = (G_0 G_0^T + G_1 G_1^T) / alpha_D + (grad C_H grad C_H^T + C_H d2(det F)) / alpha_H
+
+    grad_a g_0 = (c_a0, -c_a1), grad_a g_1 = (c_a1, c_a0), grad_a C_H = cof F c_a, and
+    d2(det F)/dx_a dx_b = [[0, s_ab], [-s_ab, 0]] with s_ab = c_a0 c_b1 - c_a1 c_b0 (c_a: row of D_m^-1,
+    c_0 = -(c_1 + c_2)). Exact, so indefinite under strong compression (C_H d2 det F); degenerate rows are 0.
+    """
+    ca = np.empty((3, 2))
+    gd0 = np.empty(6)
+    gd1 = np.empty(6)
+    gh = np.empty(6)
+    for t in range(tris.shape[0]):
+        ad = elastic[t, 4]
+        ah = elastic[t, 5]
+        for i in range(6):
+            for j in range(6):
+                out[t, i, j] = 0.0
+        if ad <= 0.0 or ah <= 0.0:
+            continue
+        a = tris[t, 0]
+        b = tris[t, 1]
+        c = tris[t, 2]
+        ca[1, 0] = elastic[t, 0]
+        ca[1, 1] = elastic[t, 1]
+        ca[2, 0] = elastic[t, 2]
+        ca[2, 1] = elastic[t, 3]
+        ca[0, 0] = -ca[1, 0] - ca[2, 0]
+        ca[0, 1] = -ca[1, 1] - ca[2, 1]
+        e1x = x[b, 0] - x[a, 0]
+        e1y = x[b, 1] - x[a, 1]
+        e2x = x[c, 0] - x[a, 0]
+        e2y = x[c, 1] - x[a, 1]
+        f00 = e1x * ca[1, 0] + e2x * ca[2, 0]
+        f01 = e1x * ca[1, 1] + e2x * ca[2, 1]
+        f10 = e1y * ca[1, 0] + e2y * ca[2, 0]
+        f11 = e1y * ca[1, 1] + e2y * ca[2, 1]
+        ch = f00 * f11 - f01 * f10 - 1.0
+        for k in range(3):
+            gd0[2 * k] = ca[k, 0]
+            gd0[2 * k + 1] = -ca[k, 1]
+            gd1[2 * k] = ca[k, 1]
+            gd1[2 * k + 1] = ca[k, 0]
+            gh[2 * k] = f11 * ca[k, 0] - f10 * ca[k, 1]
+            gh[2 * k + 1] = -f01 * ca[k, 0] + f00 * ca[k, 1]
+        for i in range(6):
+            for j in range(6):
+                out[t, i, j] = (gd0[i] * gd0[j] + gd1[i] * gd1[j]) / ad + gh[i] * gh[j] / ah
+        for p in range(3):
+            for q in range(3):
+                s = ca[p, 0] * ca[q, 1] - ca[p, 1] * ca[q, 0]
+                out[t, 2 * p, 2 * q + 1] += ch * s / ah
+                out[t, 2 * p + 1, 2 * q] -= ch * s / ah

@@ -26,6 +26,9 @@ JACOBI_AVERAGINGS = ("violated", "all")
 #: ``constraints``: the paper's springs and areas (per-constraint stiffnesses); ``neo_hookean``: a
 #: plane-stress membrane with Young's modulus, Poisson's ratio, thickness and density (core/material.py).
 MATERIALS = ("constraints", "neo_hookean")
+#: How a simulation starts (and resets): ``none`` at the rest shape, ``static`` at the static equilibrium under
+#: gravity and the pins (core/statics.py; neo_hookean only).
+SETTLE_MODES = ("none", "static")
 #: Parameters only ``material: neo_hookean`` reads (ignored with ``constraints``).
 MATERIAL_PARAMETERS = ("young_modulus", "poisson_ratio", "thickness", "density")
 #: What a material sets when the caller does not: the shipped YAML's values are the paper's (constraints)
@@ -157,6 +160,9 @@ class SimParams:
     density: float = 1000.0
     """Neo-Hookean: density [kg/m^3]; each particle's mass is a third of its triangles' rest area times
     density x thickness (lumped), replacing ``mass`` and ``mass_per_area`` (ignored by ``constraints``)."""
+    settle: str = "none"
+    """How the simulation starts and resets: ``none`` at the rest shape, ``static`` at the static equilibrium
+    under gravity and the pins, at rest (Newton on the potential energy, core/statics.py; neo_hookean only)."""
 
     def __post_init__(self) -> None:
         self.validate()
@@ -230,6 +236,10 @@ class SimParams:
             raise bad("thickness", "a thickness > 0 m")
         if self.density <= 0:
             raise bad("density", "a density > 0 kg/m^3")
+        if self.settle not in SETTLE_MODES:
+            raise bad("settle", f"one of {', '.join(SETTLE_MODES)}")
+        if self.settle == "static" and self.material != "neo_hookean":
+            raise bad("settle", "none with material constraints (static settle needs material neo_hookean)")
         if self.material == "neo_hookean" and self.method != "xpbd":
             raise bad("method", "xpbd with material neo_hookean (the material is solved with compliance)")
         for name in ("k_spring", "k_area"):

@@ -130,6 +130,11 @@ class Simulation:
         self.lock = threading.RLock()
         """Held by :meth:`step`, :meth:`snapshot` and :meth:`restore`: a planner thread snapshots a stepping scene."""
         self._scene_key: str | None = None
+        self._settled: State | None = None
+        self.settle_info = None
+        """:class:`~tissue_sim_ros.core.statics.SettleInfo` of the last :meth:`settle` (None before)."""
+        if self.params.settle == "static":
+            self.settle()
 
     @property
     def scene_key(self) -> str:
@@ -205,10 +210,32 @@ class Simulation:
         self.contact = ContactModel(model, self.tool) if self.tool is not None else None
         self.state, self._state_out, self._last_good = state, model.state(), last_good
 
-    def reset(self) -> None:
-        """Back to the rest configuration at t = 0 (tool pose forgotten)."""
+    def settle(self):
+        """Put the tissue at its static equilibrium under gravity and the pins, at rest; returns its SettleInfo.
+
+        Newton's method on strain energy + gravity's potential (:func:`~tissue_sim_ros.core.statics.settle_static`;
+        ``material: neo_hookean`` only, else InputError). Time and step count are unchanged. With ``settle:
+        static`` the simulation starts here and :meth:`reset` comes back here (solved once, kept).
+        """
+        from .statics import settle_static  # noqa: PLC0415  (SciPy: only a scene that settles needs it)
+
+        if not self.model.is_material:
+            raise InputError(f"settle with material={self.params.material!r}: expected material neo_hookean "
+                             "(static settle minimises the material's energy in joules)")
         with self.lock:
-            self.state = self.model.state()
+            state, info = settle_static(self.model)
+            self._settled = state.copy()
+            self.settle_info = info
+            self.set_state(state)
+            return info
+
+    def reset(self) -> None:
+        """Back to t = 0 (tool pose forgotten), at rest in the rest shape, or at the static equilibrium with
+        ``settle: static``."""
+        with self.lock:
+            if self.params.settle == "static" and self._settled is None:
+                self.settle()
+            self.state = self._settled.copy() if self.params.settle == "static" else self.model.state()
             self._state_out = self.model.state()
             self._last_good = self.state.copy()
             self.step_count = 0

@@ -469,6 +469,51 @@ class PoolTrackSimulator:
         self.close()
 
 
+def simulate_candidate(factory: SceneFactory, binding: PointBinding, schedule: Schedule,
+                       candidate: Mapping[str, float], n_frames: int) -> SimulatedTracks:
+    """One candidate's rollout from the scene at rest: a self-contained call for any backend."""
+    return rollout_tracks(factory(candidate), binding, schedule, n_frames)
+
+
+class MappedTrackSimulator:
+    """Candidates rolled out as independent calls on a backend (:func:`~tissue_sim_ros.core.backends.map_calls`):
+    Ray tasks on a cluster (``backend="ray"``), each worker warmed once, one core per candidate. The numbers are
+    those of :class:`SerialTrackSimulator` bit for bit (the same rollout on the same serial solver;
+    ``test/test_ray_backend.py`` compares them). Same interface as :class:`PoolTrackSimulator`.
+    """
+
+    def __init__(self, factory: SceneFactory, binding: PointBinding, schedule: Schedule, workers: int,
+                 backend: str = "ray", address: str | None = None,
+                 on_rollout: Callable[[], None] | None = None) -> None:
+        if workers < 1:
+            raise InputError(f"workers={workers}: expected at least 1")
+        self.factory, self.binding, self.schedule = factory, binding, schedule
+        self.workers, self.backend, self.address = int(workers), backend, address
+        self.on_rollout = on_rollout
+        self.n_rollouts = 0
+
+    def _tick(self) -> None:
+        self.n_rollouts += 1
+        if self.on_rollout is not None:
+            self.on_rollout()
+
+    def simulate(self, candidates: Sequence[Mapping[str, float]], n_frames: int) -> list[SimulatedTracks]:
+        from .backends import map_calls  # noqa: PLC0415  (loads the solvers; tracking stays light)
+
+        calls = [(self.factory, self.binding, self.schedule, dict(c), n_frames) for c in candidates]
+        return map_calls(simulate_candidate, calls, backend=self.backend, workers=self.workers,
+                         address=self.address, progress=self._tick)
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self) -> "MappedTrackSimulator":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def rms_mm(sim: np.ndarray, obs: np.ndarray) -> float:
     """RMS of the 2D distance between simulated and observed points [mm], over the finite observations."""
     d2 = ((sim - obs) ** 2).sum(axis=-1)

@@ -17,6 +17,7 @@ import numpy as np
 from ..core.errors import InputError
 from ..core.fitting import FitParameter, FitResult, fit, make_parameter
 from ..core.tracking import (
+    MappedTrackSimulator,
     PointBinding,
     PoolTrackSimulator,
     Recording,
@@ -148,8 +149,9 @@ def prepare(recording: Recording, values: dict[str, Any], names: list[str], *, h
 
 def run_fit(setup: FitSetup, *, jobs: int = 1, optimizer: str = "least_squares", max_evals: int = 60,
             diff_step: float = 0.1, seed: int = 0, progress: bool = False, slices: int = 9,
-            mesh_check: bool = True) -> FitResult:
-    """Fit with a serial simulator (``jobs`` 1) or a pool of ``jobs`` worker processes.
+            mesh_check: bool = True, backend: str = "local", address: str | None = None) -> FitResult:
+    """Fit with a serial simulator (``jobs`` 1) or a pool of ``jobs`` worker processes, or Ray tasks
+    (``backend="ray"``, ``address`` of the cluster); the same numbers on each.
 
     ``mesh_check``: also roll the optimum out on half the mesh spacing and add the estimate's shift there
     to its error bar (not for a mesh from a file).
@@ -166,15 +168,21 @@ def run_fit(setup: FitSetup, *, jobs: int = 1, optimizer: str = "least_squares",
 
     refined = setup.refined() if mesh_check else None
     try:
-        if jobs > 1:
-            with PoolTrackSimulator(setup.factory, setup.binding, setup.schedule, jobs, on_rollout=tick) as sim:
-                return fit(sim, setup.recording.points, setup.parameters, n_fit_frames=setup.n_fit_frames,
-                           optimizer=optimizer, max_nfev=max_evals, diff_step=diff_step, seed=seed,
-                           slices=slices, on_iter=on_iter, refined=refined)
-        sim = SerialTrackSimulator(setup.factory, setup.binding, setup.schedule, on_rollout=tick)
-        return fit(sim, setup.recording.points, setup.parameters, n_fit_frames=setup.n_fit_frames,
-                   optimizer=optimizer, max_nfev=max_evals, diff_step=diff_step, seed=seed, slices=slices,
-                   on_iter=on_iter, refined=refined)
+        sim: Any
+        if backend == "ray":
+            sim = MappedTrackSimulator(setup.factory, setup.binding, setup.schedule, jobs, backend, address,
+                                       on_rollout=tick)
+        elif jobs > 1:
+            sim = PoolTrackSimulator(setup.factory, setup.binding, setup.schedule, jobs, on_rollout=tick)
+        else:
+            sim = SerialTrackSimulator(setup.factory, setup.binding, setup.schedule, on_rollout=tick)
+        try:
+            return fit(sim, setup.recording.points, setup.parameters, n_fit_frames=setup.n_fit_frames,
+                       optimizer=optimizer, max_nfev=max_evals, diff_step=diff_step, seed=seed, slices=slices,
+                       on_iter=on_iter, refined=refined)
+        finally:
+            if not isinstance(sim, SerialTrackSimulator):
+                sim.close()
     finally:
         bar.close()
 

@@ -36,6 +36,7 @@ DESCRIPTION = __doc__
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from ..core.backends import add_backend_arguments  # noqa: PLC0415
     parser.add_argument("--target", type=float, nargs=2, default=list(tr.B_TARGET), metavar=("X", "Y"),
                         help="target of the tool tip [m] (default: experiment b's, %(default)s)")
     parser.add_argument("--angles", type=float, nargs=3, default=[-5.0, -40.0, 5.0], metavar=("FROM", "TO", "STEP"),
@@ -43,13 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speeds", type=float, nargs="+", default=[0.001, 0.002],
                         help="tip speeds [m per step] (default: 0.001 0.002)")
     parser.add_argument("--distance", type=float, default=tr.B_DISTANCE, help="insertion distance [m]")
-    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
-                        help="worker processes, or Ray actors with --backend ray (default: all cores)")
-    parser.add_argument("--backend", choices=("local", "ray"), default="local",
-                        help="local: warm worker processes on this machine; ray: Ray actors (pip install '.[ray]')")
-    parser.add_argument("--address", default=None,
-                        help="--backend ray: the cluster (HOST:6379, ray://HOST:10001; default RAY_ADDRESS or a "
-                             "private local cluster)")
+    add_backend_arguments(parser, jobs_default=os.cpu_count() or 1,
+                          jobs_help="warm worker processes (default: all cores; 1: serially in this process)")
     add_config_arguments(parser)
     parser.add_argument("--out", default="out/plan", help="output directory (default: out/plan)")
     add_live_arguments(parser)

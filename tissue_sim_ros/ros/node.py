@@ -136,7 +136,7 @@ class TissueSimNode(Node):
         self._steps_since_markers = 0
         self._encoder = self._make_encoder()
 
-        self.pub_markers = self.create_publisher(MarkerArray, "tissue/markers", qos.state_stream())
+        self.pub_markers = self.create_publisher(MarkerArray, "tissue/markers", qos.state_stream(qos.MARKER_DEPTH))
         self.pub_points = self.create_publisher(PointCloud2, "tissue/points", qos.state_stream())
         self.pub_rest = self.create_publisher(MarkerArray, "tissue/rest_mesh", qos.latched())
         self.pub_wrench = self.create_publisher(WrenchStamped, "tool/wrench", qos.state_stream())
