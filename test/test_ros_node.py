@@ -367,6 +367,59 @@ def test_tool_jump_is_rejected_held_and_recovered(node: Node) -> None:
     assert "max_tool_jump" in node.proc.output()
 
 
+def test_phase_lock_moves_the_ticks_to_a_stream_arriving_just_after_them(node: Node) -> None:
+    """Poses at 100 Hz arriving just after the node's ticks wait most of a period; the lock moves the ticks.
+
+    Asserted on what the node measured and decided (/diagnostics): the median
+    wait from a pose's reception to the next scheduled tick (times the node
+    reads from DDS and rcl, not from its callbacks, so a loaded machine's late
+    callbacks do not enter it) with the lock off, then, with it on, a shift and
+    the locked state with the wait it measured then. The stream is put just
+    after the ticks by the node's own measurement of its phase.
+    """
+    _start(node)
+    c = node.client
+    assert node.set_param("phase_lock", False).successful
+    period_ms = DT * 1e3
+    sent = {"n": 0}
+
+    def publish() -> None:
+        node.pose_pub.publish(node.pose(0.2, -0.1))  # the tool stays clear of the strip
+        sent["n"] += 1
+
+    def wait_after_new_poses(n: int) -> dict[str, str]:
+        """Diagnostics measured over poses all sent after this call (the lock keeps the newest 64)."""
+        target = sent["n"] + n
+        c.spin_until(lambda: sent["n"] >= target, TIMEOUT, node.proc, f"{n} more poses")
+        return node.fresh_diag()
+
+    timer = c.node.create_timer(DT, publish)
+    try:
+        wait_after_new_poses(80)
+        d = c.spin_until(lambda: (lambda d: d if int(d["phase_samples"]) >= 60 else None)(node.fresh_diag()),
+                         TIMEOUT, node.proc, "the node to measure the poses' wait")
+        assert d["phase_lock"] == "measuring" and math.isfinite(float(d["pose_wait_median_ms"])), d
+        # the poses arrive w before a tick: delay the stream by w + 1 ms (one stretched interval of the
+        # client's timer, exact in rcl's schedule) so that they arrive 1 ms after the ticks
+        delay = (float(d["pose_wait_median_ms"]) + 1.0) % period_ms
+        start = sent["n"]
+        timer.timer_period_ns = int((period_ms + delay) * 1e6)  # taken by the next call...
+        c.spin_until(lambda: sent["n"] > start, TIMEOUT, node.proc, "the stretched interval")
+        timer.timer_period_ns = int(period_ms * 1e6)  # ...and only by it
+        before = wait_after_new_poses(80)
+        wait_before = float(before["pose_wait_median_ms"])
+        assert wait_before > 0.5 * period_ms, f"the stream did not land after the ticks: {before}"
+        shifts = int(before["phase_shifts"])
+        assert node.set_param("phase_lock", True).successful
+        # what the lock measured when it found no better phase, after moving the ticks
+        after = c.spin_until(lambda: (lambda d: d if d["phase_lock"] == "locked" and int(d["phase_shifts"]) > shifts
+                                      else None)(node.fresh_diag()), TIMEOUT, node.proc, "the lock to move the ticks")
+    finally:
+        c.node.destroy_timer(timer)
+    # locked: the ticks just after most arrivals (~1 ms on an idle machine; ~2.5 ms with a 1.5 ms jitter)
+    assert float(after["pose_wait_median_ms"]) < wait_before - 3.0, (before, after)
+
+
 def rclpy_duration(seconds: float) -> Any:
     from rclpy.duration import Duration  # noqa: PLC0415
 

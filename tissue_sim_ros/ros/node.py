@@ -32,6 +32,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.node import Node
@@ -45,6 +46,7 @@ from visualization_msgs.msg import MarkerArray
 from ..core.config import FOREIGN_PREFIXES, METHOD_ALIASES, Config, load_params_file, resolve_config
 from ..core.errors import InputError
 from ..core.frames import FrameLookupError
+from ..core.phase_lock import PhaseLock
 from ..core.simulation import Simulation, StepReport
 from ..core.stamps import Stamp, stamp_from_ns, stamp_to_seconds
 from ..core.tool import ToolPose, ToolTwist, twist_from_poses, yaw_from_quaternion
@@ -55,6 +57,9 @@ from .node_recording import NodeRecorder
 from .parameters import BY_NAME, PARAMETERS, SIM_NAMES, descriptor, parameter_value
 from .planner_service import PlannerService
 from .tf_input import FrameInput
+
+_TAKE_MAX = 10
+"""Queued tool messages a tick takes at most per topic (the subscriptions keep 10 in timer mode)."""
 
 _SWITCH_INTERVAL = 0.0005
 """Seconds a thread may hold the GIL before another waiting thread gets it (Python's default: 0.005)."""
@@ -147,7 +152,9 @@ class TissueSimNode(Node):
         self.pub_applied_twist = self.create_publisher(TwistStamped, "tool/applied_twist", qos.state_stream())
         lock_step = self._values["lock_step"]
         self.frames = FrameInput(self, self._values, on_tool_transform=self._on_tool_transform, on_bad=self._drop)
-        self.sub_pose = self.create_subscription(PoseStamped, "tool/pose", self._on_pose, qos.tool_input(lock_step))
+        # with the message info: its reception time is the pose's arrival for the phase lock
+        self.sub_pose = self.create_subscription(PoseStamped, "tool/pose", lambda msg, info: self._on_pose(msg, info),
+                                                 qos.tool_input(lock_step))
         self.sub_twist = self.create_subscription(TwistStamped, "tool/twist", self._on_twist, qos.tool_input(lock_step))
         self.recorder: NodeRecorder | None = None
         if self._values["record_path"]:
@@ -160,6 +167,10 @@ class TissueSimNode(Node):
         self.create_service(SetBool, "~/pause", self._on_pause)
         self.planner = PlannerService(self)  # ~/plan_insertion, on its own thread
         self.step_timer = None if lock_step else self.create_timer(self.sim.params.dt, self._on_tick)
+        self._period_ns = None if self.step_timer is None else self.step_timer.timer_period_ns
+        self.phase_lock = None if self._period_ns is None else PhaseLock(self._period_ns)
+        self._stretched = False
+        """The timer's period is stretched by the phase lock for one interval (restored at the next tick)."""
         self.clock_follower = (ClockFollower(self, self._on_clock_switch)
                                if not lock_step and self._values["follow_clock"]
                                and not self.get_parameter("use_sim_time").value else None)
@@ -325,7 +336,8 @@ class TissueSimNode(Node):
             return False
         return True
 
-    def _on_pose(self, msg: PoseStamped) -> None:
+    def _on_pose(self, msg: PoseStamped, info: dict[str, Any] | None = None) -> None:
+        """A tool/pose message; ``info`` (rclpy's message info) gives its reception time to the phase lock."""
         if self.recorder is not None:
             self.recorder.write(self.sub_pose.topic_name, msg)  # as received, before any check
         p, o = msg.pose.position, msg.pose.orientation
@@ -334,7 +346,9 @@ class TissueSimNode(Node):
             self._drop("nonfinite", "tool/pose with a NaN/inf value or a zero quaternion")
             return
         stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
-        self._take_pose("tool/pose", stamp, msg.header.frame_id, (p.x, p.y, p.z), (o.x, o.y, o.z, o.w))
+        received = info.get("received_timestamp") if info else None
+        self._take_pose("tool/pose", stamp, msg.header.frame_id, (p.x, p.y, p.z), (o.x, o.y, o.z, o.w),
+                        arrival_ns=received or None)
 
     def _on_tool_transform(self, parent: str, stamp: tuple[int, int], translation: tuple[float, float, float],
                            rotation: tuple[float, float, float, float]) -> None:
@@ -342,8 +356,11 @@ class TissueSimNode(Node):
         self._take_pose(f"/tf {parent} -> {self._values['tool_frame']}", stamp, parent, translation, rotation)
 
     def _take_pose(self, topic: str, stamp: tuple[int, int], frame: str, position: tuple[float, float, float],
-                   quaternion: tuple[float, float, float, float]) -> None:
-        """Check a finite tool pose, take it into the plane, and use it (lock-step: step with it)."""
+                   quaternion: tuple[float, float, float, float], arrival_ns: int | None = None) -> None:
+        """Check a finite tool pose, take it into the plane, and use it (lock-step: step with it).
+
+        ``arrival_ns``: when it was received (system clock) for the phase lock; None = now.
+        """
         if not self._check_header(topic, stamp, frame, self.tool.pose_stamp):
             return
         x, y = position[0], position[1]
@@ -362,6 +379,8 @@ class TissueSimNode(Node):
         self.tool.pose = ToolPose(x, y, yaw)
         self.tool.pose_stamp = stamp
         self.tool.quaternion = quaternion
+        if self.phase_lock is not None:
+            self.phase_lock.arrival(arrival_ns if arrival_ns is not None else time.time_ns())
         if self._values["lock_step"] and not self.paused:
             twist = self.tool.twist if (self._values["twist_source"] == "auto" and stamp != (0, 0)
                                         and self.tool.twist_stamp == stamp) else None
@@ -393,6 +412,8 @@ class TissueSimNode(Node):
         self.tool.pose_stamp = self.tool.twist_stamp = (0, 0)
         self.tool.twist_received = -math.inf
         self._last_tick = None
+        if self.phase_lock is not None:
+            self.phase_lock.reset()
         self.get_logger().info(
             "a /clock is published: following it (use_sim_time on) while it lasts (follow_clock: false keeps the "
             "system clock)" if following else "no /clock publisher any more: back to the system clock")
@@ -439,9 +460,46 @@ class TissueSimNode(Node):
             if missed > 0:
                 self.stats.missed_ticks += missed
         self._last_tick = next_call
+        self._steer_phase(next_call)
         if self.paused:
             return
+        self._take_queued_input()
         self._step(_stamp_of(now), None, from_timer=True)
+
+    def _steer_phase(self, next_call: int) -> None:
+        """Phase lock: move the timer's ticks to just after the poses' arrivals (core/phase_lock.py).
+
+        A shift s stretches one interval: the period is set to dt + s now, rcl
+        computes the call after the next one from it, and the next tick puts dt
+        back. Only on the system clock (arrivals are received times on it).
+        """
+        period = self.step_timer.timer_period_ns
+        if self._stretched:
+            self.step_timer.timer_period_ns = self._period_ns
+            self._stretched = False
+        if self.get_clock().ros_time_is_active:
+            return
+        # this tick's scheduled time; with the parameter off the lock only measures (the wait on /diagnostics)
+        shift = self.phase_lock.tick(next_call - period, steer=self._values["phase_lock"])
+        if shift:
+            self.step_timer.timer_period_ns = self._period_ns + shift
+            self._stretched = True
+
+    def _take_queued_input(self) -> None:
+        """Take the tool messages already received before stepping (the executor runs a ready timer first)."""
+        for sub in (self.sub_twist, self.sub_pose):
+            for _ in range(_TAKE_MAX):
+                try:
+                    with sub.handle:
+                        taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                except InvalidHandle:
+                    return
+                if taken is None:
+                    break
+                if sub is self.sub_pose:
+                    self._on_pose(*taken)
+                else:
+                    self._on_twist(taken[0])
 
     def _step(self, stamp: tuple[int, int], twist: ToolTwist | None, from_timer: bool = False) -> None:
         """One simulation step and its messages; ``stamp`` stamps every output."""
@@ -557,6 +615,17 @@ class TissueSimNode(Node):
 
     # ------------------------------------------------------------------ diagnostics
 
+    def _phase_lock_values(self) -> dict[str, Any]:
+        """The phase lock's state and measurements for /diagnostics (msg_docs/topics.md)."""
+        lock = self.phase_lock
+        if lock is None:
+            return {"phase_lock": "off"}
+        st = lock.status
+        return {"phase_lock": "off" if self.get_clock().ros_time_is_active else st.state, "phase_shifts": st.shifts,
+                "phase_shift_total_ms": _ms(st.shift_total_ns), "phase_shift_last_ms": _ms(st.last_shift_ns),
+                "pose_wait_median_ms": _ms(st.wait_median_ns), "pose_jitter_ms": _ms(st.jitter_ns),
+                "pose_phase_concentration": st.concentration, "phase_samples": st.samples}
+
     def _publish_diagnostics(self) -> None:
         s, w = self.stats, self.marker_worker
         now = time.monotonic()
@@ -583,6 +652,7 @@ class TissueSimNode(Node):
             "marker_encode_ms_mean": 1e3 * w.encode_seconds / max(w.published + w.errors, 1),
             "heap_trims": self.heap_trimmer.trims,
             "heap_trim_ms_max": 1e3 * self.heap_trimmer.seconds_max,
+            **self._phase_lock_values(),
             **{f"dropped_{k}": v for k, v in s.dropped.items()},
             "paused": self.paused,
             "lock_step": self._values["lock_step"],
@@ -621,6 +691,10 @@ class TissueSimNode(Node):
         self.pub_diagnostics.publish(array)
         s.window_steps, s.window_step_time_sum, s.window_step_time_max, s.window_start = 0, 0.0, 0.0, now
         s.window_sim_time_sum = 0.0
+
+
+def _ms(ns: float) -> float:
+    return ns * 1e-6
 
 
 def _params_files(argv: list[str]) -> list[str]:
