@@ -336,6 +336,10 @@ def compare(spacings: Sequence[float] = SPACINGS, dampings: Sequence[float] = DA
     scale = ref.max_sag
     m = rf.MATERIAL
     rows = []
+    warm = mesh_rectangle(0.02, 0.01, 0.01)  # first calls (numba dispatch, MuJoCo, warp) outside every timed run
+    ours_to_rest(warm, 30.0, 1.0, wall_cap=0.0)
+    if with_mujoco:
+        mujoco_to_rest(warm, 1e-3, lumped_mass(warm, 1000.0, 1e-3), 30.0, 1.0, wall_cap=0.0)
     if with_newton:
         warm_up_newton()
     for h in spacings:
