@@ -332,3 +332,25 @@ def test_partitioned_sweep_equals_serial_sweep_part_by_part(seed: int) -> None:
     close(x, ref)
     close(lam_e, ref_le)
     close(lam_t, ref_lt)
+
+
+@pytest.mark.parametrize("scene", SCENES)
+@pytest.mark.parametrize("signed", [True, False])
+def test_pbd_sweeps_without_multipliers(scene, signed: bool) -> None:
+    """alpha = 0: the multiplier-free sweeps give the positions of the NumPy twin and, bit for bit, of the
+    kernels with multipliers (whatever the multipliers hold)."""
+    s = scene()
+    k = 0.7
+    x = s["x"].copy()
+    kernels.solve_edges_pbd_range(x, s["inv_mass"], s["edges"], s["rest"], k, 0, len(s["edges"]))
+    kernels.solve_areas_pbd_range(x, s["inv_mass"], s["tris"], s["area0"], k, signed, 0, len(s["tris"]))
+    ref_x, _ = naive.solve_edges(s["x"], s["inv_mass"], s["edges"], s["rest"], k, 0.0, np.zeros(len(s["edges"])))
+    ref_x, _ = naive.solve_areas(ref_x, s["inv_mass"], s["tris"], s["area0"], k, 0.0, np.zeros(len(s["tris"])),
+                                 signed)
+    close(x, ref_x)
+    y = s["x"].copy()
+    kernels.solve_edges(y, s["inv_mass"], s["edges"], s["rest"], k, 0.0, s["rng"].normal(0, 1, len(s["edges"])))
+    kernels.solve_areas(y, s["inv_mass"], s["tris"], s["area0"], k, 0.0, s["rng"].normal(0, 1, len(s["tris"])),
+                        signed)
+    assert np.array_equal(x, y)
+    assert not np.array_equal(x, s["x"])  # the sweep moved something

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_material import random_elements
 
 from tissue_sim_ros.bench import fem_reference as fem
 from tissue_sim_ros.bench import refinement as rf
@@ -19,26 +20,10 @@ import naive
 E, NU, THICK = 50e3, 0.45, 0.002
 
 
-def random_elements(seed: int, n: int = 12, n_tris: int = 10):
-    """Random rest and current positions; triangle 0 has zero rest area, triangle 1 is inverted."""
-    rng = np.random.default_rng(seed)
-    q0 = rng.uniform(-0.05, 0.05, (n, 2))
-    q0[2] = 0.5 * (q0[0] + q0[1])
-    tris = np.array([[0, 1, 2], [3, 4, 5]] + [list(rng.choice(n, 3, replace=False)) for _ in range(n_tris - 2)],
-                    dtype=np.int32)
-    for t in range(1, len(tris)):
-        a, b, c = q0[tris[t]]
-        if (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]) < 0:
-            tris[t, [1, 2]] = tris[t, [2, 1]]
-    x = q0 + rng.normal(0, 0.004, q0.shape)
-    a, b, _ = tris[1]
-    x[a], x[b] = x[b].copy(), x[a].copy()
-    return q0, x, tris
-
-
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_element_hessians_match_naive_and_the_forces(seed: int) -> None:
-    q0, x, tris = random_elements(seed)
+    scene = random_elements(seed)  # triangle 0 has zero rest area, 1 is inverted, 3 collapsed to a point
+    q0, x, tris = scene["q0"], scene["x"], scene["tris"]
     elastic = material.elastic_table(q0, tris, E, NU, THICK)
     out = np.empty((len(tris), 6, 6))
     material.element_hessians(x, tris, elastic, out)

@@ -31,9 +31,11 @@ largest sag per second, which float32 peers reach; the oscillation left is about
   v *= exp(-c dt) after each step (a warp kernel).
 
 Each dynamic peer runs at every damping of :data:`DAMPINGS` and every time step of its list (ours: its
-default dt only), and is shown at its best setting: the least wall time to rest. A run stops when it
-diverges (non-finite, or a particle 100 sags away) or when it has taken longer than the peer's best so
-far (it cannot be the best). Reported per peer and mesh: the relative errors of the mean and the
+default dt only), and is shown at its best setting: the least wall time to rest among the runs that end
+at the peer's own answer (that of its smallest time step; see :func:`_sweep`). A run stops when it
+diverges (non-finite, or a particle 100 sags away), after :data:`MAX_TIME` s of simulated time, or when
+it has taken longer than the peer's best so far (it cannot be the best). The best setting is then run
+twice more: its wall time to rest is the median of 3. Reported per peer and mesh: the relative errors of the mean and the
 largest sag against the FEM (:mod:`~tissue_sim_ros.bench.fem_reference`), steps and wall time to rest,
 time per step. The wall times are from this run, one after the other on the same machine.
 """
@@ -58,7 +60,7 @@ ACCURACY_TOL = 5e-4
 #: At rest: every particle moved slower than this fraction of the FEM's largest sag per second over a window.
 REST_FRACTION = 0.1
 REST_WINDOW = 0.005
-MAX_TIME = 3.0
+MAX_TIME = 1.0
 MUJOCO_DTS = (1e-4, 2e-4, 5e-4, 1e-3, 2e-3)
 NEWTON_SI_DTS = (5e-5, 1e-4, 2e-4, 5e-4, 1e-3)
 NEWTON_VBD_DTS = (5e-4, 1e-3, 2e-3)
@@ -295,19 +297,32 @@ def warm_up_newton() -> None:
 
 
 def _best(runs: Sequence[tuple[dict[str, Any], dict[str, Any]]]) -> tuple[dict[str, Any], dict[str, Any]] | None:
-    ok = [r for r in runs if r[1]["at_rest"]]
+    ok = [r for r in runs if r[1]["valid"]]
     return min(ok, key=lambda r: r[1]["wall"]) if ok else None
 
 
-def _sweep(run: Callable[..., dict[str, Any]], dts: Sequence[float], dampings: Sequence[float]):
-    """Every (dt, damping), largest dt first; a run stops once slower than the best so far."""
+def _sweep(run: Callable[..., dict[str, Any]], dts: Sequence[float], dampings: Sequence[float],
+           mean_sag: Callable[[dict[str, Any]], float]):
+    """Every (dt, damping), the smallest dt first: the first run at rest is the peer's own converged answer.
+
+    A later run counts (``valid``) when it is at rest with the same mean sag (within :data:`ACCURACY_TOL` of the
+    FEM's): a solver that stops short of its equilibrium per step (VBD's 10 iterations at a large dt) creeps so
+    slowly that it passes the rest criterion far from its answer. A run stops once slower than the best valid one.
+    """
     runs = []
     best_wall = math.inf
-    for dt in sorted(dts, reverse=True):
+    reference = None
+    for dt in sorted(dts):
         for c in dampings:
             r = run(dt, c, best_wall)
-            runs.append(({"dt": dt, "damping": c}, r))
+            r["valid"] = False
             if r["at_rest"]:
+                sag = mean_sag(r)
+                if reference is None:
+                    reference = sag
+                r["valid"] = abs(sag - reference) <= ACCURACY_TOL
+            runs.append(({"dt": dt, "damping": c}, r))
+            if r["valid"]:
                 best_wall = min(best_wall, r["wall"])
     return runs
 
@@ -321,25 +336,42 @@ def compare(spacings: Sequence[float] = SPACINGS, dampings: Sequence[float] = DA
     scale = ref.max_sag
     m = rf.MATERIAL
     rows = []
+    warm = mesh_rectangle(0.02, 0.01, 0.01)  # first calls (numba dispatch, MuJoCo, warp) outside every timed run
+    ours_to_rest(warm, 30.0, 1.0, wall_cap=0.0)
+    if with_mujoco:
+        mujoco_to_rest(warm, 1e-3, lumped_mass(warm, 1000.0, 1e-3), 30.0, 1.0, wall_cap=0.0)
     if with_newton:
         warm_up_newton()
     for h in spacings:
         mesh = mesh_rectangle(rf.WIDTH, rf.HEIGHT, h)
         mass = lumped_mass(mesh, m["density"], m["thickness"])
         ours_static(mesh, repeats=1)  # numba and SciPy warm
-        candidates: dict[str, list] = {
-            "ours": _sweep(lambda dt, c, cap: ours_to_rest(mesh, c, scale, cap), (0.002,), dampings),
-            "ours_static": [({"dt": math.nan, "damping": math.nan}, ours_static(mesh))],
-        }
+
+        def sag(run: dict[str, Any], mesh=mesh, mass=mass) -> float:
+            return sag_errors(mesh.vertices, run["x"], run.get("mass", mass), ref)["err_mean_sag"]
+
+        static = ours_static(mesh)
+        static["valid"] = static["at_rest"]
+        runners: dict[str, tuple[Callable[..., dict[str, Any]], Sequence[float]]] = {
+            "ours": (lambda dt, c, cap: ours_to_rest(mesh, c, scale, cap), (0.002,))}
         if with_mujoco:
-            candidates["mujoco"] = _sweep(lambda dt, c, cap: mujoco_to_rest(mesh, dt, mass, c, scale, cap),
-                                          mujoco_dts, dampings)
+            runners["mujoco"] = (lambda dt, c, cap: mujoco_to_rest(mesh, dt, mass, c, scale, cap), mujoco_dts)
         if with_newton:
-            candidates["newton_si"] = _sweep(
-                lambda dt, c, cap: newton_to_rest(mesh, dt, mass, c, scale, "si", cap), si_dts, dampings)
-            candidates["newton_vbd"] = _sweep(
-                lambda dt, c, cap: newton_to_rest(mesh, dt, mass, c, scale, "vbd", cap), vbd_dts, dampings)
-        for peer, runs in candidates.items():
+            runners["newton_si"] = (lambda dt, c, cap: newton_to_rest(mesh, dt, mass, c, scale, "si", cap), si_dts)
+            runners["newton_vbd"] = (lambda dt, c, cap: newton_to_rest(mesh, dt, mass, c, scale, "vbd", cap),
+                                     vbd_dts)
+        candidates: dict[str, list] = {"ours_static": [({"dt": math.nan, "damping": math.nan}, static)]}
+        for peer, (fn, dts) in runners.items():
+            candidates[peer] = _sweep(fn, dts, dampings, sag)
+            best = _best(candidates[peer])
+            if best is not None:  # the wall time to rest of the best setting: the median of 3 runs
+                walls = [best[1]["wall"]] + [fn(best[0]["dt"], best[0]["damping"], math.inf)["wall"]
+                                             for _ in range(2)]
+                best[1]["wall"] = float(np.median(walls))
+        for peer in PEERS:
+            if peer not in candidates:
+                continue
+            runs = candidates[peer]
             best = _best(runs)
             base = {"peer": peer, "spacing": h, "particles": len(mesh.vertices)}
             if best is None:

@@ -176,6 +176,80 @@ def solve_edges_range(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, re
         x[j, 1] -= wj * f * dy
 
 
+@njit(cache=True, fastmath=FMA)
+def solve_edges_pbd_range(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
+                          k: float, start: int, stop: int) -> None:
+    """:func:`solve_edges_range` with ``alpha = 0`` (the paper's PBD) and no multipliers: with alpha = 0 the
+    multiplier never enters a projection (``- alpha lam`` and ``+ alpha`` add exact zeros), so the positions are
+    the same bit for bit, without the multipliers' load and store per constraint."""
+    for e in range(start, stop):
+        i = edges[e, 0]
+        j = edges[e, 1]
+        wi = inv_mass[i]
+        wj = inv_mass[j]
+        w = wi + wj
+        if w == 0.0:
+            continue
+        dx = x[i, 0] - x[j, 0]
+        dy = x[i, 1] - x[j, 1]
+        len2 = dx * dx + dy * dy
+        if len2 <= EPS_LEN2:
+            continue
+        length = math.sqrt(len2)
+        f = k * (rest[e] - length) / (w * length)
+        x[i, 0] += wi * f * dx
+        x[i, 1] += wi * f * dy
+        x[j, 0] -= wj * f * dx
+        x[j, 1] -= wj * f * dy
+
+
+@njit(cache=True)
+def solve_areas_pbd_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray,
+                          k: float, signed: bool, start: int, stop: int) -> None:
+    """:func:`solve_areas_range` with ``alpha = 0`` and no multipliers (see :func:`solve_edges_pbd_range`)."""
+    for t in range(start, stop):
+        a = tris[t, 0]
+        b = tris[t, 1]
+        c = tris[t, 2]
+        wa = inv_mass[a]
+        wb = inv_mass[b]
+        wc = inv_mass[c]
+        if wa + wb + wc == 0.0:
+            continue
+        e1x = x[b, 0] - x[a, 0]
+        e1y = x[b, 1] - x[a, 1]
+        e2x = x[c, 0] - x[a, 0]
+        e2y = x[c, 1] - x[a, 1]
+        area = 0.5 * (e1x * e2y - e1y * e2x)
+        if signed:
+            sg = 0.5
+            C = area - area0[t]
+        else:
+            sg = 0.5 if area > 0.0 else (-0.5 if area < 0.0 else 0.0)
+            C = abs(area) - abs(area0[t])
+        gbx = sg * e2y
+        gby = -sg * e2x
+        gcx = -sg * e1y
+        gcy = sg * e1x
+        gax = -gbx - gcx
+        gay = -gby - gcy
+        ga2 = gax * gax + gay * gay
+        gb2 = gbx * gbx + gby * gby
+        gc2 = gcx * gcx + gcy * gcy
+        if ga2 + gb2 + gc2 <= EPS_LEN2:
+            continue
+        den = wa * ga2 + wb * gb2 + wc * gc2 + 0.0
+        if den <= 0.0:
+            continue
+        s = k * -C / den
+        x[a, 0] += wa * s * gax
+        x[a, 1] += wa * s * gay
+        x[b, 0] += wb * s * gbx
+        x[b, 1] += wb * s * gby
+        x[c, 0] += wc * s * gcx
+        x[c, 1] += wc * s * gcy
+
+
 @njit(cache=True)
 def solve_edges(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
                 k: float, alpha: float, lam: np.ndarray) -> None:
@@ -377,7 +451,8 @@ def solve_areas_coloured(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, 
 @njit(cache=True)
 def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple, tri_set: tuple, tool: tuple,
                             k_e: float, alpha_e: float, lam_e: np.ndarray, k_t: float, alpha_t: float,
-                            lam_t: np.ndarray, signed: bool, iterations: int, mode: int) -> None:
+                            lam_t: np.ndarray, signed: bool, iterations: int, mode: int,
+                            skip_multipliers: bool = False) -> None:
     """``iterations`` Gauss-Seidel sweeps: all edges, then all triangles, then the tool.
 
     Pass empty ``edges``/``tris`` to switch a constraint type off. ``mode``:
@@ -401,6 +476,9 @@ def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple
     edges, rest, edge_offsets = edge_set
     tris, area0, tri_offsets = tri_set
     x_start, candidates, shape0, shape1, dx_accum, surface_edges, edge_side_tol = tool
+    # skip_multipliers: the paper's PBD (alpha 0 for both types) sweeps serially without multipliers (they
+    # never enter its projections: the same positions bit for bit); lam_e, lam_t stay as they were
+    pbd = skip_multipliers and alpha_e == 0.0 and alpha_t == 0.0
     for _ in range(iterations):
         if mode == GS_COLOURED:
             solve_edges_coloured(x, inv_mass, edges, rest, k_e, alpha_e, lam_e, edge_offsets)
@@ -408,6 +486,9 @@ def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple
         elif mode == GS_PARTITIONED:
             solve_partitioned(x, inv_mass, edges, rest, k_e, alpha_e, lam_e, edge_offsets,
                               tris, area0, k_t, alpha_t, lam_t, tri_offsets, signed)
+        elif pbd:  # no multipliers: the same positions (solve_edges_pbd_range)
+            solve_edges_pbd_range(x, inv_mass, edges, rest, k_e, 0, edges.shape[0])
+            solve_areas_pbd_range(x, inv_mass, tris, area0, k_t, signed, 0, tris.shape[0])
         else:
             solve_edges(x, inv_mass, edges, rest, k_e, alpha_e, lam_e)
             solve_areas(x, inv_mass, tris, area0, k_t, alpha_t, lam_t, signed)

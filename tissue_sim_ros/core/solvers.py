@@ -325,6 +325,10 @@ class Solver:
             self.omega_t[:] = p.relaxation
         self._shape0 = np.zeros(7)
         self._shape1 = np.zeros(7)
+        self._shapes = np.zeros((0, 7))
+        self._no_shapes = np.zeros((0, 7))
+        self._no_edge_set = (self._no_edges, self._no_float, self.edge_offsets)
+        self._no_tri_set = (self._no_tris, self._no_float, self.tri_offsets)
 
     @property
     def n_projections_per_step(self) -> int:
@@ -380,21 +384,60 @@ class Solver:
                                            self.gs_mode == kernels.GS_PARTITIONED, p.iterations, self.x_start,
                                            cand, self._shape0, self._shape1, self.contact_dx, surf, edge_side_tol)
 
+    @property
+    def compiled(self) -> bool:
+        """True when :meth:`step` is one compiled call (:func:`~tissue_sim_ros.core.step_kernels.solve_step`):
+        the constraint methods, serial Gauss-Seidel or Jacobi; the material, the violated-constraint Jacobi
+        and the parallel Gauss-Seidel run :meth:`step_reference`."""
+        return not (self.is_material or self.violated or self.parallel)
+
     def step(self, state_in: State, state_out: State, contacts: Contacts, dt: float) -> SolveInfo:
         """Advance ``state_in`` by ``dt`` into ``state_out`` (which must not alias ``state_in``).
 
-        Parameters
-        ----------
-        state_in, state_out : State
-            Positions [m] and velocities [m/s], (N, 2) float64 C-contiguous.
-        contacts : Contacts
-            The contact model's output for this step; ``contacts.touched`` is filled here.
-        dt : float
-            Time step [s].
+        One compiled call where :attr:`compiled`, else :meth:`step_reference`; the same numbers bit for bit
+        (``test/test_step_kernels.py``). Arguments as :meth:`step_reference`.
         """
+        if not self.compiled:
+            return self.step_reference(state_in, state_out, contacts, dt)
+        from .step_kernels import solve_step  # noqa: PLC0415
+
         p = self.params
-        model = self.model
-        n = model.n_particles
+        held_idx, held_dx, candidates, surface_edges, projection = self._check_step(state_in, state_out, contacts,
+                                                                                    dt)
+        n_sub = p.substeps
+        h = dt / n_sub
+        if projection:
+            self.contact_dx.fill(0.0)
+            s0 = np.ascontiguousarray(contacts.tool_shape0, dtype=np.float64)
+            s1 = np.ascontiguousarray(contacts.tool_shape1, dtype=np.float64)
+            shapes = self._shapes if self._shapes.shape[0] == n_sub + 1 else np.zeros((n_sub + 1, 7))
+            self._shapes = shapes
+            for sub in range(n_sub + 1):
+                self._interpolate_shape(s0, s1, sub / n_sub, shapes[sub])
+            cand, surf = candidates, surface_edges
+        else:
+            shapes, cand, surf = self._no_shapes, self._no_index, self._no_edges
+        k_e, alpha_e, use_e = self._k_alpha(p.k_spring, p.stiffness_spring, h)
+        k_t, alpha_t, use_t = self._k_alpha(p.k_area, p.stiffness_area, h)
+        edge_set = (self.edges, self.rest, self.edge_offsets) if use_e else self._no_edge_set
+        tri_set = (self.tris, self.area0, self.tri_offsets) if use_t else self._no_tri_set
+        residual = solve_step(
+            state_in.particle_q, state_in.particle_qd, state_out.particle_q, state_out.particle_qd,
+            self.model.particle_inv_mass, self.inv_mass_eff, self.x_pred, self.x_start, held_idx, held_dx,
+            dt, n_sub, p.gravity, self.damp_factor(dt), self.damp_factor(h), self.walls, p.wall_y_bottom,
+            p.wall_y_top, p.boundary_y_top, p.boundary_y_bottom, *edge_set, *tri_set,
+            self.edges, self.rest, self.tris, self.area0,
+            k_e, alpha_e, self.lam_e, self.omega_e, k_t, alpha_t, self.lam_t, self.omega_t, self.lam_m,
+            self.signed, p.iterations, self.gs_mode,
+            self.jacobi, self.jacobi and p.method == "xpbd" and self.jacobi_relaxation == "stiffness",
+            self.relaxation_scale, self._node_sum, self.particle_scale, self._dx_acc,
+            cand, surf, float(contacts.edge_side_tol), shapes, self._shape0, self._shape1, self.contact_dx)
+        return self._finish(contacts, held_idx, projection, residual)
+
+    def _check_step(self, state_in: State, state_out: State, contacts: Contacts,
+                    dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
+        """The step's arguments checked: (held_idx, held_dx, candidates, surface_edges, projection), contiguous."""
+        n = self.model.n_particles
         for name, arr in (("state_in.particle_q", state_in.particle_q), ("state_in.particle_qd", state_in.particle_qd),
                           ("state_out.particle_q", state_out.particle_q),
                           ("state_out.particle_qd", state_out.particle_qd)):
@@ -402,11 +445,6 @@ class Solver:
                 raise InputError(f"{name} has shape {arr.shape}, dtype {arr.dtype}: expected ({n}, 2) float64, C-contiguous")
         if not (dt > 0.0 and math.isfinite(dt)):
             raise InputError(f"dt={dt!r}: expected a time step > 0 s")
-        n_sub = p.substeps
-        h = dt / n_sub
-        inv_mass = model.particle_inv_mass
-        x0, v0 = state_in.particle_q, state_in.particle_qd
-        x, v = state_out.particle_q, state_out.particle_qd
         held_idx = np.ascontiguousarray(contacts.held_idx, dtype=np.int32)
         held_dx = np.ascontiguousarray(contacts.held_dx, dtype=np.float64).reshape(-1, 2)
         candidates = np.ascontiguousarray(contacts.candidates, dtype=np.int32)
@@ -419,6 +457,40 @@ class Solver:
                 raise InputError(f"{name} must lie in [0, {n}); got [{idx.min()}, {idx.max()}]")
         if held_dx.shape[0] != held_idx.shape[0]:
             raise InputError(f"contacts.held_dx has {held_dx.shape[0]} rows for {held_idx.shape[0]} held particles")
+        return held_idx, held_dx, candidates, surface_edges, projection
+
+    def _finish(self, contacts: Contacts, held_idx: np.ndarray, projection: bool, residual: float) -> SolveInfo:
+        if projection:
+            moved = np.flatnonzero((self.contact_dx[:, 0] != 0.0) | (self.contact_dx[:, 1] != 0.0))
+            contacts.touched = moved.astype(np.int32)
+        elif held_idx.shape[0]:
+            contacts.touched = held_idx.copy()
+        return SolveInfo(x_pred=self.x_pred, contact_dx=self.contact_dx if projection else None,
+                         residual=float(residual))
+
+    def step_reference(self, state_in: State, state_out: State, contacts: Contacts, dt: float) -> SolveInfo:
+        """Advance ``state_in`` by ``dt`` into ``state_out`` (which must not alias ``state_in``): the Python loop
+        around the kernels (the material, the violated-constraint Jacobi and the parallel Gauss-Seidel use it;
+        for the others it is the reference of :meth:`step`'s one compiled call).
+
+        Parameters
+        ----------
+        state_in, state_out : State
+            Positions [m] and velocities [m/s], (N, 2) float64 C-contiguous.
+        contacts : Contacts
+            The contact model's output for this step; ``contacts.touched`` is filled here.
+        dt : float
+            Time step [s].
+        """
+        p = self.params
+        model = self.model
+        held_idx, held_dx, candidates, surface_edges, projection = self._check_step(state_in, state_out, contacts,
+                                                                                    dt)
+        n_sub = p.substeps
+        h = dt / n_sub
+        inv_mass = model.particle_inv_mass
+        x0, v0 = state_in.particle_q, state_in.particle_qd
+        x, v = state_out.particle_q, state_out.particle_qd
         if projection:
             self.contact_dx.fill(0.0)
             s0 = np.ascontiguousarray(contacts.tool_shape0, dtype=np.float64)
@@ -494,10 +566,4 @@ class Solver:
             kernels.apply_boundary_lines(x, v, inv_mass, p.boundary_y_top, p.boundary_y_bottom)
 
         residual = kernels.constraint_residual(x, self.edges, self.rest, self.tris, self.area0, self.signed)
-        if projection:
-            moved = np.flatnonzero((self.contact_dx[:, 0] != 0.0) | (self.contact_dx[:, 1] != 0.0))
-            contacts.touched = moved.astype(np.int32)
-        elif held_idx.shape[0]:
-            contacts.touched = held_idx.copy()
-        return SolveInfo(x_pred=self.x_pred, contact_dx=self.contact_dx if projection else None,
-                         residual=float(residual))
+        return self._finish(contacts, held_idx, projection, residual)
