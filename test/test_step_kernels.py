@@ -1,7 +1,8 @@
 """One compiled call per step (core/step_kernels.py) against the Python loop around the kernels, bit for bit.
 
-``Solver.step`` runs :func:`~tissue_sim_ros.core.step_kernels.solve_step` for the constraint methods;
-``Solver.step_reference`` is the loop it replaces. Each variant runs the same tool trajectory (experiment a's
+``Solver.step`` runs :func:`~tissue_sim_ros.core.step_kernels.solve_step` for the constraint methods and
+``Simulation.step`` :func:`~tissue_sim_ros.core.step_kernels.finish_step`; ``Solver.step_reference`` and
+``Simulation.step_reference`` are the loops they replace. Each variant runs the same tool trajectory (experiment a's
 insertion, into the tissue and out) twice, once with ``Solver.step`` swapped for ``step_reference``, and every step's
 positions, velocities, prediction, energy, residual, reaction and contact set must be equal exactly.
 """
@@ -35,6 +36,8 @@ VARIANTS = {
     "xpbd walls": {"method": "xpbd", "wall_y_bottom": 0.05, "wall_y_top": 0.55, "contact_model": "projection"},
     "xpbd sleeping": {"method": "xpbd", "sleep_speed": 1e-3},
     "pbd jacobi violated (reference path)": {"scheme": "jacobi"},
+    "material neo_hookean (reference solver path, compiled finish)": {"material": "neo_hookean", "method": "xpbd",
+                                                                      "contact_model": "projection"},
 }
 
 
@@ -48,7 +51,7 @@ def _run(values: dict, reference: bool, monkeypatch) -> list[tuple]:
         poses = poses[START:STOP] + poses[START:STOP][::-1]  # in and back out
         out = []
         for pose in poses:
-            r = sim.step(pose)
+            r = sim.step_reference(pose) if reference else sim.step(pose)
             out.append((sim.state.particle_q.copy(), sim.state.particle_qd.copy(), r.x_pred, r.energy.total.copy(),
                         r.residual, r.reaction_force.copy(), r.reaction_torque, r.contact_particles,
                         r.n_inverted, r.diverged, r.in_contact.copy()))

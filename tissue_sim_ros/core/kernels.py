@@ -451,7 +451,8 @@ def solve_areas_coloured(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, 
 @njit(cache=True)
 def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple, tri_set: tuple, tool: tuple,
                             k_e: float, alpha_e: float, lam_e: np.ndarray, k_t: float, alpha_t: float,
-                            lam_t: np.ndarray, signed: bool, iterations: int, mode: int) -> None:
+                            lam_t: np.ndarray, signed: bool, iterations: int, mode: int,
+                            skip_multipliers: bool = False) -> None:
     """``iterations`` Gauss-Seidel sweeps: all edges, then all triangles, then the tool.
 
     Pass empty ``edges``/``tris`` to switch a constraint type off. ``mode``:
@@ -475,8 +476,9 @@ def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple
     edges, rest, edge_offsets = edge_set
     tris, area0, tri_offsets = tri_set
     x_start, candidates, shape0, shape1, dx_accum, surface_edges, edge_side_tol = tool
-    # the paper's PBD (alpha 0 for both types) sweeps serially without multipliers; they stay as they were
-    pbd = alpha_e == 0.0 and alpha_t == 0.0
+    # skip_multipliers: the paper's PBD (alpha 0 for both types) sweeps serially without multipliers (they
+    # never enter its projections: the same positions bit for bit); lam_e, lam_t stay as they were
+    pbd = skip_multipliers and alpha_e == 0.0 and alpha_t == 0.0
     for _ in range(iterations):
         if mode == GS_COLOURED:
             solve_edges_coloured(x, inv_mass, edges, rest, k_e, alpha_e, lam_e, edge_offsets)

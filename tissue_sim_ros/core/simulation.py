@@ -24,6 +24,7 @@ from .kernels import count_inverted
 from .model import Model, State
 from .snapshot import SimSnapshot, carry_state, restore_carry, scene_key
 from .solvers import Solver
+from .step_kernels import finish_step
 from .tool import ToolPose, ToolShape, ToolTwist, tool_shape_array, twist_from_poses
 from .tool_checks import INSIDE_TOL, tool_checks
 
@@ -260,7 +261,15 @@ class Simulation:
         with self.lock:
             return self._step(tool_pose, tool_twist)
 
-    def _step(self, tool_pose: ToolPose | None, tool_twist: ToolTwist | None) -> StepReport:
+    def step_reference(self, tool_pose: ToolPose | None = None, tool_twist: ToolTwist | None = None) -> StepReport:
+        """:meth:`step` as it was before the compiled calls: the solver's :meth:`~tissue_sim_ros.core.solvers.Solver.step_reference`
+        (when it has one), then the finite check, energy terms and inverted triangles each on its own. The same
+        numbers bit for bit (``test/test_step_kernels.py``); kept for that test and ``tissue-sim bench solver``'s
+        ref columns."""
+        with self.lock:
+            return self._step(tool_pose, tool_twist, reference=True)
+
+    def _step(self, tool_pose: ToolPose | None, tool_twist: ToolTwist | None, reference: bool = False) -> StepReport:
         t_start = time.perf_counter()
         p = self.params
         model = self.model
@@ -273,7 +282,8 @@ class Simulation:
             contacts = Contacts.empty(nb)
         t_contact = time.perf_counter()
 
-        info = self.solver.step(self.state, self._state_out, contacts, p.dt)
+        solve = getattr(self.solver, "step_reference", self.solver.step) if reference else self.solver.step
+        info = solve(self.state, self._state_out, contacts, p.dt)
         if contacts.candidates.size:
             # projection contact: a body is in contact when the solve pushed one of its particles
             contacts.in_contact[:] = False
@@ -281,16 +291,33 @@ class Simulation:
         t_solve = time.perf_counter()
 
         out = self._state_out
-        diverged = not (np.isfinite(out.particle_q).all() and np.isfinite(out.particle_qd).all())
+        # one compiled call: finite?, the energy terms (constraints; the material's strain energy after),
+        # inverted triangles (valid when finite)
+        energy = EnergyTerms.zeros(nb)
+        if reference:
+            finite = bool(np.isfinite(out.particle_q).all() and np.isfinite(out.particle_qd).all())
+            n_inverted = count_inverted(out.particle_q, model.tri_indices)
+            if finite:
+                energy = energy_terms(model, out.particle_q, info.x_pred)
+        else:
+            finite, n_inverted = finish_step(
+                out.particle_q, out.particle_qd, info.x_pred, model.particle_mass, model.particle_body,
+                model.edge_indices, model.edge_rest_length, model.edge_body, model.tri_indices, model.tri_rest_area,
+                model.tri_body, p.k_spring_effective, p.k_area_effective, p.dt, p.area_mode == "signed",
+                not model.is_material, energy.inertial, energy.spring, energy.area)
+        diverged = not finite
         if diverged:
             # restore the last good state; never hand NaN to anyone
             out.particle_q[:] = self._last_good.particle_q
             out.particle_qd[:] = 0.0
-            energy = EnergyTerms.zeros(nb)
+            n_inverted = int(count_inverted(out.particle_q, model.tri_indices))
             force = np.zeros(2)
             torque = 0.0
         else:
-            energy = energy_terms(model, out.particle_q, info.x_pred)
+            if model.is_material and not reference:
+                energy = energy_terms(model, out.particle_q, info.x_pred)
+            elif not reference:  # as energy_terms
+                energy.potential[:] = (energy.spring + energy.area) / (p.dt * p.dt)
             force, torque = self._reaction(info.contact_dx, tool_pose, p.dt, contacts, out.particle_q)
         checks = self._tool_checks(self.state.particle_q, out.particle_q, self.tool_pose or tool_pose, tool_pose)
         t_energy = time.perf_counter()
@@ -307,7 +334,7 @@ class Simulation:
             step=self.step_count, time=self.time, energy=energy, residual=float(info.residual),
             in_contact=contacts.in_contact.copy(), d_star=contacts.d_star.copy(),
             n_contact_particles=int(contacts.touched.size), contact_particles=contacts.touched.copy(),
-            reaction_force=force, reaction_torque=torque, n_inverted=self.count_inverted(), diverged=diverged,
+            reaction_force=force, reaction_torque=torque, n_inverted=int(n_inverted), diverged=diverged,
             timings={"contact": t_contact - t_start, "solve": t_solve - t_contact,
                      "energy": t_energy - t_solve, "total": time.perf_counter() - t_start},
             x_pred=info.x_pred.copy(), held_idx=np.asarray(contacts.held_idx, dtype=np.int32).copy(),

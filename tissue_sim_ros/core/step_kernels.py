@@ -8,13 +8,16 @@ violated-constraint Jacobi and the parallel Gauss-Seidel keep the Python loop ar
 (:meth:`~tissue_sim_ros.core.solvers.Solver.step_reference`, which is also the reference the tests compare
 with, bit for bit: ``test/test_step_kernels.py``). The body is the reference's loop, line for line, calling the
 same kernels in the same order with the same scalars, so no floating-point operation changes; what goes is the
-interpreter between the kernels (~30-40 us of a 0.3-0.4 ms paper-scene step). The tool's shape per substep
+interpreter between the kernels. One change inside: the paper's PBD sweeps skip the multipliers
+(``skip_multipliers``, :func:`~tissue_sim_ros.core.kernels.solve_edges_pbd_range`), which its projections
+never read (alpha = 0), so the positions are the same bit for bit. The tool's shape per substep
 (:meth:`~tissue_sim_ros.core.solvers.Solver._interpolate_shape`, Python's ``math.hypot``) is computed by the
 caller, ``substeps + 1`` rows, so its rounding is the reference's.
 
 Loop indices are unsigned where they only count (``numba.uint32``): no sign checks in the wrapped indexing.
 The NumPy twin of :func:`solve_step` is the reference step itself (``Solver.step_reference``: the same kernels,
-each with its twin in ``test/naive.py``); :func:`finish_step`'s twin is ``test/naive.py:finish_step``.
+each with its twin in ``test/naive.py``), and :func:`finish_step`'s is ``Simulation.step_reference``'s
+NumPy finite check with :func:`~tissue_sim_ros.core.energy.energy_terms` and ``count_inverted``.
 """
 from __future__ import annotations
 
@@ -110,7 +113,7 @@ def solve_step(x0: np.ndarray, v0: np.ndarray, x: np.ndarray, v: np.ndarray, inv
                                   lam_t, omega_t, signed, per_call, particle_scale, dx_acc)
             else:
                 gauss_seidel_iterations(x, w, edge_set, tri_set, tool, k_e, alpha_e, lam_e, k_t, alpha_t, lam_t,
-                                        signed, per_call, gs_mode)
+                                        signed, per_call, gs_mode, True)
             if walls:
                 apply_walls(x, wall_y_bottom, wall_y_top)
         update_velocity(x, x_start, h, v)
@@ -131,12 +134,13 @@ def all_finite(a: np.ndarray, b: np.ndarray) -> bool:
 @njit(cache=True)
 def finish_step(x: np.ndarray, v: np.ndarray, x_pred: np.ndarray, mass: np.ndarray, particle_body: np.ndarray,
                 edges: np.ndarray, rest: np.ndarray, edge_body: np.ndarray, tris: np.ndarray, area0: np.ndarray,
-                tri_body: np.ndarray, k_spring: float, k_area: float, dt: float, signed: bool,
+                tri_body: np.ndarray, k_spring: float, k_area: float, dt: float, signed: bool, energy: bool,
                 inertial: np.ndarray, spring: np.ndarray, area: np.ndarray) -> tuple[bool, int]:
-    """After a constraint solve: (finite, inverted triangles); when finite, the energy terms
-    (:func:`~tissue_sim_ros.core.kernels.energy_terms_kernel`) into ``inertial``, ``spring``, ``area``."""
+    """After a solve: (all of ``x`` and ``v`` finite, triangles with signed area <= 0 in ``x``); when finite and
+    ``energy``, the constraint energy terms (:func:`~tissue_sim_ros.core.kernels.energy_terms_kernel`, as
+    :func:`~tissue_sim_ros.core.energy.energy_terms` calls it) into ``inertial``, ``spring``, ``area``."""
     finite = all_finite(x, v)
-    if finite:
+    if finite and energy:
         energy_terms_kernel(x, x_pred, mass, particle_body, edges, rest, edge_body, tris, area0, tri_body,
                             k_spring, k_area, dt, signed, inertial, spring, area)
     return finite, count_inverted(x, tris)
