@@ -563,8 +563,9 @@ def _plot(results: list[SceneResult], dt: float, path: Path) -> None:
         axes[1].plot(x, missed, style, color=colour, label=f"{_label(key)}: worst {max(missed):.2f} %")
     axes[0].axhline(budget, color="k", linestyle="--", label=f"target: period + 2 ms = {budget:.0f} ms")
     axes[0].set_xlabel("publisher phase after the node's ticks at the start [ms]")
-    axes[0].set_ylabel("pose -> tissue/points latency [ms] (faint: p95; dotted: the node's wait to its tick)")
-    axes[0].set_title("latency by publisher phase (phase lock on / off)")
+    axes[0].set_ylabel("pose -> tissue/points latency [ms]")
+    axes[0].set_title("median latency by publisher phase (faint: p95; dotted: the node's wait to its tick)",
+                      fontsize=9)
     axes[0].legend(fontsize=7)
     axes[1].axhline(1.0, color="k", linestyle="--", label="target < 1 %")
     axes[1].set_xlabel("publisher phase after the node's ticks at the start [ms]")
