@@ -274,3 +274,32 @@ def test_vertex_strain_matches_a_plain_loop() -> None:
         counts[a] += 1
         counts[b] += 1
     np.testing.assert_allclose(enc.vertex_strain(q), sums / counts, rtol=1e-12, atol=1e-15)
+
+
+def test_scene_encoder_markers_from_two_threads_match_one_thread() -> None:
+    # the marker worker and the step thread (a state published after a reset) share one SceneEncoder:
+    # each MarkerArray must be that of its own positions, whatever the other thread does meanwhile
+    import threading  # noqa: PLC0415
+
+    from tissue_sim_ros.core.model import Model  # noqa: PLC0415
+
+    model = Model.from_mesh(mesh_rectangle(0.4, 0.2, 0.01), SimParams())
+    enc = M.SceneEncoder(model.tri_indices, model.edge_indices, model.edge_rest_length, model.particle_body)
+    rng = np.random.default_rng(3)
+    states = [model.particle_q0 + rng.normal(0.0, 1e-3, model.particle_q0.shape) for _ in range(2)]
+    expected = [enc.markers((1, 0), "world", q, enc.vertex_strain(q)) for q in states]
+    bad: list[int] = []
+
+    def encode(k: int) -> None:
+        q = states[k]
+        strain = enc.vertex_strain(q)
+        for _ in range(200):
+            if enc.markers((1, 0), "world", q, strain) != expected[k]:
+                bad.append(k)
+
+    threads = [threading.Thread(target=encode, args=(k,)) for k in (0, 1)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not bad, f"{len(bad)} of 400 MarkerArrays held the other thread's points"

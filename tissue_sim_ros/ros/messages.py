@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import struct
+import threading
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -558,6 +559,9 @@ class SceneEncoder:
         self._q3 = np.zeros((n, 3), dtype="<f8")  # particle positions with z = 0, gathered straight into points
         # one RGBA (4 float32 = 16 bytes) viewed as one complex128, so colours gather as single elements
         self._tri_rgba = np.empty(3 * len(self.tri), dtype=np.complex128)
+        # markers() gathers into the buffers above; the marker worker and the step thread (a state published
+        # after a reset) may both encode: one at a time, or each sees the other's half-written points
+        self._markers_lock = threading.Lock()
         self.cloud = np.zeros(n, dtype=POINT_DTYPE)
         self.cloud["body"] = particle_body
         spacing = float(np.median(edge_rest_length)) if len(edge_rest_length) else 0.01
@@ -608,6 +612,12 @@ class SceneEncoder:
         contact_particles : ndarray of int, optional
             Particles the contact model moved this step.
         """
+        with self._markers_lock:
+            return self._markers(stamp, frame_id, q, strain, tool_pose, tool_stamp, contact_particles)
+
+    def _markers(self, stamp: Stamp, frame_id: str, q: np.ndarray, strain: np.ndarray,
+                 tool_pose: tuple[float, float, float] | None, tool_stamp: Stamp | None,
+                 contact_particles: np.ndarray | None) -> bytes:
         self._q3[:, :2] = q
         tri = self.tri_points
         np.take(self._q3, self.tri_flat, axis=0, out=tri)
