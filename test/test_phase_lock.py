@@ -100,7 +100,7 @@ def test_stays_put_once_locked_despite_jitter_and_late_outliers() -> None:
     lock = PhaseLock(P)
     ticks, waits, shifts = run(lock, arrivals, T0, 6000)
     # all the moving happens in the first second; the next 59 s hold still
-    assert 1 <= len(shifts) <= 3 and max(SHIFT_TICKS) < 100
+    assert 1 <= len(shifts) <= 3 and max(SHIFT_TICKS) < 200
     assert lock.status.shifts == len(shifts)
     assert lock.status.state == "locked"
     on_time = waits[(~late) & ~np.isnan(waits)]
@@ -116,15 +116,16 @@ def test_gives_up_on_a_random_stream() -> None:
     assert lock.status.concentration < 0.3
 
 
-@pytest.mark.parametrize("rate", [200.0, 30.0, 50.0, 100.5])
+@pytest.mark.parametrize("rate", [200.0, 30.0, 50.0, 99.5, 100.5])
 @pytest.mark.parametrize("offset_ms", [0.5, 3.0, 6.0, 9.0])
 def test_a_stream_at_another_rate_is_never_made_to_wait_longer(rate: float, offset_ms: float) -> None:
     arrivals = stream(offset_ms * 1e6, 10.0, period_ns=1e9 / rate, seed=int(rate * offset_ms))
     _, fixed, _ = run(PhaseLock(P, max_shift_ns=1), arrivals, T0, 1000)
     lock = PhaseLock(P)
     _, locked, _ = run(lock, arrivals, T0, 1000)
-    # the mean wait after the first second (a phase lock can only choose where the ticks are)
-    assert np.nanmean(locked[len(locked) // 10:]) <= np.nanmean(fixed[len(fixed) // 10:]) + 0.3e6
+    # the mean wait after the first second (a phase lock can only choose where the ticks are); a phase
+    # drifting by 5 ms a second (99.5, 100.5 Hz) averages ~P/2 either way, +-0.5 ms with the window's ends
+    assert np.nanmean(locked[len(locked) // 10:]) <= np.nanmean(fixed[len(fixed) // 10:]) + 0.6e6
 
 
 def test_a_slower_stream_on_a_subharmonic_locks() -> None:
@@ -135,9 +136,10 @@ def test_a_slower_stream_on_a_subharmonic_locks() -> None:
     assert median_ms(waits, 100) < 1.5
 
 
-def test_follows_a_drifting_stream() -> None:
-    # the robot's clock 200 ppm fast: its phase moves 2 us per period, 0.2 ms per second
-    arrivals = stream(4e6, 30.0, period_ns=P * (1 - 200e-6), seed=6)
+@pytest.mark.parametrize("ppm, bound_ms", [(200, 2.5), (1000, 3.0)])
+def test_follows_a_drifting_stream(ppm: int, bound_ms: float) -> None:
+    # the robot's clock fast: its phase moves 0.2 (1) ms per second
+    arrivals = stream(4e6, 30.0, period_ns=P * (1 - ppm * 1e-6), seed=6)
     lock = PhaseLock(P)
     _, waits, shifts = run(lock, arrivals, T0, 3000)
     w = waits[~np.isnan(waits)]
@@ -145,7 +147,8 @@ def test_follows_a_drifting_stream() -> None:
     # after the first second, every median of 100 poses stays small
     w = w[100:]
     blocks = w[:len(w) // 100 * 100].reshape(-1, 100)
-    assert np.median(blocks, axis=1).max() / 1e6 < 2.5
+    # (a pose waits ~5 ms on average without the lock, its phase turning through the period)
+    assert np.median(blocks, axis=1).max() / 1e6 < bound_ms
 
 
 def test_a_stream_straddling_the_tick_is_one_cluster() -> None:
@@ -209,3 +212,15 @@ def test_a_loaded_publishers_stream_still_locks() -> None:
     _, locked, shifts = run(lock, arrivals, T0, 1000)
     assert shifts and lock.status.state == "locked" and lock.status.concentration > 0.5
     assert np.nanmean(locked[100:]) < 0.6 * np.nanmean(fixed[100:])
+
+
+@pytest.mark.parametrize("phase_ms", [0.2, 5.0, 9.9])
+def test_bench_reads_the_ticks_phase_from_late_callbacks(phase_ms: float) -> None:
+    """bench node places its publisher from the node's step stamps: callbacks late by 0.1-3 ms (a wrap too)."""
+    from tissue_sim_ros.bench.node import _tick_phase
+
+    rng = np.random.default_rng(10)
+    stamps = T0 + int(phase_ms * 1e6) + np.arange(200) * P + rng.exponential(400_000, 200).astype(np.int64) + 100_000
+    found = _tick_phase(stamps, P)
+    error = (found - int(phase_ms * 1e6) + P // 2) % P - P // 2
+    assert 0 <= error < 300_000  # the 10th percentile: a little after the scheduled ticks

@@ -388,25 +388,30 @@ def test_phase_lock_moves_the_ticks_to_a_stream_arriving_just_after_them(node: N
         sent["n"] += 1
 
     def wait_after_new_poses(n: int) -> dict[str, str]:
-        """Diagnostics measured over poses all sent after this call (the lock keeps the newest 64)."""
+        """Diagnostics measured over poses all sent after this call (the lock keeps the newest 128)."""
         target = sent["n"] + n
         c.spin_until(lambda: sent["n"] >= target, TIMEOUT, node.proc, f"{n} more poses")
         return node.fresh_diag()
 
     timer = c.node.create_timer(DT, publish)
     try:
-        wait_after_new_poses(80)
-        d = c.spin_until(lambda: (lambda d: d if int(d["phase_samples"]) >= 60 else None)(node.fresh_diag()),
+        wait_after_new_poses(140)
+        d = c.spin_until(lambda: (lambda d: d if int(d["phase_samples"]) >= 100 else None)(node.fresh_diag()),
                          TIMEOUT, node.proc, "the node to measure the poses' wait")
         assert d["phase_lock"] == "measuring" and math.isfinite(float(d["pose_wait_median_ms"])), d
         # the poses arrive w before a tick: delay the stream by w + 1 ms (one stretched interval of the
-        # client's timer, exact in rcl's schedule) so that they arrive 1 ms after the ticks
-        delay = (float(d["pose_wait_median_ms"]) + 1.0) % period_ms
-        start = sent["n"]
-        timer.timer_period_ns = int((period_ms + delay) * 1e6)  # taken by the next call...
-        c.spin_until(lambda: sent["n"] > start, TIMEOUT, node.proc, "the stretched interval")
-        timer.timer_period_ns = int(period_ms * 1e6)  # ...and only by it
-        before = wait_after_new_poses(80)
+        # client's timer, exact in rcl's schedule) so that they arrive 1 ms after the ticks; again if the
+        # client's own delays (a loaded machine) moved them meanwhile
+        before = d
+        for _ in range(3):
+            delay = (float(before["pose_wait_median_ms"]) + 1.0) % period_ms
+            start = sent["n"]
+            timer.timer_period_ns = int((period_ms + delay) * 1e6)  # taken by the next call...
+            c.spin_until(lambda: sent["n"] > start, TIMEOUT, node.proc, "the stretched interval")
+            timer.timer_period_ns = int(period_ms * 1e6)  # ...and only by it
+            before = wait_after_new_poses(140)
+            if float(before["pose_wait_median_ms"]) > 0.5 * period_ms:
+                break
         wait_before = float(before["pose_wait_median_ms"])
         assert wait_before > 0.5 * period_ms, f"the stream did not land after the ticks: {before}"
         shifts = int(before["phase_shifts"])

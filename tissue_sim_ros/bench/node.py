@@ -26,6 +26,16 @@ Measured, over ``--seconds`` after a warm-up:
   measured likewise. Poses overwritten before a step used them are not shown
   (the node uses only the newest).
 
+Publisher phase (timer mode): a pose waits for the node's next tick, between 0
+and one period depending on the phase between the two timers. ``--phases N``
+(default 8) puts the publisher in turn at (k + 1/2)/N of a period after the
+node's ticks (read from the steps' stamps; the publisher's timer is moved by
+stretching one of its intervals), lets the node settle ``--settle`` s and
+measures each for ``--seconds``; ``--phase-lock both`` (default) measures
+each phase with the node's ``phase_lock`` off, then on (set at run time: one
+node process, the two side by side under the same load). With the lock on the
+phase is where the publisher started: the node then moves its ticks.
+
 Targets (issues 5, 13): 100 Hz held, < 1 % missed deadlines, pose -> points
 latency (median; the 95th percentile is reported too) < one period + 2 ms. Writes ``node.csv`` (one row per
 scene), ``node_latency_<scene>.csv`` (every pose), ``node.png`` and prints a table.
@@ -46,6 +56,7 @@ import struct
 import subprocess
 import sys
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -71,6 +82,11 @@ MODES = ("timer", "lock_step")
 class SceneResult:
     scene: str
     mode: str = "timer"
+    phase_lock: bool = False
+    phase_ms: float = math.nan
+    """Where the poses were put, after the node's ticks [ms] (before the lock moved them); NaN = not placed."""
+    phase_shifts: int = 0
+    """Shifts the node's phase lock made during the measurement (its settling before is not counted)."""
     particles: int = 0
     triangles: int = 0
     marker_bytes: int = 0
@@ -95,13 +111,17 @@ class SceneResult:
     marker_rate: float = 0.0
     marker_ms_mean: float = 0.0
     soak: list[dict[str, Any]] = field(default_factory=list)
+    latency_rows: list[list[str]] = field(default_factory=list)
+    """Per pose: its stamp [s], markers and points latency [ms] (written to node_latency_*.csv)."""
 
     def row(self, dt: float) -> dict[str, Any]:
         lm = np.array(self.latency_markers_ms) if self.latency_markers_ms else np.array([math.nan])
         lp = np.array(self.latency_points_ms) if self.latency_points_ms else np.array([math.nan])
         budget = 1e3 * dt + 2.0
         return {
-            "scene": self.scene, "mode": self.mode, "particles": self.particles, "triangles": self.triangles,
+            "scene": self.scene, "mode": self.mode, "phase_lock": self.phase_lock if self.mode == "timer" else "",
+            "phase_ms": "" if math.isnan(self.phase_ms) else round(self.phase_ms, 2), "phase_shifts": self.phase_shifts,
+            "particles": self.particles, "triangles": self.triangles,
             "marker_kB": round(self.marker_bytes / 1024, 1), "points_kB": round(self.points_bytes / 1024, 1),
             "seconds": round(self.seconds, 2), "steps": self.steps, "rate_hz": round(self.rate_hz, 2),
             "target_hz": round(1.0 / dt, 2), "overruns": self.overruns, "missed_ticks": self.missed_ticks,
@@ -176,14 +196,23 @@ SEQ_STEP = 1e-9
 
 def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: float, out: Path,
                 domain_id: int, mode: str = "timer", discovery_timeout: float = 30.0,
-                marker_rate: float | None = None, soak: bool = False) -> SceneResult:
-    """Run one scene: node process + driving client; return the measurements.
+                marker_rate: float | None = None, soak: bool = False, phase_locks: tuple[bool, ...] = (True,),
+                phases: int = 0, settle: float = 2.0) -> list[SceneResult]:
+    """Run one scene: node process + driving client; return the measurements (one per phase).
 
     ``soak``: sample the node's RSS and counters every SOAK_SAMPLE_PERIOD s into ``node_soak.csv``.
+    ``phases`` (timer mode): put the poses' publisher at ``phases`` phases after the node's ticks in
+    turn ((k + 1/2) / phases of a period), ``settle`` s before measuring each for ``seconds``; 0 = one
+    measurement at whatever phase the two timers start with. ``phase_locks``: the node's ``phase_lock``
+    for each measurement at a phase, in turn (set at run time): (False, True) measures the lock off, then
+    on from the same starting phase, side by side under the same load.
     """
     import rclpy  # noqa: PLC0415
     from diagnostic_msgs.msg import DiagnosticArray  # noqa: PLC0415
     from geometry_msgs.msg import PoseStamped  # noqa: PLC0415
+    from rcl_interfaces.msg import Parameter as ParameterMsg  # noqa: PLC0415
+    from rcl_interfaces.msg import ParameterType, ParameterValue  # noqa: PLC0415
+    from rcl_interfaces.srv import SetParameters  # noqa: PLC0415
     from rclpy.context import Context  # noqa: PLC0415
     from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
     from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: PLC0415
@@ -196,13 +225,15 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
     extra = {"marker_rate": marker_rate} if marker_rate is not None else {}
     params = resolve_config({**overrides, "points_rate": 1000.0,
                              "markers_wireframe": True, "diagnostics_rate": 1.0, "max_tool_jump": 1.0,
-                             "lock_step": mode == "lock_step", **extra}, source="bench node").flat()
+                             "lock_step": mode == "lock_step", "phase_lock": phase_locks[0], **extra},
+                            source="bench node").flat()
     dt = float(params["dt"])
     tag = f"{name}_{mode}"
     params_file = out / f"node_{tag}.yaml"
     _write_params(params_file, params)
     log_path = out / f"node_{tag}.log"
-    result = SceneResult(name, mode)
+    period_ns = int(round(dt * 1e9))
+    step_stamps: deque[int] = deque(maxlen=200)  # the newest steps' stamps: the node's tick phase
     env = _isolated_env(domain_id)
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
     with open(log_path, "wb") as log:
@@ -222,6 +253,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
     sizes = {"markers": 0, "points": 0}
     counts = {"markers": 0, "points": 0}
     measuring = {"on": False}
+    results: list[SceneResult] = []
 
     def on_markers(data: bytes) -> None:
         arrival = time.time()
@@ -243,8 +275,9 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
             points.append((arrival, struct.unpack_from("<iI", data, 4)))
 
     def on_applied(data: bytes) -> None:
+        step_stamp, _, position, _ = messages.decode_pose_stamped(data)
+        step_stamps.append(step_stamp[0] * 1_000_000_000 + step_stamp[1])
         if measuring["on"]:
-            step_stamp, _, position, _ = messages.decode_pose_stamped(data)
             applied.append((step_stamp, float(position[0])))
 
     def on_diag(msg: DiagnosticArray) -> None:
@@ -259,7 +292,9 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
     node.create_subscription(PoseStamped, "tool/applied_pose", on_applied, reader_qos, raw=True)
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, qos.diagnostics())
     pose_pub = node.create_publisher(PoseStamped, "tool/pose", qos.tool_output())
+    param_client = node.create_client(SetParameters, "/tissue_sim_node/set_parameters")
     t_start = {"t": 0.0}
+    published = {"n": 0}
 
     seq = {"k": 0}
     by_x: dict[float, tuple[int, int]] = {}
@@ -271,6 +306,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         seq["k"] = (seq["k"] + 1) % 100_000
         x = 0.5 + SEQ_STEP * seq["k"]
         pose_pub.publish(messages.encode_pose_stamped(stamp, params.get("frame_id", "world"), x, y, 0.0))
+        published["n"] += 1
         if measuring["on"]:
             sent.append(stamp)
             by_x[x] = stamp
@@ -289,62 +325,149 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         spin_until(lambda: pose_pub.get_subscription_count() > 0 and node.count_publishers("tissue/markers") > 0,
                    discovery_timeout, "the node's topics")
         t_start["t"] = time.monotonic()
-        node.create_timer(dt, publish_pose)  # ROS clock of this process (system time)
+        pose_timer = node.create_timer(dt, publish_pose)  # ROS clock of this process (system time)
         # in lock-step the node publishes only once poses come
         spin_until(lambda: sizes["markers"] > 0 and sizes["points"] > 0, discovery_timeout, "the first markers")
         end = time.monotonic() + warmup
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.01)
-        diagnostics.clear()
-        spin_until(lambda: diagnostics, 5.0, "diagnostics")
-        d0, t0 = diagnostics[-1], time.monotonic()
-        measuring["on"] = True
-        end = t0 + seconds
-        from tqdm import tqdm  # noqa: PLC0415
 
-        next_sample = t0
-        with tqdm(total=int(seconds), desc=f"bench node {tag}", unit="s", leave=False) as bar:
-            last = t0
+        def place(offset_ns: int) -> None:
+            """Move the pose timer so that it fires offset_ns after the node's ticks (one stretched interval)."""
+            spin_until(lambda: len(step_stamps) >= 50, discovery_timeout, "the node's steps")
+            tick = _tick_phase(np.array(step_stamps, dtype=np.int64), period_ns)
+            next_call = time.time_ns() + pose_timer.time_until_next_call()
+            delay = (tick + offset_ns - next_call) % period_ns
+            n = published["n"]
+            pose_timer.timer_period_ns = period_ns + delay  # taken by the next call only
+            spin_until(lambda: published["n"] > n, discovery_timeout, "the stretched pose timer")
+            pose_timer.timer_period_ns = period_ns
+
+        def set_phase_lock(on: bool) -> None:
+            spin_until(param_client.service_is_ready, discovery_timeout, "the node's parameter service")
+            value = ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=on)
+            future = param_client.call_async(SetParameters.Request(
+                parameters=[ParameterMsg(name="phase_lock", value=value)]))
+            spin_until(future.done, discovery_timeout, "phase_lock to be set")
+            if not future.result().results[0].successful:
+                raise InputError(f"the node refused phase_lock={on}: {future.result().results[0].reason}")
+
+        def measure(result: SceneResult) -> None:
+            """One window of ``seconds``: counters, latencies (and the soak's samples) into ``result``."""
+            for series in (markers, points, applied, sent):
+                series.clear()
+            by_x.clear()
+            counts.update(markers=0, points=0)
+            diagnostics.clear()
+            spin_until(lambda: diagnostics, 5.0, "diagnostics")
+            d0, t0 = diagnostics[-1], time.monotonic()
+            measuring["on"] = True
+            end = t0 + seconds
+            from tqdm import tqdm  # noqa: PLC0415
+
+            next_sample = t0
+            with tqdm(total=int(seconds), desc=f"bench node {tag}", unit="s", leave=False) as bar:
+                last = t0
+                while time.monotonic() < end:
+                    executor.spin_once(timeout_sec=0.01)
+                    now = time.monotonic()
+                    if now - last >= 1.0:
+                        bar.update(1)
+                        last += 1.0
+                    if soak and now >= next_sample and diagnostics:
+                        soak_rows.append(_soak_row(now - t0, proc.pid, d0, diagnostics[-1]))
+                        next_sample += SOAK_SAMPLE_PERIOD
+                    if soak:  # keep the collected series small over an hour: only counts are needed
+                        markers.clear()
+                        points.clear()
+                        applied.clear()
+                        sent.clear()
+                        by_x.clear()
+            measuring["on"] = False
+            diagnostics.clear()
+            spin_until(lambda: diagnostics, 5.0, "diagnostics")
+            d1, t1 = diagnostics[-1], time.monotonic()
+            if soak:
+                soak_rows.append(_soak_row(t1 - t0, proc.pid, d0, d1))
+            _fill(result, d0, d1, t1 - t0, params, sizes, counts, markers, points, applied, sent, by_x)
+            result.soak = soak_rows
+
+        def settle_for(seconds_: float) -> None:
+            end = time.monotonic() + seconds_
             while time.monotonic() < end:
                 executor.spin_once(timeout_sec=0.01)
-                now = time.monotonic()
-                if now - last >= 1.0:
-                    bar.update(1)
-                    last += 1.0
-                if soak and now >= next_sample and diagnostics:
-                    d = diagnostics[-1]
-                    soak_rows.append({"t_s": round(now - t0, 2), "rss_kib": _rss_kib(proc.pid),
-                                      "steps": int(d["steps"]) - int(d0["steps"]),
-                                      "overruns": int(d["overruns"]) - int(d0["overruns"]),
-                                      "missed_ticks": int(d["missed_ticks"]) - int(d0["missed_ticks"]),
-                                      "markers_published": int(d.get("markers_published", 0)),
-                                      "load1": os.getloadavg()[0]})  # the machine's load beside the soak
-                    next_sample += SOAK_SAMPLE_PERIOD
-                if soak:  # keep the collected series small over an hour: only counts are needed
-                    markers.clear()
-                    points.clear()
-                    applied.clear()
-                    sent.clear()
-                    by_x.clear()
-        measuring["on"] = False
-        diagnostics.clear()
-        spin_until(lambda: diagnostics, 5.0, "diagnostics")
-        d1, t1 = diagnostics[-1], time.monotonic()
-        if soak:
-            soak_rows.append({"t_s": round(t1 - t0, 2), "rss_kib": _rss_kib(proc.pid),
-                              "steps": int(d1["steps"]) - int(d0["steps"]),
-                              "overruns": int(d1["overruns"]) - int(d0["overruns"]),
-                              "missed_ticks": int(d1["missed_ticks"]) - int(d0["missed_ticks"]),
-                              "markers_published": int(d1.get("markers_published", 0)),
-                              "load1": os.getloadavg()[0]})
+
+        if mode != "timer":
+            results.append(SceneResult(name, mode))
+            measure(results[-1])
+        lock_now = phase_locks[0]
+        for k in range(max(phases, 1) if mode == "timer" else 0):
+            for j, lock in enumerate(phase_locks):
+                result = SceneResult(name, mode, phase_lock=lock)
+                results.append(result)
+                if lock != lock_now:
+                    set_phase_lock(lock)
+                    lock_now = lock
+                if phases:
+                    result.phase_ms = (k + 0.5) * dt * 1e3 / phases
+                    if j == 0:  # the other settings start from the same phase (the lock moves the ticks)
+                        place(int(result.phase_ms * 1e6))
+                    settle_for(settle)
+                measure(result)
     finally:
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
         _stop_node(proc)
 
+    for result in results:
+        with open(out / f"node_latency_{tag}{_phase_tag(result)}.csv", "w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(["pose_stamp_s", "markers_latency_ms", "points_latency_ms"])
+            writer.writerows(result.latency_rows)
+            result.latency_rows = []
+    info = [line for line in log_path.read_text(errors="replace").splitlines() if "particles," in line]
+    if info:
+        words = info[0].split("]: ")[-1].split()
+        for result in results:
+            result.particles, result.triangles = int(words[0]), int(words[2])
+    return results
+
+
+def _phase_tag(result: SceneResult) -> str:
+    return "" if math.isnan(result.phase_ms) else f"_phase{result.phase_ms:.2f}"
+
+
+def _tick_phase(stamps_ns: np.ndarray, period_ns: int) -> int:
+    """The phase of a timer's scheduled ticks [ns in 0..period) from its callbacks' times.
+
+    Callbacks come after their scheduled time by the dispatch delay: the 10th
+    percentile of the phases, unwrapped around their circular mean.
+    """
+    phase = (stamps_ns % period_ns).astype(np.float64)
+    angle = phase * (2.0 * math.pi / period_ns)
+    centre = math.atan2(float(np.sin(angle).mean()), float(np.cos(angle).mean())) * period_ns / (2.0 * math.pi)
+    unwrapped = centre + (phase - centre + period_ns / 2.0) % period_ns - period_ns / 2.0
+    return int(np.percentile(unwrapped, 10.0)) % period_ns
+
+
+def _soak_row(t: float, pid: int, d0: dict[str, str], d: dict[str, str]) -> dict[str, Any]:
+    return {"t_s": round(t, 2), "rss_kib": _rss_kib(pid),
+            "steps": int(d["steps"]) - int(d0["steps"]),
+            "overruns": int(d["overruns"]) - int(d0["overruns"]),
+            "missed_ticks": int(d["missed_ticks"]) - int(d0["missed_ticks"]),
+            "markers_published": int(d.get("markers_published", 0)),
+            "load1": os.getloadavg()[0]}  # the machine's load beside the soak
+
+
+def _fill(result: SceneResult, d0: dict[str, str], d1: dict[str, str], seconds: float, params: dict[str, Any],
+          sizes: dict[str, int], counts: dict[str, int], markers: list, points: list, applied: list,
+          sent: list, by_x: dict) -> None:
+    """The measurements of one window: counters from two /diagnostics readings, latencies from the series."""
+    from ..ros import messages  # noqa: PLC0415
+
     # the steps between the two diagnostics readings (each covers up to its publication)
-    result.seconds = t1 - t0
+    result.seconds = seconds
     result.steps = int(d1["steps"]) - int(d0["steps"])
     result.rate_hz = result.steps / result.seconds
     result.overruns = int(d1["overruns"]) - int(d0["overruns"])
@@ -354,7 +477,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
     result.markers_skipped = int(d1.get("markers_skipped", 0)) - int(d0.get("markers_skipped", 0))
     result.marker_rate = float(params["marker_rate"])
     result.marker_ms_mean = float(d1.get("marker_encode_ms_mean", "nan"))
-    result.soak = soak_rows
+    result.phase_shifts = int(d1.get("phase_shifts", 0)) - int(d0.get("phase_shifts", 0))
     result.step_time_mean_ms = float(d1["step_time_mean_ms"])
     result.sim_step_ms_mean = float(d1["sim_step_ms_mean"])
     result.step_time_max_ms = max(float(d["step_time_max_ms"]) for d in (d1,))
@@ -377,24 +500,29 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         pose_stamp = step_to_pose.get(step_stamp)
         if pose_stamp is not None:
             first_points.setdefault(pose_stamp, arrival)
-    with open(out / f"node_latency_{tag}.csv", "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(["pose_stamp_s", "markers_latency_ms", "points_latency_ms"])
-        for stamp in sent:
-            s = stamp_to_seconds(stamp)
-            lm = 1e3 * (first_markers[stamp] - s) if stamp in first_markers else math.nan
-            lp = 1e3 * (first_points[stamp] - s) if stamp in first_points else math.nan
-            writer.writerow([f"{s:.9f}", f"{lm:.3f}", f"{lp:.3f}"])
-            if stamp in first_markers:
-                result.latency_markers_ms.append(lm)
-            if stamp in first_points:
-                result.latency_points_ms.append(lp)
+    for stamp in sent:
+        s = stamp_to_seconds(stamp)
+        lm = 1e3 * (first_markers[stamp] - s) if stamp in first_markers else math.nan
+        lp = 1e3 * (first_points[stamp] - s) if stamp in first_points else math.nan
+        result.latency_rows.append([f"{s:.9f}", f"{lm:.3f}", f"{lp:.3f}"])
+        if stamp in first_markers:
+            result.latency_markers_ms.append(lm)
+        if stamp in first_points:
+            result.latency_points_ms.append(lp)
     result.poses_shown = len(result.latency_points_ms)
-    info = [line for line in log_path.read_text(errors="replace").splitlines() if "particles," in line]
-    if info:
-        words = info[0].split("]: ")[-1].split()
-        result.particles, result.triangles = int(words[0]), int(words[2])
-    return result
+
+
+def _groups(results: list[SceneResult]) -> dict[tuple[str, str, bool], list[SceneResult]]:
+    """Results by (scene, mode, phase lock), in run order."""
+    groups: dict[tuple[str, str, bool], list[SceneResult]] = {}
+    for r in results:
+        groups.setdefault((r.scene, r.mode, r.phase_lock), []).append(r)
+    return groups
+
+
+def _label(key: tuple[str, str, bool]) -> str:
+    scene, mode, lock = key
+    return f"{scene} {mode.replace('_', '-')}" + ("" if mode != "timer" else ", lock on" if lock else ", lock off")
 
 
 def _plot(results: list[SceneResult], dt: float, path: Path) -> None:
@@ -403,33 +531,37 @@ def _plot(results: list[SceneResult], dt: float, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
-    ax = axes[0]
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4.8))
     budget = 1e3 * dt + 2.0
-    hi = max([budget * 1.5] + [float(np.percentile(r.latency_points_ms, 99)) for r in results if r.latency_points_ms])
-    bins = np.linspace(0, hi, 60)
-    for r in results:
-        if r.latency_points_ms:
-            ax.hist(np.clip(r.latency_points_ms, 0, hi), bins=bins, alpha=0.5,
-                    label=f"{r.scene} {r.mode} ({r.triangles} tri): median {np.median(r.latency_points_ms):.1f} ms, "
-                          f"p95 {np.percentile(r.latency_points_ms, 95):.1f} ms")
-    ax.axvline(budget, color="k", linestyle="--", label=f"target: period + 2 ms = {budget:.0f} ms")
-    ax.set_xlabel("latency tool pose -> tissue/points [ms]")
-    ax.set_ylabel("poses")
-    ax.legend(fontsize=8)
-    ax.set_title("pose-to-points latency")
-    ax = axes[1]
-    x = np.arange(len(results))
-    ax.bar(x - 0.2, [r.rate_hz for r in results], 0.4, label="sustained step rate [Hz]")
-    ax.bar(x + 0.2, [r.markers_received / max(r.seconds, 1e-9) for r in results], 0.4, label="markers received [Hz]")
-    ax.axhline(1.0 / dt, color="k", linestyle="--", label=f"target {1 / dt:.0f} Hz")
-    for i, r in enumerate(results):
-        ax.text(i, 1.0 / dt * 1.02, f"{100 * r.missed_fraction:.1f}% missed", ha="center", fontsize=8)
-    ax.set_xticks(x, [f"{r.scene} {r.mode}\n{r.triangles} triangles" for r in results])
-    ax.set_ylim(0, 1.2 / dt)
-    ax.legend(fontsize=8, loc="lower right")
-    ax.set_title("rate: points every step, markers at " + ", ".join(sorted({f"{r.marker_rate:g}" for r in results}))
-                 + " Hz")
+    groups = _groups(results)
+    colours = dict(zip(sorted({k[0] for k in groups}), ("tab:blue", "tab:orange", "tab:green", "tab:red")))
+    for key, rs in groups.items():
+        scene, mode, lock = key
+        colour = colours[scene]
+        med = [float(np.median(r.latency_points_ms)) if r.latency_points_ms else math.nan for r in rs]
+        p95 = [float(np.percentile(r.latency_points_ms, 95)) if r.latency_points_ms else math.nan for r in rs]
+        missed = [100 * r.missed_fraction for r in rs]
+        x = [r.phase_ms for r in rs]
+        if mode != "timer" or any(math.isnan(v) for v in x):
+            for ax, v in ((axes[0], med[0]), (axes[1], missed[0])):
+                ax.axhline(v, color=colour, linestyle=":", label=f"{_label(key)} ({rs[0].triangles} tri): {v:.1f}")
+            continue
+        style = "-o" if lock else "--s"
+        axes[0].plot(x, med, style, color=colour, label=f"{_label(key)} ({rs[0].triangles} tri): median, "
+                                                          f"worst {np.nanmax(med):.1f} ms")
+        axes[0].plot(x, p95, style, color=colour, alpha=0.3, markersize=3)
+        axes[1].plot(x, missed, style, color=colour, label=f"{_label(key)}: worst {max(missed):.2f} %")
+    axes[0].axhline(budget, color="k", linestyle="--", label=f"target: period + 2 ms = {budget:.0f} ms")
+    axes[0].set_xlabel("publisher phase after the node's ticks at the start [ms]")
+    axes[0].set_ylabel("pose -> tissue/points latency [ms] (faint: p95)")
+    axes[0].set_title("latency by publisher phase (phase lock on / off)")
+    axes[0].legend(fontsize=7)
+    axes[1].axhline(1.0, color="k", linestyle="--", label="target < 1 %")
+    axes[1].set_xlabel("publisher phase after the node's ticks at the start [ms]")
+    axes[1].set_ylabel("missed deadlines [%]")
+    axes[1].set_title("missed deadlines (overruns + skipped ticks); markers at "
+                      + ", ".join(sorted({f"{r.marker_rate:g}" for r in results})) + " Hz")
+    axes[1].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -446,6 +578,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID of the private graph (default 1 + pid %% 100)")
     parser.add_argument("--marker-rate", type=float, default=None,
                         help="the node's marker_rate [Hz] (default: the node's default, a display rate)")
+    parser.add_argument("--phases", type=int, default=8,
+                        help="timer mode: publisher phases measured in turn, (k + 1/2)/N of a period after the node's "
+                             "ticks (0: one run at whatever phase the timers start with)")
+    parser.add_argument("--settle", type=float, default=2.0,
+                        help="time after placing the publisher at a phase before measuring it [s]")
+    parser.add_argument("--phase-lock", choices=("both", "on", "off"), default="both",
+                        help="timer mode: the node's phase_lock on, off, or both: at each phase off then on, from "
+                             "the same starting phase, in one node process (the soak: on unless off)")
     parser.add_argument("--soak", type=float, default=None, metavar="SECONDS",
                         help="one long timer-mode run instead (scene 5k unless --scene): RSS growth and overruns")
 
@@ -465,30 +605,52 @@ def run(args: argparse.Namespace) -> int:
     dt = resolve_config().sim.dt
     if args.marker_rate is not None and not (math.isfinite(args.marker_rate) and args.marker_rate > 0):
         raise InputError(f"--marker-rate={args.marker_rate}: expected a rate > 0 Hz")
+    if not 0 <= args.phases <= 100:
+        raise InputError(f"--phases={args.phases}: expected 0..100")
+    if not (math.isfinite(args.settle) and args.settle >= 0):
+        raise InputError(f"--settle={args.settle}: expected a time >= 0 s")
     if args.soak is not None:
         return _run_soak(args, out, domain_id)
-    results = []
+    locks = {"both": (False, True), "on": (True,), "off": (False,)}[args.phase_lock]
+    load = [os.getloadavg()[0]]
+    results: list[SceneResult] = []
     for name in args.scene or list(SCENES):
         for mode in args.mode or list(MODES):
-            results.append(bench_scene(name, SCENES[name], args.seconds, args.warmup, out, domain_id, mode,
-                                       marker_rate=args.marker_rate))
+            results += bench_scene(name, SCENES[name], args.seconds, args.warmup, out, domain_id, mode,
+                                   marker_rate=args.marker_rate, phase_locks=locks,
+                                   phases=args.phases if mode == "timer" else 0, settle=args.settle)
+    load.append(os.getloadavg()[0])
     rows = [r.row(dt) for r in results]
     with open(out / "node.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
     _plot(results, dt, out / "node.png")
-    cols = [("scene", 6), ("mode", 9), ("particles", 9), ("triangles", 9), ("marker_kB", 9), ("rate_hz", 7), ("target_hz", 9),
+    cols = [("scene", 6), ("mode", 9), ("phase_lock", 10), ("phase_ms", 8), ("phase_shifts", 12), ("particles", 9), ("triangles", 9), ("marker_kB", 9), ("rate_hz", 7), ("target_hz", 9),
             ("missed_pct", 10), ("step_ms_mean", 12), ("step_ms_max", 11), ("sim_ms_mean", 11), ("markers_hz", 10), ("marker_ms_mean", 14),
             ("lat_points_ms_median", 20), ("lat_points_ms_p95", 17), ("lat_markers_ms_median", 21),
             ("latency_budget_ms", 17)]
     print("  ".join(f"{c:>{w}}" for c, w in cols))
     for row in rows:
         print("  ".join(f"{row[c]!s:>{w}}" for c, w in cols))
-    for row in rows:
-        verdict = ", ".join(f"{k[:-3]} {'met' if row[k] else 'MISSED'}" for k in ("rate_ok", "missed_ok", "latency_ok"))
-        print(f"{row['scene']} {row['mode']}: {verdict}; {row['poses_shown']}/{row['poses_sent']} poses shown, "
-              f"{row['divergences']} divergences")
+    print(f"load average (1 min): {load[0]:.2f} at the start, {load[1]:.2f} at the end")
+    for key, rs in _groups(results).items():
+        med = [float(np.median(r.latency_points_ms)) if r.latency_points_ms else math.nan for r in rs]
+        p95 = [float(np.percentile(r.latency_points_ms, 95)) if r.latency_points_ms else math.nan for r in rs]
+        ticks = sum(r.steps + r.missed_ticks for r in rs)
+        missed = sum(r.overruns + r.missed_ticks for r in rs) / max(ticks, 1)
+        worst_missed = max(r.missed_fraction for r in rs)
+        budget = 1e3 * dt + 2.0
+        rate = min(r.rate_hz for r in rs)
+        verdict = (f"rate {'met' if rate >= 0.99 / dt else 'MISSED'} (lowest {rate:.2f} Hz), missed "
+                   f"{'met' if worst_missed < 0.01 else 'MISSED'} ({100 * missed:.2f} % overall, worst phase "
+                   f"{100 * worst_missed:.2f} %), latency {'met' if np.nanmax(med) < budget else 'MISSED'} "
+                   f"(median {np.nanmin(med):.1f}-{np.nanmax(med):.1f} ms over {len(rs)} phase(s), p95 up to "
+                   f"{np.nanmax(p95):.1f} ms; target {budget:.0f} ms)")
+        shown = sum(r.poses_shown for r in rs)
+        sent = sum(r.poses_sent for r in rs)
+        print(f"{_label(key)}: {verdict}; {shown}/{sent} poses shown, {sum(r.divergences for r in rs)} divergences, "
+              f"{sum(r.phase_shifts for r in rs)} phase shifts while measuring")
     print(f"wrote {out / 'node.csv'}, {out / 'node.png'}, node_latency_*.csv")
     return 0
 
@@ -502,7 +664,7 @@ def _run_soak(args: argparse.Namespace, out: Path, domain_id: int) -> int:
     if len(scenes) != 1 or len(modes) != 1:
         raise InputError("--soak runs one scene in one mode: give at most one --scene and one --mode")
     r = bench_scene(scenes[0], SCENES[scenes[0]], args.soak, max(args.warmup, 5.0), out, domain_id, modes[0],
-                    marker_rate=args.marker_rate, soak=True)
+                    marker_rate=args.marker_rate, soak=True, phase_locks=(args.phase_lock != "off",))[0]
     rows = r.soak
     with open(out / "node_soak.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
@@ -540,6 +702,7 @@ def _run_soak(args: argparse.Namespace, out: Path, domain_id: int) -> int:
     load = np.array([row["load1"] for row in rows], dtype=float)
     print(f"load average (1 min) beside it: median {np.median(load):.2f}, min {load.min():.2f}, max {load.max():.2f}")
     print(f"overruns {r.overruns}, missed ticks {r.missed_ticks} of {r.steps + r.missed_ticks} ticks "
-          f"({100 * r.missed_fraction:.3f} %), divergences {r.divergences}")
+          f"({100 * r.missed_fraction:.3f} %), divergences {r.divergences}; phase lock "
+          f"{'on' if r.phase_lock else 'off'} ({r.phase_shifts} shifts while measuring)")
     print(f"wrote {out / 'node_soak.csv'}, {out / 'node_soak.png'}")
     return 0

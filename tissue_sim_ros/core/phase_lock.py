@@ -98,9 +98,9 @@ class PhaseLock:
         Arrivals older than this many periods before a tick are forgotten.
     """
 
-    def __init__(self, period_ns: int, window: int = 64, min_samples: int = 24, guard_ns: int = 500_000,
+    def __init__(self, period_ns: int, window: int = 128, min_samples: int = 48, guard_ns: int = 500_000,
                  gain_in_ns: int = 300_000, gain_out_ns: int = 1_000_000, max_shift_ns: int = 2_000_000,
-                 hold_ticks: int = 5, eval_ticks: int = 5, min_concentration: float = 0.5,
+                 hold_ticks: int = 20, eval_ticks: int = 10, min_concentration: float = 0.5,
                  stale_periods: int = 200) -> None:
         if period_ns <= 0:
             raise ValueError(f"period_ns={period_ns}: expected > 0")
@@ -160,8 +160,11 @@ class PhaseLock:
             st.state = "collecting"
             return 0
         p = self.period_ns
-        phase = np.fromiter(((a - scheduled_ns) % p for a in self._arrivals), dtype=np.float64,
-                            count=len(self._arrivals))
+        # relative to the newest arrival first: small integers, exact in float64
+        ref = self._arrivals[-1]
+        phase = (np.array(self._arrivals, dtype=np.int64) - ref + (ref - scheduled_ns) % p) % p
+        phase = phase.astype(np.float64)
+        n = len(phase)
         angle = phase * (2.0 * math.pi / p)
         c, s = float(np.cos(angle).mean()), float(np.sin(angle).mean())
         centre = math.atan2(s, c) * p / (2.0 * math.pi)
@@ -169,10 +172,13 @@ class PhaseLock:
         st.concentration = math.hypot(c, s)
         # unwrapped around the centre: (centre - p/2, centre + p/2]
         unwrapped = centre + (phase - centre + p / 2.0) % p - p / 2.0
-        lo, median, hi = np.percentile(unwrapped, (10.0, 50.0, 90.0))
+        unwrapped.sort()
+        lo, hi = unwrapped[n // 10], unwrapped[(9 * n) // 10]
         st.jitter_ns = float(hi - lo)
         # wait from each arrival to the next tick (ticks at multiples of p from scheduled_ns)
-        st.wait_median_ns = float(np.median((-phase) % p))
+        wait = (-phase) % p
+        wait.sort()
+        st.wait_median_ns = float(wait[n // 2])
         if not steer:
             st.state = "measuring"
             self._locked = False
@@ -187,9 +193,12 @@ class PhaseLock:
         # each arrival counted guard_ns late (one that close before a tick may miss it):
         #     cost(psi) = guard + mean_i ((psi - phase_i - guard) mod p)
         # rises linearly between arrivals and drops by p at each, so its minimum is at one of psi = phase_k + guard
-        late = phase + self.guard_ns
+        # with l = (phase + guard) mod p sorted, cost(l_k) = guard + mean_i ((l_k - l_i) mod p)
+        #     = guard + l_k - mean(l) + p (n - 1 - k) / n   (the arrivals after l_k wrap to the next tick)
+        late = (phase + self.guard_ns) % p
+        late.sort()
         cost_now = float(np.mean((-late) % p))
-        costs = ((late[:, None] - late[None, :]) % p).mean(axis=1)
+        costs = late - late.mean() + p * (n - 1 - np.arange(n)) / n
         best = int(np.argmin(costs))
         gain = cost_now - float(costs[best])
         st.gain_ns = gain

@@ -25,6 +25,7 @@ import os
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -176,6 +177,7 @@ class TissueSimNode(Node):
                                and not self.get_parameter("use_sim_time").value else None)
         self.diagnostics_timer = self.create_timer(1.0 / self._values["diagnostics_rate"], self._publish_diagnostics)
         self.heap_trimmer = HeapTrimmer()
+        self.memory_trace = MemoryTrace.from_env(self.get_logger())
         self.add_pre_set_parameters_callback(self._expand_alias)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
@@ -484,6 +486,11 @@ class TissueSimNode(Node):
         if shift:
             self.step_timer.timer_period_ns = self._period_ns + shift
             self._stretched = True
+            st = self.phase_lock.status
+            self.get_logger().debug(
+                f"phase lock: ticks moved by {shift * 1e-6:+.2f} ms (median wait {_ms(st.wait_median_ns):.2f} ms, "
+                f"jitter {_ms(st.jitter_ns):.2f} ms, concentration {st.concentration:.2f}, gain {_ms(st.gain_ns):.2f} ms, "
+                f"{st.shifts} shifts)")
 
     def _take_queued_input(self) -> None:
         """Take the tool messages already received before stepping (the executor runs a ready timer first)."""
@@ -630,6 +637,8 @@ class TissueSimNode(Node):
         s, w = self.stats, self.marker_worker
         now = time.monotonic()
         self.heap_trimmer.maybe_trim(now)
+        if self.memory_trace is not None:
+            self.memory_trace.maybe_report(now)
         window = max(now - s.window_start, 1e-9)
         r = self.last_report
         level = DiagnosticStatus.OK
@@ -770,6 +779,59 @@ class HeapTrimmer:
         self._trim(0)
         self.seconds_max = max(self.seconds_max, time.perf_counter() - t0)
         self.trims += 1
+
+
+class MemoryTrace:
+    """Debugging a memory creep: Python allocations that grew since a baseline, logged every ``period`` s.
+
+    On when the environment variable ``TISSUE_SIM_TRACEMALLOC`` gives the period
+    [s] (e.g. ``TISSUE_SIM_TRACEMALLOC=60 tissue-sim bench node --soak 600``: the
+    bench's node inherits it and logs to its log file). The baseline is taken one
+    period after start (after warm-up); each report lists the ``top`` source lines
+    whose live allocations grew most since, with the traced total. tracemalloc
+    slows every allocation: not for timing runs.
+    """
+
+    ENV = "TISSUE_SIM_TRACEMALLOC"
+
+    def __init__(self, logger: Any, period: float, top: int = 10) -> None:
+        import tracemalloc  # noqa: PLC0415
+
+        self._tm = tracemalloc
+        self.logger, self.period, self.top = logger, period, top
+        tracemalloc.start(8)
+        self._baseline = None
+        self._next = time.monotonic() + period
+
+    @classmethod
+    def from_env(cls, logger: Any) -> "MemoryTrace | None":
+        value = os.environ.get(cls.ENV, "")
+        if not value:
+            return None
+        try:
+            period = float(value)
+        except ValueError:
+            period = math.nan
+        if not (math.isfinite(period) and period > 0):
+            logger.warning(f"{cls.ENV}={value!r}: expected a period > 0 s; not tracing")
+            return None
+        return cls(logger, period)
+
+    def maybe_report(self, now: float) -> None:
+        if now < self._next:
+            return
+        self._next = now + self.period
+        snapshot = self._tm.take_snapshot().filter_traces((self._tm.Filter(False, self._tm.__file__),))
+        if self._baseline is None:
+            self._baseline = snapshot
+            self.logger.info(f"tracemalloc baseline: {self._tm.get_traced_memory()[0] / 2**20:.2f} MiB traced")
+            return
+        stats = snapshot.compare_to(self._baseline, "traceback")
+        lines = [f"tracemalloc: {self._tm.get_traced_memory()[0] / 2**20:.2f} MiB traced; grown since the baseline:"]
+        for stat in stats[:self.top]:
+            frames = " <- ".join(f"{Path(f.filename).name}:{f.lineno}" for f in stat.traceback[:4])
+            lines.append(f"  {stat.size_diff / 1024:+.1f} KiB ({stat.count_diff:+d} blocks) {frames}")
+        self.logger.info("\n".join(lines))
 
 
 def main(args: list[str] | None = None) -> int:
