@@ -40,8 +40,11 @@ VENV_BIN = Path(sys.executable).parent
 
 
 def pick_domain_id() -> int:
-    """A ROS_DOMAIN_ID in [1, 100] from the process id (valid on Linux, away from the default 0)."""
-    return 1 + os.getpid() % 100
+    """A ROS_DOMAIN_ID in [1, 100] that no other participant on this machine uses (a benchmark or another
+    suite beside this one), starting from the process id (valid on Linux, away from the default 0)."""
+    from tissue_sim_ros.ros.domain import free_domain_id  # noqa: PLC0415
+
+    return free_domain_id()
 
 
 def isolated_env(domain_id: int, base: dict[str, str] | None = None) -> dict[str, str]:

@@ -36,3 +36,18 @@ def test_child_ends_when_the_test_process_is_killed(tmp_path):
         time.sleep(0.05)
     os.kill(pid, 9)
     pytest.fail(f"child {pid} still running 10 s after its parent was killed")
+
+
+def test_free_domain_id_skips_a_domain_in_use():
+    # a stand-in participant 0 of domain d: its unicast discovery port 7410 + 250 d bound
+    import socket  # noqa: PLC0415
+
+    from tissue_sim_ros.ros.domain import domain_in_use, free_domain_id
+
+    d = free_domain_id()
+    assert 1 <= d <= 100 and not domain_in_use(d)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("0.0.0.0", 7410 + 250 * d))
+        assert domain_in_use(d)
+        assert free_domain_id() != d
+    assert not domain_in_use(d)
