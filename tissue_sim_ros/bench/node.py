@@ -65,6 +65,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.stamps import stamp_from_ns, stamp_to_seconds
+from ..ros.domain import free_domain_id
 
 HELP = "sustained rate, overruns and pose-to-mesh latency of the ROS node"
 DESCRIPTION = __doc__
@@ -606,7 +607,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--seconds={args.seconds}: expected at least 1 s")
     if not (math.isfinite(args.warmup) and args.warmup >= 0):
         raise InputError(f"--warmup={args.warmup}: expected a time >= 0 s")
-    domain_id = args.domain_id if args.domain_id is not None else 1 + os.getpid() % 100
+    domain_id = args.domain_id if args.domain_id is not None else free_domain_id()
     if not 0 <= domain_id <= 101:
         raise InputError(f"--domain-id={domain_id}: expected 0..101")
     out = Path(args.out)

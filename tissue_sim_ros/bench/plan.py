@@ -44,6 +44,7 @@ import numpy as np
 from ..core import trajectories as tr
 from ..core.config import Config, parse_assignments, resolve_config
 from ..core.errors import InputError
+from ..ros.domain import free_domain_id
 
 HELP = "batch rollouts per second (serial, 1 and 2 workers) and the planner service's latency and node rate"
 DESCRIPTION = __doc__
@@ -293,7 +294,7 @@ def run(args: argparse.Namespace) -> int:
     load_before = _load()
     rows = [] if args.node_only else bench_library(cfg, args.candidates, args.steps, args.repeats,
                                                    sorted(set(args.workers)))
-    node_row = None if args.no_node else bench_node(cfg, args.seconds, out, 1 + os.getpid() % 100, args.node_workers)
+    node_row = None if args.no_node else bench_node(cfg, args.seconds, out, free_domain_id(), args.node_workers)
     load = f"{load_before} -> {_load()}"
     if rows:
         _library_table(rows, args, load, out)

@@ -281,14 +281,6 @@ def plot_step_rows(path: Path, rows: list[dict[str, Any]]) -> None:
     plt.close(fig)
 
 
-def write_step_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    with path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=STEP_COLUMNS)
-        writer.writeheader()
-        for r in rows:
-            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="bench_out/solver", help="output directory (CSV, PNG)")
     parser.add_argument("--sizes", type=int, nargs="+", default=None,
@@ -317,7 +309,7 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if args.paper_only:
         step_rows = paper_step_rows(args.iterations, steps if args.steps is not None else (20 if args.quick else 200))
-        write_step_csv(out / "solver_paper.csv", step_rows)
+        write_csv(out / "solver_paper.csv", step_rows, STEP_COLUMNS)
         print_step_rows(step_rows)
         plot_step_rows(out / "solver_paper.png", step_rows)
         print(f"wrote {out / 'solver_paper.csv'} and {out / 'solver_paper.png'}")
@@ -366,9 +358,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+def write_csv(path: Path, rows: list[dict[str, Any]], columns: tuple[str, ...] = COLUMNS) -> None:
     with path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=COLUMNS)
+        writer = csv.DictWriter(f, fieldnames=columns)
         writer.writeheader()
         for r in rows:
             writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})

@@ -203,6 +203,34 @@ def solve_edges_pbd_range(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray
         x[j, 1] -= wj * f * dy
 
 
+@njit(cache=True, inline="always")
+def _area_constraint(x: np.ndarray, a: int, b: int, c: int, a0: float, signed: bool):
+    """The area constraint of triangle (a, b, c) and its gradients, shared by the area sweeps (inlined).
+
+    Signed: C = 1/2 (x_b - x_a) x (x_c - x_a) - A0; abs (the paper's): C = |area| - |A0|. Gradients:
+    grad_b = sg (e2y, -e2x), grad_c = sg (-e1y, e1x), grad_a = -(grad_b + grad_c), sg = 1/2 (abs: its sign).
+    Returns C, the three gradients' components and their squared norms.
+    """
+    e1x = x[b, 0] - x[a, 0]
+    e1y = x[b, 1] - x[a, 1]
+    e2x = x[c, 0] - x[a, 0]
+    e2y = x[c, 1] - x[a, 1]
+    area = 0.5 * (e1x * e2y - e1y * e2x)
+    if signed:
+        sg = 0.5
+        C = area - a0
+    else:
+        sg = 0.5 if area > 0.0 else (-0.5 if area < 0.0 else 0.0)
+        C = abs(area) - abs(a0)
+    gbx = sg * e2y
+    gby = -sg * e2x
+    gcx = -sg * e1y
+    gcy = sg * e1x
+    gax = -gbx - gcx
+    gay = -gby - gcy
+    return C, gax, gay, gbx, gby, gcx, gcy, gax * gax + gay * gay, gbx * gbx + gby * gby, gcx * gcx + gcy * gcy
+
+
 @njit(cache=True)
 def solve_areas_pbd_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray,
                           k: float, signed: bool, start: int, stop: int) -> None:
@@ -216,26 +244,7 @@ def solve_areas_pbd_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray,
         wc = inv_mass[c]
         if wa + wb + wc == 0.0:
             continue
-        e1x = x[b, 0] - x[a, 0]
-        e1y = x[b, 1] - x[a, 1]
-        e2x = x[c, 0] - x[a, 0]
-        e2y = x[c, 1] - x[a, 1]
-        area = 0.5 * (e1x * e2y - e1y * e2x)
-        if signed:
-            sg = 0.5
-            C = area - area0[t]
-        else:
-            sg = 0.5 if area > 0.0 else (-0.5 if area < 0.0 else 0.0)
-            C = abs(area) - abs(area0[t])
-        gbx = sg * e2y
-        gby = -sg * e2x
-        gcx = -sg * e1y
-        gcy = sg * e1x
-        gax = -gbx - gcx
-        gay = -gby - gcy
-        ga2 = gax * gax + gay * gay
-        gb2 = gbx * gbx + gby * gby
-        gc2 = gcx * gcx + gcy * gcy
+        C, gax, gay, gbx, gby, gcx, gcy, ga2, gb2, gc2 = _area_constraint(x, a, b, c, area0[t], signed)
         if ga2 + gb2 + gc2 <= EPS_LEN2:
             continue
         den = wa * ga2 + wb * gb2 + wc * gc2 + 0.0
@@ -295,27 +304,7 @@ def solve_areas_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, are
         wc = inv_mass[c]
         if wa + wb + wc == 0.0:
             continue
-        e1x = x[b, 0] - x[a, 0]
-        e1y = x[b, 1] - x[a, 1]
-        e2x = x[c, 0] - x[a, 0]
-        e2y = x[c, 1] - x[a, 1]
-        area = 0.5 * (e1x * e2y - e1y * e2x)
-        if signed:
-            sg = 0.5
-            C = area - area0[t]
-        else:
-            sg = 0.5 if area > 0.0 else (-0.5 if area < 0.0 else 0.0)
-            C = abs(area) - abs(area0[t])
-        # gradients of C: grad_b = sg (e2y, -e2x), grad_c = sg (-e1y, e1x), grad_a = -(grad_b + grad_c)
-        gbx = sg * e2y
-        gby = -sg * e2x
-        gcx = -sg * e1y
-        gcy = sg * e1x
-        gax = -gbx - gcx
-        gay = -gby - gcy
-        ga2 = gax * gax + gay * gay
-        gb2 = gbx * gbx + gby * gby
-        gc2 = gcx * gcx + gcy * gcy
+        C, gax, gay, gbx, gby, gcx, gcy, ga2, gb2, gc2 = _area_constraint(x, a, b, c, area0[t], signed)
         if ga2 + gb2 + gc2 <= EPS_LEN2:
             continue
         den = wa * ga2 + wb * gb2 + wc * gc2 + alpha
@@ -413,26 +402,7 @@ def solve_areas_coloured(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, 
             wc = inv_mass[c]
             if wa + wb + wc == 0.0:
                 continue
-            e1x = x[b, 0] - x[a, 0]
-            e1y = x[b, 1] - x[a, 1]
-            e2x = x[c, 0] - x[a, 0]
-            e2y = x[c, 1] - x[a, 1]
-            area = 0.5 * (e1x * e2y - e1y * e2x)
-            if signed:
-                sg = 0.5
-                C = area - area0[t]
-            else:
-                sg = 0.5 if area > 0.0 else (-0.5 if area < 0.0 else 0.0)
-                C = abs(area) - abs(area0[t])
-            gbx = sg * e2y
-            gby = -sg * e2x
-            gcx = -sg * e1y
-            gcy = sg * e1x
-            gax = -gbx - gcx
-            gay = -gby - gcy
-            ga2 = gax * gax + gay * gay
-            gb2 = gbx * gbx + gby * gby
-            gc2 = gcx * gcx + gcy * gcy
+            C, gax, gay, gbx, gby, gcx, gcy, ga2, gb2, gc2 = _area_constraint(x, a, b, c, area0[t], signed)
             if ga2 + gb2 + gc2 <= EPS_LEN2:
                 continue
             den = wa * ga2 + wb * gb2 + wc * gc2 + alpha
@@ -546,26 +516,7 @@ def jacobi_areas(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: n
         wc = inv_mass[c]
         if wa + wb + wc == 0.0:
             continue
-        e1x = x[b, 0] - x[a, 0]
-        e1y = x[b, 1] - x[a, 1]
-        e2x = x[c, 0] - x[a, 0]
-        e2y = x[c, 1] - x[a, 1]
-        area = 0.5 * (e1x * e2y - e1y * e2x)
-        if signed:
-            sg = 0.5
-            C = area - area0[t]
-        else:
-            sg = 0.5 if area > 0.0 else (-0.5 if area < 0.0 else 0.0)
-            C = abs(area) - abs(area0[t])
-        gbx = sg * e2y
-        gby = -sg * e2x
-        gcx = -sg * e1y
-        gcy = sg * e1x
-        gax = -gbx - gcx
-        gay = -gby - gcy
-        ga2 = gax * gax + gay * gay
-        gb2 = gbx * gbx + gby * gby
-        gc2 = gcx * gcx + gcy * gcy
+        C, gax, gay, gbx, gby, gcx, gcy, ga2, gb2, gc2 = _area_constraint(x, a, b, c, area0[t], signed)
         if ga2 + gb2 + gc2 <= EPS_LEN2:
             continue
         den = wa * ga2 + wb * gb2 + wc * gc2 + alpha

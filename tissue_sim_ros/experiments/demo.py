@@ -29,6 +29,7 @@ from ..core.errors import InputError
 from ..core.stamps import stamp_to_ns
 from ..core.tool import yaw_from_quaternion
 from ..resources import scene_names, scene_params_file
+from ..ros.domain import free_domain_id
 from . import trajectories as tr
 
 HELP = "the main job: node + tool driver on a private ROS domain, experiment a, recorded to a bag"
@@ -264,7 +265,7 @@ def run(args: argparse.Namespace) -> int:
     if spec not in tr.PRESETS:
         spec = str(Path(spec).resolve())  # the driver runs in another directory
     n_steps = tr.resolve_trajectory(spec, tool, params.dt, args.scene).n_steps(params.dt)
-    domain = args.domain_id if args.domain_id is not None else 120 + os.getpid() % 100
+    domain = args.domain_id if args.domain_id is not None else free_domain_id(120)
     if not 0 <= domain <= 232:
         raise InputError(f"--domain-id {domain}: expected 0..232")
     env = os.environ.copy()
