@@ -88,6 +88,10 @@ class SceneResult:
     """Where the poses were put, after the node's ticks [ms] (before the lock moved them); NaN = not placed."""
     phase_shifts: int = 0
     """Shifts the node's phase lock made during the measurement (its settling before is not counted)."""
+    node_wait_ms: float = math.nan
+    """The node's own median wait from a pose's reception to its next scheduled tick (/diagnostics
+    pose_wait_median_ms, median over the window's reports): the phase part of the latency, whatever the
+    load does to the callbacks."""
     particles: int = 0
     triangles: int = 0
     marker_bytes: int = 0
@@ -122,6 +126,7 @@ class SceneResult:
         return {
             "scene": self.scene, "mode": self.mode, "phase_lock": self.phase_lock if self.mode == "timer" else "",
             "phase_ms": "" if math.isnan(self.phase_ms) else round(self.phase_ms, 2), "phase_shifts": self.phase_shifts,
+            "node_wait_ms": round(self.node_wait_ms, 2),
             "particles": self.particles, "triangles": self.triangles,
             "marker_kB": round(self.marker_bytes / 1024, 1), "points_kB": round(self.points_bytes / 1024, 1),
             "seconds": round(self.seconds, 2), "steps": self.steps, "rate_hz": round(self.rate_hz, 2),
@@ -385,6 +390,9 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
                         sent.clear()
                         by_x.clear()
             measuring["on"] = False
+            waits = [float(d["pose_wait_median_ms"]) for d in diagnostics if "pose_wait_median_ms" in d]
+            result.node_wait_ms = float(np.nanmedian(waits)) if waits and not all(map(math.isnan, waits)) \
+                else math.nan
             diagnostics.clear()
             spin_until(lambda: diagnostics, 5.0, "diagnostics")
             d1, t1 = diagnostics[-1], time.monotonic()
@@ -422,7 +430,8 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         _stop_node(proc)
 
     for result in results:
-        with open(out / f"node_latency_{tag}{_phase_tag(result)}.csv", "w", newline="") as f:
+        lock = "" if result.mode != "timer" else "_lock" if result.phase_lock else "_nolock"
+        with open(out / f"node_latency_{tag}{lock}{_phase_tag(result)}.csv", "w", newline="") as f:
             writer = csv.writer(f)
             writer.writerow(["pose_stamp_s", "markers_latency_ms", "points_latency_ms"])
             writer.writerows(result.latency_rows)
@@ -551,11 +560,13 @@ def _plot(results: list[SceneResult], dt: float, path: Path) -> None:
         axes[0].plot(x, med, style, color=colour, label=f"{_label(key)} ({rs[0].triangles} tri): median, "
                                                           f"worst {np.nanmax(med):.1f} ms")
         axes[0].plot(x, p95, style, color=colour, alpha=0.3, markersize=3)
+        axes[0].plot(x, [r.node_wait_ms for r in rs], ":" + style[-1], color=colour, alpha=0.6, markersize=3)
         axes[1].plot(x, missed, style, color=colour, label=f"{_label(key)}: worst {max(missed):.2f} %")
     axes[0].axhline(budget, color="k", linestyle="--", label=f"target: period + 2 ms = {budget:.0f} ms")
     axes[0].set_xlabel("publisher phase after the node's ticks at the start [ms]")
-    axes[0].set_ylabel("pose -> tissue/points latency [ms] (faint: p95)")
-    axes[0].set_title("latency by publisher phase (phase lock on / off)")
+    axes[0].set_ylabel("pose -> tissue/points latency [ms]")
+    axes[0].set_title("median latency by publisher phase (faint: p95; dotted: the node's wait to its tick)",
+                      fontsize=9)
     axes[0].legend(fontsize=7)
     axes[1].axhline(1.0, color="k", linestyle="--", label="target < 1 %")
     axes[1].set_xlabel("publisher phase after the node's ticks at the start [ms]")
@@ -627,7 +638,7 @@ def run(args: argparse.Namespace) -> int:
         writer.writeheader()
         writer.writerows(rows)
     _plot(results, dt, out / "node.png")
-    cols = [("scene", 6), ("mode", 9), ("phase_lock", 10), ("phase_ms", 8), ("phase_shifts", 12), ("particles", 9), ("triangles", 9), ("marker_kB", 9), ("rate_hz", 7), ("target_hz", 9),
+    cols = [("scene", 6), ("mode", 9), ("phase_lock", 10), ("phase_ms", 8), ("phase_shifts", 12), ("node_wait_ms", 12), ("particles", 9), ("triangles", 9), ("marker_kB", 9), ("rate_hz", 7), ("target_hz", 9),
             ("missed_pct", 10), ("step_ms_mean", 12), ("step_ms_max", 11), ("sim_ms_mean", 11), ("markers_hz", 10), ("marker_ms_mean", 14),
             ("lat_points_ms_median", 20), ("lat_points_ms_p95", 17), ("lat_markers_ms_median", 21),
             ("latency_budget_ms", 17)]
@@ -650,8 +661,11 @@ def run(args: argparse.Namespace) -> int:
                    f"{np.nanmax(p95):.1f} ms; target {budget:.0f} ms)")
         shown = sum(r.poses_shown for r in rs)
         sent = sum(r.poses_sent for r in rs)
+        wait = [r.node_wait_ms for r in rs]
+        waits = (f"; the node's own pose-to-tick wait {np.nanmin(wait):.1f}-{np.nanmax(wait):.1f} ms"
+                 if not all(map(math.isnan, wait)) else "")
         print(f"{_label(key)}: {verdict}; {shown}/{sent} poses shown, {sum(r.divergences for r in rs)} divergences, "
-              f"{sum(r.phase_shifts for r in rs)} phase shifts while measuring")
+              f"{sum(r.phase_shifts for r in rs)} phase shifts while measuring{waits}")
     print(f"wrote {out / 'node.csv'}, {out / 'node.png'}, node_latency_*.csv")
     return 0
 
