@@ -799,7 +799,7 @@ class MemoryTrace:
 
         self._tm = tracemalloc
         self.logger, self.period, self.top = logger, period, top
-        tracemalloc.start(8)
+        tracemalloc.start(12)
         self._baseline = None
         self._next = time.monotonic() + period
 
@@ -829,7 +829,8 @@ class MemoryTrace:
         stats = snapshot.compare_to(self._baseline, "traceback")
         lines = [f"tracemalloc: {self._tm.get_traced_memory()[0] / 2**20:.2f} MiB traced; grown since the baseline:"]
         for stat in stats[:self.top]:
-            frames = " <- ".join(f"{Path(f.filename).name}:{f.lineno}" for f in stat.traceback[:4])
+            # innermost frame first (a Traceback runs from the oldest frame to the most recent)
+            frames = " <- ".join(f"{Path(f.filename).name}:{f.lineno}" for f in reversed(stat.traceback[-6:]))
             lines.append(f"  {stat.size_diff / 1024:+.1f} KiB ({stat.count_diff:+d} blocks) {frames}")
         self.logger.info("\n".join(lines))
 
