@@ -719,6 +719,20 @@ def _params_files(argv: list[str]) -> list[str]:
     return files
 
 
+def _glibc_function(name: str):
+    """glibc's function ``name`` through ctypes, or None where there is no glibc (or no such function)."""
+    import ctypes  # noqa: PLC0415
+    import ctypes.util  # noqa: PLC0415
+
+    lib = ctypes.util.find_library("c")
+    if sys.platform != "linux" or lib is None:
+        return None
+    try:
+        return getattr(ctypes.CDLL(lib), name)
+    except (OSError, AttributeError):
+        return None
+
+
 def _fix_mmap_threshold() -> None:
     """glibc: serve every allocation above 128 KiB by mmap, returned to the system when freed.
 
@@ -728,17 +742,9 @@ def _fix_mmap_threshold() -> None:
     showed +1 MiB steps under load). A fixed threshold keeps them out of the
     heap. No-op where there is no glibc.
     """
-    import ctypes  # noqa: PLC0415
-    import ctypes.util  # noqa: PLC0415
-
-    name = ctypes.util.find_library("c")
-    if sys.platform != "linux" or name is None:
-        return
-    try:
-        libc = ctypes.CDLL(name)
-        libc.mallopt(_M_MMAP_THRESHOLD, 128 * 1024)
-    except (OSError, AttributeError):
-        pass
+    mallopt = _glibc_function("mallopt")
+    if mallopt is not None:
+        mallopt(_M_MMAP_THRESHOLD, 128 * 1024)
 
 
 _M_MMAP_THRESHOLD = -3
@@ -756,20 +762,11 @@ class HeapTrimmer:
     """
 
     def __init__(self, period: float = 10.0) -> None:
-        import ctypes  # noqa: PLC0415
-        import ctypes.util  # noqa: PLC0415
-
         self.period = period
         self.trims = 0
         self.seconds_max = 0.0
         self._next = time.monotonic() + period
-        self._trim = None
-        name = ctypes.util.find_library("c")
-        if sys.platform == "linux" and name is not None:
-            try:
-                self._trim = ctypes.CDLL(name).malloc_trim
-            except (OSError, AttributeError):
-                self._trim = None
+        self._trim = _glibc_function("malloc_trim")
 
     def maybe_trim(self, now: float) -> None:
         if self._trim is None or now < self._next:
