@@ -386,70 +386,51 @@ def solve_partitioned(x: np.ndarray, inv_mass: np.ndarray,
                       tri_offsets[n_parts + 1])
 
 
-@njit(cache=True, parallel=True, fastmath=FMA)
+#: Pieces each colour is cut into for the threads (numba's thread count read inside a kernel would make it
+#: uncacheable); any number gives the same bits.
+COLOUR_PARTS = 32
+
+
+@njit(cache=True, inline="always")
+def _chunk(start: int, stop: int, part: int, parts: int) -> tuple[int, int]:
+    """Part ``part`` of ``parts`` nearly equal consecutive pieces of ``start:stop``."""
+    n = stop - start
+    return start + n * part // parts, start + n * (part + 1) // parts
+
+
+@njit(cache=True, parallel=True)
 def solve_edges_coloured(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
                          k: float, alpha: float, lam: np.ndarray, offsets: np.ndarray) -> None:
     """:func:`solve_edges` on edges sorted by colour, each colour's edges in parallel.
 
     No two edges of one colour share a particle, so within a colour the
-    projections are independent (still Gauss-Seidel between colours).
+    projections are independent (still Gauss-Seidel between colours): each
+    thread sweeps a consecutive piece of the colour with the serial kernel
+    (:func:`solve_edges_range`), and the result is a serial sweep's in colour
+    order bit for bit, whatever the threads.
     ``offsets`` (n_colours + 1,) int64 delimits the colours in ``edges``.
     """
     for col in range(offsets.shape[0] - 1):
         start = offsets[col]
-        for q in prange(offsets[col + 1] - start):
-            e = start + q
-            i = uint32(edges[e, 0])
-            j = uint32(edges[e, 1])
-            wi = inv_mass[i]
-            wj = inv_mass[j]
-            w = wi + wj
-            if w == 0.0:
-                continue
-            dx = x[i, 0] - x[j, 0]
-            dy = x[i, 1] - x[j, 1]
-            len2 = dx * dx + dy * dy
-            if len2 <= EPS_LEN2:
-                continue
-            length = math.sqrt(len2)
-            f = k * (rest[e] - length - alpha * lam[e]) / ((w + alpha) * length)
-            lam[e] += f * length
-            x[i, 0] += wi * f * dx
-            x[i, 1] += wi * f * dy
-            x[j, 0] -= wj * f * dx
-            x[j, 1] -= wj * f * dy
+        stop = offsets[col + 1]
+        parts = max(1, min(COLOUR_PARTS, stop - start))
+        for part in prange(parts):
+            lo, hi = _chunk(start, stop, part, parts)
+            solve_edges_range(x, inv_mass, edges, rest, k, alpha, lam, lo, hi)
 
 
 @njit(cache=True, parallel=True)
 def solve_areas_coloured(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray,
                          k: float, alpha: float, lam: np.ndarray, signed: bool, offsets: np.ndarray) -> None:
-    """:func:`solve_areas` on triangles sorted by colour, each colour in parallel (see :func:`solve_edges_coloured`)."""
+    """:func:`solve_areas` on triangles sorted by colour, each colour in parallel (see :func:`solve_edges_coloured`:
+    each thread sweeps a piece of the colour with :func:`solve_areas_range`)."""
     for col in range(offsets.shape[0] - 1):
         start = offsets[col]
-        for q in prange(offsets[col + 1] - start):
-            t = start + q
-            a = uint32(tris[t, 0])
-            b = uint32(tris[t, 1])
-            c = uint32(tris[t, 2])
-            wa = inv_mass[a]
-            wb = inv_mass[b]
-            wc = inv_mass[c]
-            if wa + wb + wc == 0.0:
-                continue
-            C, gax, gay, gbx, gby, gcx, gcy, ga2, gb2, gc2 = _area_constraint(x, a, b, c, area0[t], signed)
-            if ga2 + gb2 + gc2 <= EPS_LEN2:
-                continue
-            den = wa * ga2 + wb * gb2 + wc * gc2 + alpha
-            if den <= 0.0:
-                continue
-            s = k * (-C - alpha * lam[t]) / den
-            lam[t] += s
-            x[a, 0] += wa * s * gax
-            x[a, 1] += wa * s * gay
-            x[b, 0] += wb * s * gbx
-            x[b, 1] += wb * s * gby
-            x[c, 0] += wc * s * gcx
-            x[c, 1] += wc * s * gcy
+        stop = offsets[col + 1]
+        parts = max(1, min(COLOUR_PARTS, stop - start))
+        for part in prange(parts):
+            lo, hi = _chunk(start, stop, part, parts)
+            solve_areas_range(x, inv_mass, tris, area0, k, alpha, lam, signed, lo, hi)
 
 
 @njit(cache=True)
