@@ -136,6 +136,41 @@ def place_held(x: np.ndarray, x_step_start: np.ndarray, x_target: np.ndarray, in
 # ----------------------------------------------------------------------------- Gauss-Seidel projections
 
 
+@njit(cache=True, inline="always")
+def _edge_sweep(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray, k: float, alpha: float,
+                lam: np.ndarray, start: int, stop: int, multipliers: bool) -> None:
+    """The body of the serial distance sweeps (inlined into each, under its fast-math flags).
+
+    ``multipliers`` False: the paper's PBD (``alpha`` 0), ``lam`` neither read nor written (with alpha = 0 the
+    multiplier never enters a projection: ``- alpha lam`` and ``+ alpha`` add exact zeros, so the positions are
+    the same bit for bit).
+    """
+    for e in range(uint32(start), uint32(stop)):
+        i = uint32(edges[e, 0])
+        j = uint32(edges[e, 1])
+        wi = inv_mass[i]
+        wj = inv_mass[j]
+        w = wi + wj
+        if w == 0.0:
+            continue
+        dx = x[i, 0] - x[j, 0]
+        dy = x[i, 1] - x[j, 1]
+        len2 = dx * dx + dy * dy
+        if len2 <= EPS_LEN2:
+            continue
+        length = math.sqrt(len2)
+        # one division: s / length, with s the multiplier increment
+        if multipliers:
+            f = k * (rest[e] - length - alpha * lam[e]) / ((w + alpha) * length)
+            lam[e] += f * length
+        else:
+            f = k * (rest[e] - length) / (w * length)
+        x[i, 0] += wi * f * dx
+        x[i, 1] += wi * f * dy
+        x[j, 0] -= wj * f * dx
+        x[j, 1] -= wj * f * dy
+
+
 @njit(cache=True, fastmath=FMA)
 def solve_edges_range(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
                       k: float, alpha: float, lam: np.ndarray, start: int, stop: int) -> None:
@@ -160,54 +195,16 @@ def solve_edges_range(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, re
     start, stop : int
         The range of constraints to sweep.
     """
-    for e in range(uint32(start), uint32(stop)):
-        i = uint32(edges[e, 0])
-        j = uint32(edges[e, 1])
-        wi = inv_mass[i]
-        wj = inv_mass[j]
-        w = wi + wj
-        if w == 0.0:
-            continue
-        dx = x[i, 0] - x[j, 0]
-        dy = x[i, 1] - x[j, 1]
-        len2 = dx * dx + dy * dy
-        if len2 <= EPS_LEN2:
-            continue
-        length = math.sqrt(len2)
-        # one division: s / length, with s the multiplier increment
-        f = k * (rest[e] - length - alpha * lam[e]) / ((w + alpha) * length)
-        lam[e] += f * length
-        x[i, 0] += wi * f * dx
-        x[i, 1] += wi * f * dy
-        x[j, 0] -= wj * f * dx
-        x[j, 1] -= wj * f * dy
+    _edge_sweep(x, inv_mass, edges, rest, k, alpha, lam, start, stop, True)
 
 
 @njit(cache=True, fastmath=FMA)
 def solve_edges_pbd_range(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
                           k: float, start: int, stop: int) -> None:
-    """:func:`solve_edges_range` with ``alpha = 0`` (the paper's PBD) and no multipliers: with alpha = 0 the
-    multiplier never enters a projection (``- alpha lam`` and ``+ alpha`` add exact zeros), so the positions are
-    the same bit for bit, without the multipliers' load and store per constraint."""
-    for e in range(uint32(start), uint32(stop)):
-        i = uint32(edges[e, 0])
-        j = uint32(edges[e, 1])
-        wi = inv_mass[i]
-        wj = inv_mass[j]
-        w = wi + wj
-        if w == 0.0:
-            continue
-        dx = x[i, 0] - x[j, 0]
-        dy = x[i, 1] - x[j, 1]
-        len2 = dx * dx + dy * dy
-        if len2 <= EPS_LEN2:
-            continue
-        length = math.sqrt(len2)
-        f = k * (rest[e] - length) / (w * length)
-        x[i, 0] += wi * f * dx
-        x[i, 1] += wi * f * dy
-        x[j, 0] -= wj * f * dx
-        x[j, 1] -= wj * f * dy
+    """:func:`solve_edges_range` with ``alpha = 0`` (the paper's PBD) and no multipliers: the same positions bit
+    for bit, without the multipliers' load and store per constraint."""
+    # the sweep's lam is never touched here, but typing needs a writable float64 array (a view of x, no allocation)
+    _edge_sweep(x, inv_mass, edges, rest, k, 0.0, x[:, 0], start, stop, False)
 
 
 @njit(cache=True, inline="always")
