@@ -137,6 +137,29 @@ def place_held(x: np.ndarray, x_step_start: np.ndarray, x_target: np.ndarray, in
 
 
 @njit(cache=True, inline="always")
+def _edge_geometry(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, e: int):
+    """Distance constraint ``e``'s particles and geometry, shared by the distance sweeps (inlined).
+
+    Returns (i, j, w_i, w_j, w_i + w_j, dx, dy, |x_i - x_j|) with (dx, dy) = x_i - x_j; the length is 0.0
+    when the projection is to be skipped: both particles held (w = 0) or the edge degenerate (its direction
+    undefined, |x_i - x_j|^2 <= EPS_LEN2).
+    """
+    i = uint32(edges[e, 0])
+    j = uint32(edges[e, 1])
+    wi = inv_mass[i]
+    wj = inv_mass[j]
+    w = wi + wj
+    if w == 0.0:
+        return i, j, wi, wj, w, 0.0, 0.0, 0.0
+    dx = x[i, 0] - x[j, 0]
+    dy = x[i, 1] - x[j, 1]
+    len2 = dx * dx + dy * dy
+    if len2 <= EPS_LEN2:
+        return i, j, wi, wj, w, dx, dy, 0.0
+    return i, j, wi, wj, w, dx, dy, math.sqrt(len2)
+
+
+@njit(cache=True, inline="always")
 def _edge_sweep(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray, k: float, alpha: float,
                 lam: np.ndarray, start: int, stop: int, multipliers: bool) -> None:
     """The body of the serial distance sweeps (inlined into each, under its fast-math flags).
@@ -146,19 +169,9 @@ def _edge_sweep(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np
     the same bit for bit).
     """
     for e in range(uint32(start), uint32(stop)):
-        i = uint32(edges[e, 0])
-        j = uint32(edges[e, 1])
-        wi = inv_mass[i]
-        wj = inv_mass[j]
-        w = wi + wj
-        if w == 0.0:
+        i, j, wi, wj, w, dx, dy, length = _edge_geometry(x, inv_mass, edges, e)
+        if length == 0.0:
             continue
-        dx = x[i, 0] - x[j, 0]
-        dy = x[i, 1] - x[j, 1]
-        len2 = dx * dx + dy * dy
-        if len2 <= EPS_LEN2:
-            continue
-        length = math.sqrt(len2)
         # one division: s / length, with s the multiplier increment
         if multipliers:
             f = k * (rest[e] - length - alpha * lam[e]) / ((w + alpha) * length)
@@ -493,19 +506,9 @@ def jacobi_edges(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: n
     positions stay consistent. ``x`` is not changed.
     """
     for e in range(uint32(edges.shape[0])):
-        i = uint32(edges[e, 0])
-        j = uint32(edges[e, 1])
-        wi = inv_mass[i]
-        wj = inv_mass[j]
-        w = wi + wj
-        if w == 0.0:
+        i, j, wi, wj, w, dx, dy, length = _edge_geometry(x, inv_mass, edges, e)
+        if length == 0.0:
             continue
-        dx = x[i, 0] - x[j, 0]
-        dy = x[i, 1] - x[j, 1]
-        len2 = dx * dx + dy * dy
-        if len2 <= EPS_LEN2:
-            continue
-        length = math.sqrt(len2)
         f = omega[e] * k * (rest[e] - length - alpha * lam[e]) / ((w + alpha) * length)
         lam[e] += f * length
         dx_acc[i, 0] += wi * f * dx
