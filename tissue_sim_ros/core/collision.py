@@ -153,7 +153,7 @@ class Contacts:
 # --------------------------------------------------------------------------- numba kernels
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _sdf_local(lx: float, ly: float, hx: float, hy: float, r: float) -> tuple[float, float, float]:
     """Signed distance from a tool-frame point to the rounded box (half extents hx, hy, corner radius r).
 
@@ -179,7 +179,7 @@ def _sdf_local(lx: float, ly: float, hx: float, hy: float, r: float) -> tuple[fl
     return d - r, gx, gy
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _rounded_box_sdf(px: float, py: float, shape: np.ndarray) -> tuple[float, float, float]:
     """Signed distance from world point (px, py) to the posed rounded box, and its outward unit gradient (world)."""
     c, s = shape[2], shape[3]
@@ -189,7 +189,7 @@ def _rounded_box_sdf(px: float, py: float, shape: np.ndarray) -> tuple[float, fl
     return d, c * gx - s * gy, s * gx + c * gy
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _slab(a: float, d: float, lo: float, hi: float, s_in: float, s_out: float) -> tuple[float, float]:
     """Clip the line parameter interval [s_in, s_out] to lo <= a + s d <= hi (empty: s_in > s_out)."""
     if d == 0.0:
@@ -202,7 +202,7 @@ def _slab(a: float, d: float, lo: float, hi: float, s_in: float, s_out: float) -
     return max(s_in, t1), min(s_out, t2)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _line_interval(ax: float, ay: float, dx: float, dy: float,
                    hx: float, hy: float, r: float) -> tuple[bool, float, float]:
     """Parameter interval of the line a + s d (tool frame) inside the rounded box.
@@ -243,7 +243,7 @@ def _line_interval(ax: float, ay: float, dx: float, dy: float,
     return hit, lo, hi
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def project_tool(x: np.ndarray, x_start: np.ndarray, inv_mass: np.ndarray, candidates: np.ndarray,
                  shape0: np.ndarray, shape1: np.ndarray, dx_accum: np.ndarray) -> int:
     """Keep candidate particles out of the swept tool; returns how many moved.
@@ -322,7 +322,7 @@ def project_tool(x: np.ndarray, x_start: np.ndarray, inv_mass: np.ndarray, candi
     return moved
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _to_local(px: float, py: float, shape: np.ndarray) -> tuple[float, float]:
     """A world point in the frame of the posed tool."""
     c, s = shape[2], shape[3]
@@ -330,7 +330,7 @@ def _to_local(px: float, py: float, shape: np.ndarray) -> tuple[float, float]:
     return c * dx + s * dy, -s * dx + c * dy
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def edge_depth(ax: float, ay: float, bx: float, by: float, shape: np.ndarray) -> tuple[float, float, float]:
     """How far the posed tool reaches past the edge a -> b into the body on its left, within the edge's span.
 
@@ -391,7 +391,7 @@ def edge_depth(ax: float, ay: float, bx: float, by: float, shape: np.ndarray) ->
     return s_out, u / length, line_depth
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _sweep_bound(shape0: np.ndarray, shape1: np.ndarray) -> float:
     """Upper bound [m] on how far any point of the tool moves from ``shape0`` to ``shape1``."""
     ddx, ddy = shape1[0] - shape0[0], shape1[1] - shape0[1]
@@ -400,7 +400,7 @@ def _sweep_bound(shape0: np.ndarray, shape1: np.ndarray) -> float:
     return math.sqrt(ddx * ddx + ddy * ddy) + dang * radius
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def project_edges(x: np.ndarray, x_start: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray,
                   shape0: np.ndarray, shape1: np.ndarray, side_tol: float, dx_accum: np.ndarray) -> int:
     """Keep boundary edges out of the swept tool (point-edge PBD); returns how many edges moved.
@@ -487,7 +487,7 @@ def project_edges(x: np.ndarray, x_start: np.ndarray, inv_mass: np.ndarray, edge
     return moved
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def swept_edge_candidates(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, shape0: np.ndarray,
                           shape1: np.ndarray, reach: float, out: np.ndarray) -> int:
     """Edges with a free particle that come within ``reach`` of the tool swept from ``shape0`` to ``shape1``.
@@ -519,7 +519,7 @@ def swept_edge_candidates(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray
     return n
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def gather_surface_edges(edges: np.ndarray, sel: np.ndarray, n_sel: int, inv_mass: np.ndarray,
                          cand: np.ndarray, n_cand: int, mark: np.ndarray, out_edges: np.ndarray) -> int:
     """Gather the selected edges and add their free particles to the particle candidates; returns the new count.
@@ -545,7 +545,7 @@ def gather_surface_edges(edges: np.ndarray, sel: np.ndarray, n_sel: int, inv_mas
     return n
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def points_sdf(x: np.ndarray, shape: np.ndarray, out: np.ndarray, grad: np.ndarray) -> None:
     """Signed distance of every point to the posed tool shape, and its outward unit gradient.
 
@@ -559,7 +559,7 @@ def points_sdf(x: np.ndarray, shape: np.ndarray, out: np.ndarray, grad: np.ndarr
         grad[i, 1] = gy
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def body_nearest(sdf: np.ndarray, particle_body: np.ndarray, out_min: np.ndarray, out_arg: np.ndarray) -> None:
     """Per body: the smallest signed distance of its particles and that particle (first on ties).
 
@@ -576,7 +576,7 @@ def body_nearest(sdf: np.ndarray, particle_body: np.ndarray, out_min: np.ndarray
             out_arg[b] = i
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def near_triangles(x: np.ndarray, tris: np.ndarray, sdf: np.ndarray, grad: np.ndarray, reach: float,
                    out: np.ndarray) -> int:
     """Triangles that may come within ``reach`` of the tool; returns their count, indices in ``out[:count]``.
@@ -608,7 +608,7 @@ def near_triangles(x: np.ndarray, tris: np.ndarray, sdf: np.ndarray, grad: np.nd
     return n
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def compact_triangles(x: np.ndarray, tris: np.ndarray, sel: np.ndarray, n_sel: int, vmap: np.ndarray,
                       out_verts: np.ndarray, out_ids: np.ndarray, out_tris: np.ndarray) -> int:
     """Gather triangles ``tris[sel[:n_sel]]`` into a compact mesh; returns the vertex count.
@@ -635,7 +635,7 @@ def compact_triangles(x: np.ndarray, tris: np.ndarray, sel: np.ndarray, n_sel: i
     return nv
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def paper_displacement(x: np.ndarray, parts: np.ndarray, inv_mass: np.ndarray, q: int, d_star: float,
                        ux: float, uy: float, r: float, out_idx: np.ndarray, out_dx: np.ndarray) -> int:
     """The paper's eq. (3) on one body; returns the count K of displaced particles.
@@ -660,7 +660,7 @@ def paper_displacement(x: np.ndarray, parts: np.ndarray, inv_mass: np.ndarray, q
     return n
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def swept_candidates(x: np.ndarray, inv_mass: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
                      reach: float, out: np.ndarray) -> int:
     """Free particles within ``reach`` of the tool swept from ``shape0`` to ``shape1``; returns the count.

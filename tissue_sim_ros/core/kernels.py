@@ -67,7 +67,7 @@ EPS_LEN2 = 1e-30
 # ----------------------------------------------------------------------------- prediction
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def predict(x: np.ndarray, v: np.ndarray, inv_mass: np.ndarray, dt: float, gravity: float,
             damp: float, x_pred: np.ndarray) -> None:
     """Explicit prediction x* = x + dt damp v + dt^2 (0, g) for free particles.
@@ -97,7 +97,7 @@ def predict(x: np.ndarray, v: np.ndarray, inv_mass: np.ndarray, dt: float, gravi
             x_pred[i, 1] = x[i, 1]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def hold_displaced(x_pred: np.ndarray, inv_mass: np.ndarray, held_idx: np.ndarray, held_dx: np.ndarray,
                    scale: float, inv_mass_eff: np.ndarray) -> None:
     """The paper's contact: move held particles by ``scale * held_dx`` and hold them.
@@ -116,7 +116,7 @@ def hold_displaced(x_pred: np.ndarray, inv_mass: np.ndarray, held_idx: np.ndarra
         inv_mass_eff[i] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def place_held(x: np.ndarray, x_step_start: np.ndarray, x_target: np.ndarray, inv_mass: np.ndarray,
                held_idx: np.ndarray, f: float) -> None:
     """Substeps of the paper's contact: held particles at fraction f of the way to their full-step target.
@@ -184,7 +184,7 @@ def _edge_sweep(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np
         x[j, 1] -= wj * f * dy
 
 
-@njit(cache=True, fastmath=FMA)
+@njit(cache=True, fastmath=FMA, nogil=True)
 def solve_edges_range(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
                       k: float, alpha: float, lam: np.ndarray, start: int, stop: int) -> None:
     """Gauss-Seidel over distance constraints ``start:stop``, C = |x_i - x_j| - d0, in array order.
@@ -211,7 +211,7 @@ def solve_edges_range(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, re
     _edge_sweep(x, inv_mass, edges, rest, k, alpha, lam, start, stop, True)
 
 
-@njit(cache=True, fastmath=FMA)
+@njit(cache=True, fastmath=FMA, nogil=True)
 def solve_edges_pbd_range(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
                           k: float, start: int, stop: int) -> None:
     """:func:`solve_edges_range` with ``alpha = 0`` (the paper's PBD) and no multipliers: the same positions bit
@@ -284,7 +284,7 @@ def _area_sweep(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np
         x[c, 1] += wc * s * gcy
 
 
-@njit(cache=True, fastmath=FMA)
+@njit(cache=True, fastmath=FMA, nogil=True)
 def _areas_signed(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray, k: float,
                   alpha: float, lam: np.ndarray, start: int, stop: int, multipliers: bool) -> None:
     """Signed area sweep with FMA contraction: a collinear triangle's round-off-signed area is harmless here
@@ -295,7 +295,7 @@ def _areas_signed(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: 
         _area_sweep(x, inv_mass, tris, area0, k, 0.0, lam, True, start, stop, False)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _areas_abs(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray, k: float,
                alpha: float, lam: np.ndarray, start: int, stop: int, multipliers: bool) -> None:
     """The paper's |area| sweep, without contraction (:data:`FMA`)."""
@@ -305,7 +305,7 @@ def _areas_abs(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.
         _area_sweep(x, inv_mass, tris, area0, k, 0.0, lam, False, start, stop, False)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def solve_areas_pbd_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray,
                           k: float, signed: bool, start: int, stop: int) -> None:
     """:func:`solve_areas_range` with ``alpha = 0`` and no multipliers (see :func:`solve_edges_pbd_range`)."""
@@ -318,14 +318,14 @@ def solve_areas_pbd_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray,
         _areas_abs(x, inv_mass, tris, area0, k, 0.0, unused, start, stop, False)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def solve_edges(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
                 k: float, alpha: float, lam: np.ndarray) -> None:
     """One Gauss-Seidel sweep over all distance constraints in array order (:func:`solve_edges_range`)."""
     solve_edges_range(x, inv_mass, edges, rest, k, alpha, lam, 0, edges.shape[0])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def solve_areas_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray,
                       k: float, alpha: float, lam: np.ndarray, signed: bool, start: int, stop: int) -> None:
     """Gauss-Seidel over area constraints ``start:stop``, in array order.
@@ -364,7 +364,7 @@ def solve_areas_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, are
         _areas_abs(x, inv_mass, tris, area0, k, alpha, lam, start, stop, True)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def solve_areas(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray,
                 k: float, alpha: float, lam: np.ndarray, signed: bool) -> None:
     """One Gauss-Seidel sweep over all area constraints in array order (:func:`solve_areas_range`)."""
@@ -443,7 +443,7 @@ def solve_areas_coloured(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, 
             solve_areas_range(x, inv_mass, tris, area0, k, alpha, lam, signed, lo, hi)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple, tri_set: tuple, tool: tuple,
                             k_e: float, alpha_e: float, lam_e: np.ndarray, k_t: float, alpha_t: float,
                             lam_t: np.ndarray, signed: bool, iterations: int, mode: int,
@@ -496,7 +496,7 @@ def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple
 # ----------------------------------------------------------------------------- Jacobi
 
 
-@njit(cache=True, fastmath=FMA)
+@njit(cache=True, fastmath=FMA, nogil=True)
 def jacobi_edges(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: np.ndarray,
                  k: float, alpha: float, lam: np.ndarray, omega: np.ndarray, dx_acc: np.ndarray) -> None:
     """Jacobi pass over distance constraints: corrections from the same ``x`` summed into ``dx_acc``.
@@ -517,7 +517,7 @@ def jacobi_edges(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, rest: n
         dx_acc[j, 1] -= wj * f * dy
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def jacobi_areas(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray,
                  k: float, alpha: float, lam: np.ndarray, signed: bool, omega: np.ndarray,
                  dx_acc: np.ndarray) -> None:
@@ -547,7 +547,7 @@ def jacobi_areas(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: n
         dx_acc[c, 1] += wc * s * gcy
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def jacobi_apply(x: np.ndarray, dx_acc: np.ndarray, particle_scale: np.ndarray) -> None:
     """x += particle_scale * dx_acc per particle, then clear ``dx_acc`` for the next pass."""
     for i in range(x.shape[0]):
@@ -558,7 +558,7 @@ def jacobi_apply(x: np.ndarray, dx_acc: np.ndarray, particle_scale: np.ndarray) 
         dx_acc[i, 1] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def jacobi_relaxation(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, alpha_e: float,
                       tris: np.ndarray, alpha_t: float, signed: bool, scale: float,
                       node_sum: np.ndarray, omega_e: np.ndarray, omega_t: np.ndarray) -> None:
@@ -660,7 +660,7 @@ def jacobi_relaxation(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, al
         omega_t[t] = scale / r if r > 0.0 else scale
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def jacobi_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple, tri_set: tuple, tool: tuple,
                       k_e: float, alpha_e: float, lam_e: np.ndarray, omega_e: np.ndarray,
                       k_t: float, alpha_t: float, lam_t: np.ndarray, omega_t: np.ndarray,
@@ -696,7 +696,7 @@ def tool_pack(x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, s
 # ----------------------------------------------------------------------------- velocity and boundary
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def update_velocity(x: np.ndarray, x_start: np.ndarray, dt: float, v: np.ndarray) -> None:
     """v = (x - x_start) / dt [m/s] for every particle."""
     inv_dt = 1.0 / dt
@@ -705,7 +705,7 @@ def update_velocity(x: np.ndarray, x_start: np.ndarray, dt: float, v: np.ndarray
         v[i, 1] = (x[i, 1] - x_start[i, 1]) * inv_dt
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def apply_boundary_lines(x: np.ndarray, v: np.ndarray, inv_mass: np.ndarray, y_top: float,
                          y_bottom: float) -> int:
     """The paper's horizontal lines: a free particle at or past a line is put on it with velocity zero.
@@ -734,7 +734,7 @@ def apply_boundary_lines(x: np.ndarray, v: np.ndarray, inv_mass: np.ndarray, y_t
 # ----------------------------------------------------------------------------- energy and residual
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def energy_terms_kernel(x: np.ndarray, x_pred: np.ndarray, mass: np.ndarray, particle_body: np.ndarray,
                         edges: np.ndarray, rest: np.ndarray, edge_body: np.ndarray,
                         tris: np.ndarray, area0: np.ndarray, tri_body: np.ndarray,
@@ -773,7 +773,7 @@ def energy_terms_kernel(x: np.ndarray, x_pred: np.ndarray, mass: np.ndarray, par
         area[tri_body[t]] += ha * C * C
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def constraint_residual(x: np.ndarray, edges: np.ndarray, rest: np.ndarray, tris: np.ndarray,
                         area0: np.ndarray, signed: bool) -> float:
     """RMS over all constraints of C / l0 (edges) and C / |A0| (triangles); 0 without constraints.
@@ -805,7 +805,7 @@ def constraint_residual(x: np.ndarray, edges: np.ndarray, rest: np.ndarray, tris
     return math.sqrt(total / n)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def count_inverted(x: np.ndarray, tris: np.ndarray) -> int:
     """Triangles whose signed area (x_b - x_a) x (x_c - x_a) / 2 is <= 0."""
     n = 0
@@ -821,7 +821,7 @@ def count_inverted(x: np.ndarray, tris: np.ndarray) -> int:
 # ----------------------------------------------------------------------------- colouring
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def greedy_colour(indices: np.ndarray, n_particles: int, colour: np.ndarray) -> int:
     """Greedy constraint colouring: no two constraints of one colour share a particle.
 
@@ -863,7 +863,7 @@ def greedy_colour(indices: np.ndarray, n_particles: int, colour: np.ndarray) -> 
     return n_colours
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def wavefront_levels(indices: np.ndarray, n_particles: int, block: int, level: np.ndarray) -> int:
     """Wavefront schedule of a Gauss-Seidel sweep, per block of ``block`` consecutive constraints.
 

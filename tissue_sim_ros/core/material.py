@@ -128,7 +128,7 @@ def lumped_mass(q0: np.ndarray, tris: np.ndarray, density: float, thickness: flo
 # ----------------------------------------------------------------------------- Gauss-Seidel
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def solve_elements_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elastic: np.ndarray,
                          inv_h2: float, lam: np.ndarray, start: int, stop: int) -> None:
     """Gauss-Seidel over elements ``start:stop`` in array order: deviatoric pair, then hydrostatic.
@@ -221,7 +221,7 @@ def solve_elements_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, 
         x[c, 1] += wc * s * gcy
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def solve_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elastic: np.ndarray,
                    inv_h2: float, lam: np.ndarray) -> None:
     """One Gauss-Seidel sweep over all elements in array order (:func:`solve_elements_range`)."""
@@ -238,7 +238,7 @@ def solve_elements_partitioned(x: np.ndarray, inv_mass: np.ndarray, tris: np.nda
     solve_elements_range(x, inv_mass, tris, elastic, inv_h2, lam, offsets[n_parts], offsets[n_parts + 1])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def material_gauss_seidel(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elastic: np.ndarray,
                           inv_h2: float, lam: np.ndarray, offsets: np.ndarray, partitioned: bool,
                           iterations: int, x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray,
@@ -259,7 +259,7 @@ def material_gauss_seidel(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray,
 # ----------------------------------------------------------------------------- Jacobi
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def jacobi_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elastic: np.ndarray,
                     inv_h2: float, lam: np.ndarray, omega: np.ndarray, dx_acc: np.ndarray) -> None:
     """Jacobi pass over elements: all three rows from the same ``x``, corrections summed into ``dx_acc``.
@@ -327,7 +327,7 @@ def jacobi_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elast
         dx_acc[c, 1] += wc * s * gcy
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def jacobi_relaxation_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elastic: np.ndarray,
                                inv_h2: float, scale: float, node_sum: np.ndarray, omega: np.ndarray) -> None:
     """Per-row relaxation omega = scale / r with r a Gershgorin bound (as ``kernels.jacobi_relaxation``).
@@ -425,7 +425,7 @@ def jacobi_relaxation_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.nda
             omega[t, 1] = scale / r if r > 0.0 else scale
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def material_jacobi(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elastic: np.ndarray,
                     inv_h2: float, lam: np.ndarray, omega: np.ndarray, iterations: int, dx_acc: np.ndarray,
                     x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
@@ -451,7 +451,7 @@ def material_jacobi(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elast
 # ----------------------------------------------------------------------------- energy and forces
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def strain_energy_kernel(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, tri_body: np.ndarray,
                          out: np.ndarray) -> None:
     """Strain energy per body [J], added into ``out`` (B,): sum_t V0 Psi(F_t) = 1/2 (|g|^2 / k_D + C_H^2 / k_H).
@@ -484,7 +484,7 @@ def strain_energy_kernel(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, t
         out[tri_body[t]] += 0.5 * ((g0 * g0 + g1 * g1) / ad + ch * ch / ah)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def elastic_forces(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, out: np.ndarray) -> None:
     """Internal elastic force on each particle [N], -dE_strain/dx, added into ``out`` (N, 2)."""
     for t in range(tris.shape[0]):
@@ -538,7 +538,7 @@ def internal_forces(model, x: np.ndarray) -> np.ndarray:
 
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def element_hessians(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, out: np.ndarray) -> None:
     """Hessian of each element's strain energy V0 Psi(F) in its corners' coordinates, written to ``out`` (T, 6, 6).
 

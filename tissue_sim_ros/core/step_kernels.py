@@ -14,6 +14,8 @@ never read (alpha = 0), so the positions are the same bit for bit. The tool's sh
 (:meth:`~tissue_sim_ros.core.solvers.Solver._interpolate_shape`, Python's ``math.hypot``) is computed by the
 caller, ``substeps + 1`` rows, so its rounding is the reference's.
 
+Every kernel a Python caller enters is compiled ``nogil=True``: while a step runs its compiled calls the node's
+marker thread can encode on the other core instead of waiting for the GIL (``docs/benchmarks.md``, the node).
 Loop indices are unsigned where they only count (``numba.uint32``): no sign checks in the wrapped indexing.
 The NumPy twin of :func:`solve_step` is the reference step itself (``Solver.step_reference``: the same kernels,
 each with its twin in ``test/naive.py``), and :func:`finish_step`'s is ``Simulation.step_reference``'s
@@ -42,7 +44,7 @@ from .kernels import (
 from .violated_jacobi import apply_walls
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def solve_step(x0: np.ndarray, v0: np.ndarray, x: np.ndarray, v: np.ndarray, inv_mass: np.ndarray,
                w: np.ndarray, x_pred: np.ndarray, x_start: np.ndarray, held_idx: np.ndarray, held_dx: np.ndarray,
                dt: float, n_sub: int, gravity: float, damp_dt: float, damp_h: float,
@@ -121,7 +123,7 @@ def solve_step(x0: np.ndarray, v0: np.ndarray, x: np.ndarray, v: np.ndarray, inv
     return constraint_residual(x, res_edges, res_rest, res_tris, res_area0, signed)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def all_finite(a: np.ndarray, b: np.ndarray) -> bool:
     """True when every entry of the two (N, 2) arrays is finite."""
     for i in range(uint32(a.shape[0])):
@@ -131,7 +133,7 @@ def all_finite(a: np.ndarray, b: np.ndarray) -> bool:
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def finish_step(x: np.ndarray, v: np.ndarray, x_pred: np.ndarray, mass: np.ndarray, particle_body: np.ndarray,
                 edges: np.ndarray, rest: np.ndarray, edge_body: np.ndarray, tris: np.ndarray, area0: np.ndarray,
                 tri_body: np.ndarray, k_spring: float, k_area: float, dt: float, signed: bool, energy: bool,

@@ -29,7 +29,7 @@ INSIDE_TOL = 1e-9
 BURIED_SAMPLES = 9
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def tool_checks(x0: np.ndarray, x1: np.ndarray, shape0: np.ndarray, shape1: np.ndarray, tris: np.ndarray,
                 inside_tol: float) -> tuple[int, float, int, int, bool]:
     """(n_inside, deepest [m], deepest particle or -1, n_tunnelled, buried) of one step.

@@ -45,7 +45,7 @@ from .collision import project_edges, project_tool
 EPS_LEN2 = 1e-30
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def apply_walls(x: np.ndarray, y_bottom: float, y_top: float) -> int:
     """Keep every particle between the walls: y < y_bottom -> y_bottom, y > y_top -> y_top.
 
@@ -66,7 +66,7 @@ def apply_walls(x: np.ndarray, y_bottom: float, y_top: float) -> int:
     return moved
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def violated_jacobi_pass(x: np.ndarray, w: np.ndarray, w_move: np.ndarray,
                          edges: np.ndarray, rest: np.ndarray, k_e: float, tol_e: float,
                          tris: np.ndarray, area0: np.ndarray, k_t: float, tol_a: float, signed: bool,
@@ -167,7 +167,7 @@ def violated_jacobi_pass(x: np.ndarray, w: np.ndarray, w_move: np.ndarray,
                 x[i, 1] += dxa[i, 1] / na[i]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def violated_jacobi_iterations(x: np.ndarray, w: np.ndarray, w_move: np.ndarray,
                                edges: np.ndarray, rest: np.ndarray, k_e: float, tol_e: float,
                                tris: np.ndarray, area0: np.ndarray, k_t: float, tol_a: float, signed: bool,
