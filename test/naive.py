@@ -897,3 +897,25 @@ def tool_checks(x0, x1, shape0, shape1, tris, inside_tol=1e-9, samples=4001):
             if all(v >= 0 for v in signs) or all(v <= 0 for v in signs):  # on an edge or corner counts
                 buried = True
     return n_inside, deepest, arg, n_tunnel, buried
+
+
+def vertex_strain_kernel(x, a, b, inv_l0, one, inv_count, absolute, out):
+    """Twin of core.strain.vertex_strain_kernel: edge strain |x_b - x_a| / l0 - 1, averaged at each vertex."""
+    d = x[b] - x[a]
+    s = np.hypot(d[:, 0], d[:, 1]) * inv_l0 - one
+    if absolute:
+        s = np.abs(s)
+    out[:] = np.bincount(np.concatenate([a, b]), weights=np.concatenate([s, s]), minlength=len(out)) * inv_count
+
+
+def strain_mesh_arrays(q, tri_flat, edge_flat, strain, strain_color_max, lut, tri_points, tri_rgba, wire_points,
+                       wireframe):
+    """Twin of core.strain.strain_mesh_arrays: corner points, strain colours from the table, wireframe ends."""
+    q3 = np.zeros((len(q), 3))
+    q3[:, :2] = q
+    tri_points[:] = q3[tri_flat]
+    top = len(lut) - 1
+    k = np.clip(((strain / strain_color_max) * 0.5 + 0.5) * top, 0, top).astype(np.int64)
+    tri_rgba[:] = lut[k][tri_flat]
+    if wireframe:
+        wire_points[:] = q3[edge_flat]

@@ -46,3 +46,39 @@ def test_degenerate_edges() -> None:
     op = VertexStrain(edges, l0, 4)
     np.testing.assert_allclose(op(q), _loop(edges, l0, q, 4))
     np.testing.assert_array_equal(op(q), [1.0, 0.5, 0.0, 0.0])
+
+
+def test_compiled_strain_kernels_match_their_numpy_twins_bit_for_bit() -> None:
+    """vertex_strain_kernel and strain_mesh_arrays (nogil, for the node's two threads) against test/naive.py."""
+    from tissue_sim_ros.core.strain import strain_mesh_arrays, vertex_strain_kernel
+    from tissue_sim_ros.ros.messages import strain_colormap
+
+    import naive
+
+    model = Model.from_mesh(mesh_rectangle(0.3, 0.2, 0.03), SimParams())
+    op = VertexStrain.of(model)
+    rng = np.random.default_rng(11)
+    q = model.particle_q0 + rng.normal(scale=3e-3, size=model.particle_q0.shape)
+    for absolute in (False, True):
+        got, want = np.empty(model.n_particles), np.empty(model.n_particles)
+        vertex_strain_kernel(q, op._a, op._b, op._inv_l0, op._one, op._inv_count, absolute, got)
+        naive.vertex_strain_kernel(q, op._a, op._b, op._inv_l0, op._one, op._inv_count, absolute, want)
+        np.testing.assert_array_equal(got, want)
+    strain = op(q)
+    strain[:3] = [-5.0, 5.0, 0.0]  # past both ends of the table, and rest
+    lut = np.ascontiguousarray(strain_colormap()).view(np.complex128).ravel()
+    tri_flat = np.ascontiguousarray(model.tri_indices.ravel().astype(np.int64))
+    edge_flat = np.ascontiguousarray(model.edge_indices.ravel().astype(np.int64))
+    outs = []
+    for f in (strain_mesh_arrays, naive.strain_mesh_arrays):
+        tri, rgba = np.full((len(tri_flat), 3), np.nan), np.zeros(len(tri_flat), dtype=np.complex128)
+        wire = np.full((len(edge_flat), 3), np.nan)
+        f(q, tri_flat, edge_flat, strain, 0.2, lut, tri, rgba, wire, True)
+        outs.append((tri, rgba, wire))
+    for got, want in zip(*outs):
+        np.testing.assert_array_equal(got, want)
+    rgba = outs[0][1].view(np.float32).reshape(-1, 4)
+    first = {v: k for k, v in reversed(list(enumerate(tri_flat)))}
+    np.testing.assert_array_equal(rgba[first[0]], strain_colormap()[0])  # -5: the compressed pole
+    np.testing.assert_array_equal(rgba[first[1]], strain_colormap()[-1])  # +5: the stretched pole
+    assert np.all(outs[0][0][:, 2] == 0.0) and np.all(outs[0][2][:, 2] == 0.0)

@@ -8,7 +8,10 @@ zero rest length counts as strain 0.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 from .model import Model
 
@@ -74,10 +77,69 @@ class VertexStrain:
         Signed (the published field); ``absolute=True`` averages |strain| instead
         (how much a vertex's edges deform either way, as the pictures shade it).
         """
-        s = self.edges(x)
-        if absolute:
-            np.abs(s, out=s)
-        return np.bincount(self._ends, weights=np.concatenate([s, s]), minlength=self._n) * self._inv_count
+        out = np.empty(self._n)
+        vertex_strain_kernel(np.ascontiguousarray(x, dtype=np.float64), self._a, self._b, self._inv_l0, self._one,
+                             self._inv_count, absolute, out)
+        return out
+
+
+@njit(cache=True, nogil=True)
+def vertex_strain_kernel(x: np.ndarray, a: np.ndarray, b: np.ndarray, inv_l0: np.ndarray, one: np.ndarray,
+                         inv_count: np.ndarray, absolute: bool, out: np.ndarray) -> None:
+    """Per-vertex mean edge strain into ``out`` (N,): for each edge e = (a, b),
+
+        s_e = |x_b - x_a| / l0_e - 1    (0 for l0 = 0: ``inv_l0`` = ``one`` = 0 there)
+
+    then ``out[i] = (sum of s_e over the edges at i) / (number of edges at i)``, summed as
+    ``np.bincount`` over ``concat(a, b)`` does (all a-ends in edge order, then all b-ends), so the
+    result is bit for bit :meth:`VertexStrain.__call__`'s NumPy form (twin: ``test/naive.py``). Compiled
+    ``nogil``: the node's step and marker threads both call it. ``absolute``: average |s_e| instead.
+    """
+    out[:] = 0.0
+    n_edges = a.shape[0]
+    s = np.empty(n_edges)
+    for e in range(n_edges):
+        i, j = a[e], b[e]
+        v = math.hypot(x[j, 0] - x[i, 0], x[j, 1] - x[i, 1]) * inv_l0[e] - one[e]
+        s[e] = abs(v) if absolute else v
+    for e in range(n_edges):
+        out[a[e]] += s[e]
+    for e in range(n_edges):
+        out[b[e]] += s[e]
+    for i in range(out.shape[0]):
+        out[i] *= inv_count[i]
+
+
+@njit(cache=True, nogil=True)
+def strain_mesh_arrays(q: np.ndarray, tri_flat: np.ndarray, edge_flat: np.ndarray, strain: np.ndarray,
+                       strain_color_max: float, lut: np.ndarray, tri_points: np.ndarray, tri_rgba: np.ndarray,
+                       wire_points: np.ndarray, wireframe: bool) -> None:
+    """The markers' big arrays for positions ``q`` (N, 2), in preallocated outputs (the node's marker thread).
+
+    * ``tri_points`` (3T, 3): ``(q[v], 0)`` for each corner v of ``tri_flat`` (triangles, flattened);
+    * ``tri_rgba`` (3T,): the colour of each corner, ``lut[k]`` with
+      ``k = int(clip((s_v / strain_color_max * 0.5 + 0.5) * (L - 1), 0, L - 1))`` (L = len(lut); each RGBA is
+      one complex128, 16 bytes), so -max is the table's first colour, 0 its middle, +max its last;
+    * ``wire_points`` (2E, 3): ``(q[v], 0)`` for each end of ``edge_flat``, when ``wireframe``.
+
+    Bit for bit the NumPy gathers the encoder used before (twin: ``test/naive.py``); compiled ``nogil``, so the
+    marker thread holds the GIL only to copy the bytes out. ``strain`` must be finite (the node checks ``q``).
+    """
+    top = lut.shape[0] - 1
+    for k in range(tri_flat.shape[0]):
+        v = tri_flat[k]
+        tri_points[k, 0] = q[v, 0]
+        tri_points[k, 1] = q[v, 1]
+        tri_points[k, 2] = 0.0
+        c = ((strain[v] / strain_color_max) * 0.5 + 0.5) * top
+        c = min(max(c, 0.0), float(top))
+        tri_rgba[k] = lut[int(c)]
+    if wireframe:
+        for k in range(edge_flat.shape[0]):
+            v = edge_flat[k]
+            wire_points[k, 0] = q[v, 0]
+            wire_points[k, 1] = q[v, 1]
+            wire_points[k, 2] = 0.0
 
 
 def vertex_strain(model: Model, x: np.ndarray, absolute: bool = False) -> np.ndarray:
@@ -85,4 +147,4 @@ def vertex_strain(model: Model, x: np.ndarray, absolute: bool = False) -> np.nda
     return VertexStrain.of(model)(x, absolute=absolute)
 
 
-__all__ = ["edge_strain", "VertexStrain", "vertex_strain"]
+__all__ = ["edge_strain", "VertexStrain", "vertex_strain", "vertex_strain_kernel", "strain_mesh_arrays"]

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from ..core.stamps import Stamp
-from ..core.strain import VertexStrain
+from ..core.strain import VertexStrain, strain_mesh_arrays
 from ..core.tool import rounded_box_outline as tool_outline  # the outline the pictures draw too
 
 #: CDR little-endian encapsulation header (representation id 0x0001, options 0).
@@ -122,9 +122,9 @@ class CdrWriter:
         self.u32(count)
         if count:
             self._align(align)
-            data = np.ascontiguousarray(array).tobytes()
+            data = np.ascontiguousarray(array)  # its buffer goes straight into getvalue's join: one copy, not two
             self._chunks.append(data)
-            self._pos += len(data)
+            self._pos += data.nbytes
 
     def header(self, stamp: Stamp, frame_id: str) -> None:
         """std_msgs/Header: builtin_interfaces/Time stamp, string frame_id."""
@@ -556,7 +556,6 @@ class SceneEncoder:
         self.edge_flat = np.ascontiguousarray(self.edges.ravel())
         self.tri_points = np.zeros((3 * len(self.tri), 3), dtype="<f8")
         self.wire_points = np.zeros((2 * len(self.edges), 3), dtype="<f8")
-        self._q3 = np.zeros((n, 3), dtype="<f8")  # particle positions with z = 0, gathered straight into points
         # one RGBA (4 float32 = 16 bytes) viewed as one complex128, so colours gather as single elements
         self._tri_rgba = np.empty(3 * len(self.tri), dtype=np.complex128)
         # markers() gathers into the buffers above; the marker worker and the step thread (a state published
@@ -618,17 +617,16 @@ class SceneEncoder:
     def _markers(self, stamp: Stamp, frame_id: str, q: np.ndarray, strain: np.ndarray,
                  tool_pose: tuple[float, float, float] | None, tool_stamp: Stamp | None,
                  contact_particles: np.ndarray | None) -> bytes:
-        self._q3[:, :2] = q
         tri = self.tri_points
-        np.take(self._q3, self.tri_flat, axis=0, out=tri)
-        idx = np.clip(((strain / self.strain_color_max) * 0.5 + 0.5) * (len(self.lut) - 1), 0, len(self.lut) - 1)
-        np.take(np.take(self._lut16, idx.astype(np.int64)), self.tri_flat, out=self._tri_rgba)
+        # one compiled, GIL-free gather (core/strain.py): the step thread runs while the marker thread fills these
+        strain_mesh_arrays(np.ascontiguousarray(q, dtype=np.float64), self.tri_flat, self.edge_flat,
+                           np.ascontiguousarray(strain, dtype=np.float64), float(self.strain_color_max), self._lut16,
+                           tri, self._tri_rgba, self.wire_points, bool(self.wireframe))
         colors = self._tri_rgba.view(np.float32).reshape(-1, 4)
         specs = [self._tool_marker(stamp if tool_stamp is None else tool_stamp, frame_id, tool_pose),
                  MarkerSpec("tissue", 0, MARKER_TRIANGLE_LIST, stamp, frame_id, points=tri, colors=colors)]
         if self.wireframe:
             wire = self.wire_points
-            np.take(self._q3, self.edge_flat, axis=0, out=wire)
             specs.append(MarkerSpec("wireframe", 0, MARKER_LINE_LIST, stamp, frame_id, position=(0.0, 0.0, 0.001),
                                     scale=(self.wire_width, 0.0, 0.0), color=(0.1, 0.1, 0.1, 0.6), points=wire))
         if contact_particles is not None and len(contact_particles):
