@@ -8,7 +8,9 @@ a reset); a lock-step node in another namespace runs beside it.
 from __future__ import annotations
 
 import math
+import os
 import signal
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -243,6 +245,8 @@ def test_pause_stops_stepping_and_reset_restores_rest_mesh(node: Node, scene_fil
     # as msg_docs/services.md says: the simulation restarts at step 0, t = 0; the node's counters are kept
     diag = node.fresh_diag()
     assert float(diag["sim_time_s"]) == 0.0 and int(diag["steps"]) == steps, diag
+    if sys.platform.startswith("linux"):  # the marker thread yields to the step thread (marker_nice, default +10)
+        assert int(diag["marker_thread_niceness"]) == min(os.getpriority(os.PRIO_PROCESS, node.proc.proc.pid) + 10, 19)
     assert node.diagnostics[-1].header.frame_id == "world"  # the node's frame_id, not empty
     assert node.pause(False).success
     node.client.spin_until(lambda: len(node.energy.messages) > count + 5, TIMEOUT, node.proc, "steps after unpause")

@@ -96,6 +96,10 @@ def _nice(v: Any) -> str | None:
     return None if 0 <= v <= 19 else "a niceness increment in [0, 19]"
 
 
+def _nice(v: Any) -> str | None:
+    return None if 0 <= v <= 19 else "a niceness increment from 0 to 19"
+
+
 def _one_of(options: tuple[str, ...]) -> Check:
     return lambda v: None if v in options else f"one of {', '.join(options)}"
 
@@ -330,6 +334,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("paused", bool, False, "", "true: no steps (also set by the ~/pause service).", False, "node"),
     ParamSpec("follow_clock", bool, True, "", "Timer mode without use_sim_time: while a /clock publisher exists (tissue-sim play publishes the bag's time), use it (use_sim_time on); back to the system clock 1 s after it goes.", True, "node"),
     ParamSpec("marker_rate", float, 30.0, "Hz", "Rate of tissue/markers, a display rate (RViz redraws at ~30 Hz); capped at 1/dt (every round(1/(dt*rate)) steps). Encoded and published off the step thread, newest state only.", False, "node", _positive),
+    ParamSpec("marker_nice", int, 10, "", "Niceness added to the marker thread alone (Linux schedules threads; 0 = as the step thread, up to 19). With the cores shared, the scheduler then runs the step thread first and the markers, a display, take what is left; raising it needs no privileges.", True, "node", _nice),
     ParamSpec("points_rate", float, 100.0, "Hz", "Rate of tissue/points; capped at 1/dt (default: every step).", False, "node", _positive),
     ParamSpec("diagnostics_rate", float, 1.0, "Hz", "Rate of /diagnostics.", False, "node", _positive),
     ParamSpec("markers_wireframe", bool, True, "", "Include the wireframe LINE_LIST in tissue/markers.", False, "node"),

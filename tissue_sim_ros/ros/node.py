@@ -163,7 +163,8 @@ class TissueSimNode(Node):
         # markers are encoded and published on their own thread: the step thread never waits for 1 MB of DDS
         self.marker_worker = MarkerPublisher(
             lambda data: self.pub_markers.publish(data),
-            on_error=lambda exc: self._warn("markers", f"tissue/markers not published: {exc}"))
+            on_error=lambda exc: self._warn("markers", f"tissue/markers not published: {exc}"),
+            nice=self._values["marker_nice"])
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         self.planner = PlannerService(self)  # ~/plan_insertion, on its own thread
@@ -659,6 +660,7 @@ class TissueSimNode(Node):
             "markers_published": w.published,
             "markers_skipped": w.skipped,
             "marker_encode_ms_mean": 1e3 * w.encode_seconds / max(w.published + w.errors, 1),
+            "marker_thread_niceness": "unknown" if w.niceness is None else w.niceness,
             "heap_trims": self.heap_trimmer.trims,
             "heap_trim_ms_max": 1e3 * self.heap_trimmer.seconds_max,
             **self._phase_lock_values(),

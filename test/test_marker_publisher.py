@@ -1,0 +1,75 @@
+"""The marker worker: newest state only, never blocking the submitter, and at a lower priority."""
+from __future__ import annotations
+
+import os
+import sys
+import threading
+
+import pytest
+
+from tissue_sim_ros.ros.marker_publisher import MarkerPublisher
+
+
+class _Snap:
+    """Stands in for a MarkerSnapshot: encode() returns its label, optionally waiting for a gate."""
+
+    def __init__(self, label: bytes, gate: threading.Event | None = None) -> None:
+        self.label, self.gate = label, gate
+
+    def encode(self) -> bytes:
+        if self.gate is not None:
+            assert self.gate.wait(5.0)
+        return self.label
+
+
+def test_newest_state_replaces_the_waiting_one() -> None:
+    out: list[bytes] = []
+    gate = threading.Event()
+    w = MarkerPublisher(out.append)
+    try:
+        w.submit(_Snap(b"first", gate))  # the worker takes it and waits at the gate
+        assert not w.flush(0.2)
+        for k in range(5):  # these queue behind it: only the newest survives
+            w.submit(_Snap(b"s%d" % k))
+        gate.set()
+        assert w.flush(5.0)
+    finally:
+        w.close()
+    assert out == [b"first", b"s4"]
+    assert (w.submitted, w.published, w.skipped, w.errors) == (6, 2, 4, 0)
+
+
+def test_a_failing_encode_is_counted_and_the_worker_goes_on() -> None:
+    out: list[bytes] = []
+    errors: list[BaseException] = []
+
+    class _Bad:
+        def encode(self) -> bytes:
+            raise ValueError("bad snapshot")
+
+    w = MarkerPublisher(out.append, on_error=errors.append)
+    try:
+        w.submit(_Bad())
+        assert w.flush(5.0)
+        w.submit(_Snap(b"good"))
+        assert w.flush(5.0)
+    finally:
+        w.close()
+    assert out == [b"good"] and w.errors == 1 and "bad snapshot" in str(errors[0])
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread niceness is Linux's")
+@pytest.mark.parametrize("nice", [0, 7])
+def test_the_worker_thread_alone_runs_at_the_added_niceness(nice: int) -> None:
+    own = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    errors: list[BaseException] = []
+    w = MarkerPublisher(lambda _data: None, on_error=errors.append, nice=nice)
+    try:
+        w.submit(_Snap(b"x"))
+        assert w.flush(5.0)
+    finally:
+        w.close()
+    assert not errors
+    assert w.niceness == min(own + nice, 19)
+    # the caller's thread (the node's step thread) keeps its own
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == own
