@@ -4,6 +4,7 @@ from __future__ import annotations
 import os
 import sys
 import threading
+from typing import Any
 
 import pytest
 
@@ -73,3 +74,33 @@ def test_the_worker_thread_alone_runs_at_the_added_niceness(nice: int) -> None:
     assert w.niceness == min(own + nice, 19)
     # the caller's thread (the node's step thread) keeps its own
     assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == own
+
+
+# ----------------------------------------------------------------------------- GIL-free publishing (raw_publish.py)
+
+def test_gil_free_publisher_delivers_the_same_bytes(ros_client: Any) -> None:
+    """The ctypes path hands rcl the caller's bytes: a subscriber receives them unchanged, large and small."""
+    pytest.importorskip("rclpy")
+    from rclpy.serialization import serialize_message  # noqa: PLC0415
+    from visualization_msgs.msg import Marker, MarkerArray  # noqa: PLC0415
+
+    from tissue_sim_ros.ros import qos  # noqa: PLC0415
+    from tissue_sim_ros.ros.raw_publish import GilFreePublisher  # noqa: PLC0415
+
+    profile = qos.state_stream(qos.MARKER_DEPTH)
+    pub = GilFreePublisher(ros_client.node.create_publisher(MarkerArray, "gil_free_markers", profile))
+    assert pub.gil_free, "librcl not found in this process: the node would publish markers holding the GIL"
+    assert pub.topic_name == "/gil_free_markers"  # the rest is the rclpy publisher's
+    sub = ros_client.raw_subscription(MarkerArray, "gil_free_markers", profile)
+    ros_client.wait_for_subscriber(pub, 10.0)
+
+    big = MarkerArray(markers=[Marker(id=k, ns="big") for k in range(4000)])  # ~ 0.5 MB
+    sent = [serialize_message(MarkerArray(markers=[Marker(id=7, ns="tissue")])), serialize_message(big)]
+    for data in sent:
+        pub.publish(data)
+    ros_client.spin_until(lambda: len(sub.messages) >= 2, 10.0, what="the two arrays")
+    assert [bytes(m) for m in sub.messages[:2]] == sent
+    # a message object goes through rclpy's publish unchanged
+    pub.publish(MarkerArray(markers=[Marker(id=3)]))
+    ros_client.spin_until(lambda: len(sub.messages) >= 3, 10.0, what="the message object")
+    assert bytes(sub.messages[2]) == serialize_message(MarkerArray(markers=[Marker(id=3)]))

@@ -247,6 +247,7 @@ def test_pause_stops_stepping_and_reset_restores_rest_mesh(node: Node, scene_fil
     assert float(diag["sim_time_s"]) == 0.0 and int(diag["steps"]) == steps, diag
     if sys.platform.startswith("linux"):  # the marker thread yields to the step thread (marker_nice, default +10)
         assert int(diag["marker_thread_niceness"]) == min(os.getpriority(os.PRIO_PROCESS, node.proc.proc.pid) + 10, 19)
+    assert diag["markers_gil_free"] == "true"
     assert node.diagnostics[-1].header.frame_id == "world"  # the node's frame_id, not empty
     assert node.pause(False).success
     node.client.spin_until(lambda: len(node.energy.messages) > count + 5, TIMEOUT, node.proc, "steps after unpause")

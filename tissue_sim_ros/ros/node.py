@@ -57,6 +57,7 @@ from .marker_publisher import MarkerPublisher, MarkerSnapshot
 from .node_recording import NodeRecorder
 from .parameters import BY_NAME, PARAMETERS, SIM_NAMES, descriptor, parameter_value
 from .planner_service import PlannerService
+from .raw_publish import GilFreePublisher
 from .tf_input import FrameInput
 
 _TAKE_MAX = 10
@@ -137,7 +138,9 @@ class TissueSimNode(Node):
         self._steps_since_markers = 0
         self._encoder = self._make_encoder()
 
-        self.pub_markers = self.create_publisher(MarkerArray, "tissue/markers", qos.state_stream(qos.MARKER_DEPTH))
+        # 1 MB at 5k triangles: published without holding the GIL, so the step thread runs meanwhile (raw_publish.py)
+        self.pub_markers = GilFreePublisher(
+            self.create_publisher(MarkerArray, "tissue/markers", qos.state_stream(qos.MARKER_DEPTH)))
         self.pub_points = self.create_publisher(PointCloud2, "tissue/points", qos.state_stream())
         self.pub_rest = self.create_publisher(MarkerArray, "tissue/rest_mesh", qos.latched())
         self.pub_wrench = self.create_publisher(WrenchStamped, "tool/wrench", qos.state_stream())
@@ -661,6 +664,7 @@ class TissueSimNode(Node):
             "markers_skipped": w.skipped,
             "marker_encode_ms_mean": 1e3 * w.encode_seconds / max(w.published + w.errors, 1),
             "marker_thread_niceness": "unknown" if w.niceness is None else w.niceness,
+            "markers_gil_free": getattr(self.pub_markers, "gil_free", False),
             "heap_trims": self.heap_trimmer.trims,
             "heap_trim_ms_max": 1e3 * self.heap_trimmer.seconds_max,
             **self._phase_lock_values(),
