@@ -248,6 +248,8 @@ def test_pause_stops_stepping_and_reset_restores_rest_mesh(node: Node, scene_fil
     if sys.platform.startswith("linux"):  # the marker thread yields to the step thread (marker_nice, default +10)
         assert int(diag["marker_thread_niceness"]) == min(os.getpriority(os.PRIO_PROCESS, node.proc.proc.pid) + 10, 19)
     assert diag["markers_gil_free"] == "true"
+    if sys.platform.startswith("linux"):  # step_rt_priority: 0 by default
+        assert diag["step_thread_scheduling"] == "SCHED_OTHER"
     assert node.diagnostics[-1].header.frame_id == "world"  # the node's frame_id, not empty
     assert node.pause(False).success
     node.client.spin_until(lambda: len(node.energy.messages) > count + 5, TIMEOUT, node.proc, "steps after unpause")
@@ -599,16 +601,44 @@ def test_bench_node_command_writes_its_table(ros_env: dict[str, str], tmp_path: 
     out = tmp_path / "bench"
     proc = subprocess.run([console_script("tissue-sim"), "bench", "node", "--out", str(out), "--seconds", "1",
                            "--warmup", "0", "--scene", "paper", "--mode", "lock_step",
-                           "--domain-id", ros_env["ROS_DOMAIN_ID"]],
+                           "--set", "step_rt_priority=3", "--domain-id", ros_env["ROS_DOMAIN_ID"]],
                           env=ros_env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "lat_markers_ms_median" in proc.stdout
     rows = (out / "node.csv").read_text().splitlines()
     assert len(rows) == 2 and rows[1].startswith("paper,lock_step,")
+    # --set reached the node, which ran its step thread real-time where this process may (root, CAP_SYS_NICE,
+    # an rtprio limit), and said why not where it may not
+    row = dict(zip(rows[0].split(","), rows[1].split(",")))
+    may = sys.platform.startswith("linux") and _may_use_fifo(3)
+    assert row["step_scheduling"] == ("SCHED_FIFO 3" if may else "SCHED_OTHER"), row
+    if not may and sys.platform.startswith("linux"):
+        assert "step_rt_priority=3 not applied" in (out / "node_paper_lock_step.log").read_text()
     assert (out / "node.png").stat().st_size > 0 and (out / "node_latency_paper_lock_step.csv").exists()
     bad = subprocess.run([console_script("tissue-sim"), "bench", "node", "--seconds", "0"], env=ros_env,
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "--seconds" in bad.stderr and "Traceback" not in bad.stderr
+    bad = subprocess.run([console_script("tissue-sim"), "bench", "node", "--set", "step_rt_priority=100"],
+                         env=ros_env, capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "step_rt_priority=100" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def _may_use_fifo(priority: int) -> bool:
+    """Whether a thread of this process may take SCHED_FIFO at ``priority`` (tried on a throwaway thread)."""
+    import threading  # noqa: PLC0415
+
+    ok: list[bool] = []
+
+    def probe() -> None:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            ok.append(True)
+        except PermissionError:
+            ok.append(False)
+    t = threading.Thread(target=probe)
+    t.start()
+    t.join()
+    return ok[0]
 
 
 @pytest.mark.parametrize("args, expected", [

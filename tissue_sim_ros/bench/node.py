@@ -40,6 +40,11 @@ Targets (issues 5, 13): 100 Hz held, < 1 % missed deadlines, pose -> points
 latency (median; the 95th percentile is reported too) < one period + 2 ms. Writes ``node.csv`` (one row per
 scene), ``node_latency_<scene>.csv`` (every pose), ``node.png`` and prints a table.
 
+``--set NAME=VALUE`` (repeatable): a node parameter for every run, checked as
+the node checks it, to compare settings side by side (e.g.
+``step_rt_priority=50`` against the default 0); the CSV's ``step_scheduling``
+is the policy the node's step thread actually ran under (``/diagnostics``).
+
 ``--soak SECONDS``: one long timer-mode run of one scene (default 5k) with
 markers, sampling the node's resident memory (``/proc/PID/status`` VmRSS) and
 its counters every few seconds; reports RSS growth from the end of the warm-up
@@ -115,6 +120,8 @@ class SceneResult:
     markers_skipped: int = 0
     marker_rate: float = 0.0
     marker_ms_mean: float = 0.0
+    step_scheduling: str = ""
+    """The node's step thread's scheduling policy, from /diagnostics (``--set step_rt_priority=N``)."""
     soak: list[dict[str, Any]] = field(default_factory=list)
     latency_rows: list[list[str]] = field(default_factory=list)
     """Per pose: its stamp [s], markers and points latency [ms] (written to node_latency_*.csv)."""
@@ -147,6 +154,7 @@ class SceneResult:
             "poses_sent": self.poses_sent, "poses_shown": self.poses_shown, "divergences": self.divergences,
             "rate_ok": self.rate_hz >= 0.99 / dt, "missed_ok": self.missed_fraction < 0.01,
             "latency_ok": float(np.median(lp)) < budget,
+            "step_scheduling": self.step_scheduling,
         }
 
 
@@ -191,6 +199,32 @@ def _rss_kib(pid: int) -> int:
         if line.startswith("VmRSS:"):
             return int(line.split()[1])
     raise InputError(f"no VmRSS for process {pid}")
+
+
+def _memory_parts_kib(pid: int, proc: Path = Path("/proc")) -> dict[str, int]:
+    """Where the resident memory is [KiB]: anonymous and file-backed (``/proc/PID/status``), and glibc's
+    main heap (the ``[heap]`` mapping in ``/proc/PID/smaps``); -1 where not readable.
+
+    A soak's growth that lands in ``[heap]`` is Python's and glibc's small allocations; anonymous memory
+    outside it is mmap'd: thread arenas, numba/LLVM, DDS's pools.
+    """
+    parts = {"rss_anon_kib": -1, "rss_file_kib": -1, "heap_kib": -1}
+    try:
+        for line in (proc / str(pid) / "status").read_text().splitlines():
+            if line.startswith("RssAnon:"):
+                parts["rss_anon_kib"] = int(line.split()[1])
+            elif line.startswith("RssFile:"):
+                parts["rss_file_kib"] = int(line.split()[1])
+        in_heap = False
+        for line in (proc / str(pid) / "smaps").read_text().splitlines():
+            if line[:1] in "0123456789abcdef" and "-" in line.split(" ", 1)[0]:
+                in_heap = line.rstrip().endswith("[heap]")
+            elif in_heap and line.startswith("Rss:"):
+                parts["heap_kib"] = int(line.split()[1])
+                in_heap = False
+    except (OSError, ValueError):
+        pass
+    return parts
 
 
 #: Seconds between memory samples of a soak.
@@ -462,7 +496,7 @@ def _tick_phase(stamps_ns: np.ndarray, period_ns: int) -> int:
 
 
 def _soak_row(t: float, pid: int, d0: dict[str, str], d: dict[str, str]) -> dict[str, Any]:
-    return {"t_s": round(t, 2), "rss_kib": _rss_kib(pid),
+    return {"t_s": round(t, 2), "rss_kib": _rss_kib(pid), **_memory_parts_kib(pid),
             "steps": int(d["steps"]) - int(d0["steps"]),
             "overruns": int(d["overruns"]) - int(d0["overruns"]),
             "missed_ticks": int(d["missed_ticks"]) - int(d0["missed_ticks"]),
@@ -490,6 +524,7 @@ def _fill(result: SceneResult, d0: dict[str, str], d1: dict[str, str], seconds: 
     result.phase_shifts = int(d1.get("phase_shifts", 0)) - int(d0.get("phase_shifts", 0))
     result.step_time_mean_ms = float(d1["step_time_mean_ms"])
     result.sim_step_ms_mean = float(d1["sim_step_ms_mean"])
+    result.step_scheduling = d1.get("step_thread_scheduling", "")
     result.step_time_max_ms = max(float(d["step_time_max_ms"]) for d in (d1,))
     result.marker_bytes, result.points_bytes = sizes["markers"], sizes["points"]
     result.markers_received, result.points_received = counts["markers"], counts["points"]
@@ -598,6 +633,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--phase-lock", choices=("both", "on", "off"), default="both",
                         help="timer mode: the node's phase_lock on, off, or both: at each phase off then on, from "
                              "the same starting phase, in one node process (the soak: on unless off)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="a node parameter for every run (repeatable; checked as the node checks it), e.g. "
+                             "step_rt_priority=50 or marker_nice=0 to compare settings side by side; the benchmark's "
+                             "own (points_rate, markers_wireframe, diagnostics_rate, max_tool_jump, lock_step, "
+                             "phase_lock, and marker_rate with --marker-rate) win")
     parser.add_argument("--soak", type=float, default=None, metavar="SECONDS",
                         help="one long timer-mode run instead (scene 5k unless --scene): RSS growth and overruns")
 
@@ -612,7 +652,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--domain-id={domain_id}: expected 0..101")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from ..core.config import resolve_config  # noqa: PLC0415
+    from ..core.config import parse_assignments, resolve_config  # noqa: PLC0415
 
     dt = resolve_config().sim.dt
     if args.marker_rate is not None and not (math.isfinite(args.marker_rate) and args.marker_rate > 0):
@@ -621,6 +661,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--phases={args.phases}: expected 0..100")
     if not (math.isfinite(args.settle) and args.settle >= 0):
         raise InputError(f"--settle={args.settle}: expected a time >= 0 s")
+    node_params = parse_assignments(getattr(args, "set", None) or [])
+    resolve_config(node_params, source="--set")  # a bad name or value: one line, exit 2, before any node starts
+    args.scene_overrides = {name: {**SCENES[name], **node_params} for name in SCENES}
     if args.soak is not None:
         return _run_soak(args, out, domain_id)
     locks = {"both": (False, True), "on": (True,), "off": (False,)}[args.phase_lock]
@@ -628,7 +671,7 @@ def run(args: argparse.Namespace) -> int:
     results: list[SceneResult] = []
     for name in args.scene or list(SCENES):
         for mode in args.mode or list(MODES):
-            results += bench_scene(name, SCENES[name], args.seconds, args.warmup, out, domain_id, mode,
+            results += bench_scene(name, args.scene_overrides[name], args.seconds, args.warmup, out, domain_id, mode,
                                    marker_rate=args.marker_rate, phase_locks=locks,
                                    phases=args.phases if mode == "timer" else 0, settle=args.settle)
     load.append(os.getloadavg()[0])
@@ -665,7 +708,8 @@ def run(args: argparse.Namespace) -> int:
         waits = (f"; the node's own pose-to-tick wait {np.nanmin(wait):.1f}-{np.nanmax(wait):.1f} ms"
                  if not all(map(math.isnan, wait)) else "")
         print(f"{_label(key)}: {verdict}; {shown}/{sent} poses shown, {sum(r.divergences for r in rs)} divergences, "
-              f"{sum(r.phase_shifts for r in rs)} phase shifts while measuring{waits}")
+              f"{sum(r.phase_shifts for r in rs)} phase shifts while measuring{waits}"
+              + (f"; step thread {rs[-1].step_scheduling}" if rs[-1].step_scheduling else ""))
     print(f"wrote {out / 'node.csv'}, {out / 'node.png'}, node_latency_*.csv")
     return 0
 
@@ -678,7 +722,7 @@ def _run_soak(args: argparse.Namespace, out: Path, domain_id: int) -> int:
     modes = args.mode or ["timer"]
     if len(scenes) != 1 or len(modes) != 1:
         raise InputError("--soak runs one scene in one mode: give at most one --scene and one --mode")
-    r = bench_scene(scenes[0], SCENES[scenes[0]], args.soak, max(args.warmup, 5.0), out, domain_id, modes[0],
+    r = bench_scene(scenes[0], args.scene_overrides[scenes[0]], args.soak, max(args.warmup, 5.0), out, domain_id, modes[0],
                     marker_rate=args.marker_rate, soak=True, phase_locks=(args.phase_lock != "off",))[0]
     rows = r.soak
     with open(out / "node_soak.csv", "w", newline="") as f:

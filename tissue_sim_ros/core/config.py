@@ -93,11 +93,11 @@ def _at_least_one(v: Any) -> str | None:
 
 
 def _nice(v: Any) -> str | None:
-    return None if 0 <= v <= 19 else "a niceness increment in [0, 19]"
-
-
-def _nice(v: Any) -> str | None:
     return None if 0 <= v <= 19 else "a niceness increment from 0 to 19"
+
+
+def _rt_priority(v: Any) -> str | None:
+    return None if 0 <= v <= 99 else "0 (normal scheduling) or a SCHED_FIFO priority from 1 to 99"
 
 
 def _one_of(options: tuple[str, ...]) -> Check:
@@ -118,10 +118,6 @@ def mesh_file_value(value: Any) -> str | tuple[str, ...]:
     if isinstance(value, (list, tuple)) and value and all(isinstance(v, str) and v for v in value):
         return value[0] if len(value) == 1 else tuple(value)
     raise InputError(f"parameter mesh_file={value!r}: expected a mesh file path or a list of paths")
-
-
-def _finite(v: Any) -> str | None:
-    return None  # coerce() refuses NaN and inf for every parameter with a check
 
 
 def _frame_or_empty(v: Any) -> str | None:
@@ -335,6 +331,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("follow_clock", bool, True, "", "Timer mode without use_sim_time: while a /clock publisher exists (tissue-sim play publishes the bag's time), use it (use_sim_time on); back to the system clock 1 s after it goes.", True, "node"),
     ParamSpec("marker_rate", float, 30.0, "Hz", "Rate of tissue/markers, a display rate (RViz redraws at ~30 Hz); capped at 1/dt (every round(1/(dt*rate)) steps). Encoded and published off the step thread, newest state only.", False, "node", _positive),
     ParamSpec("marker_nice", int, 10, "", "Niceness added to the marker thread alone (Linux schedules threads; 0 = as the step thread, up to 19). With the cores shared, the scheduler then runs the step thread first and the markers, a display, take what is left; raising it needs no privileges.", True, "node", _nice),
+    ParamSpec("step_rt_priority", int, 0, "", "SCHED_FIFO priority of the node's step thread (the executor that steps, takes the poses and serves ~/reset, ~/pause, ...) on Linux; 0 = normal scheduling. A real-time thread runs before every normal one, so a busy machine does not delay the step (the marker, planner and DDS threads stay normal; threads and processes it starts do not inherit it). Needs CAP_SYS_NICE or an rtprio limit (/etc/security/limits.conf, as for ros2_control); refused, the node logs one line and runs as before. /diagnostics: step_thread_scheduling.", True, "node", _rt_priority),
     ParamSpec("points_rate", float, 100.0, "Hz", "Rate of tissue/points; capped at 1/dt (default: every step).", False, "node", _positive),
     ParamSpec("diagnostics_rate", float, 1.0, "Hz", "Rate of /diagnostics.", False, "node", _positive),
     ParamSpec("markers_wireframe", bool, True, "", "Include the wireframe LINE_LIST in tissue/markers.", False, "node"),

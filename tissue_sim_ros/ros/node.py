@@ -58,6 +58,7 @@ from .node_recording import NodeRecorder
 from .parameters import BY_NAME, PARAMETERS, SIM_NAMES, descriptor, parameter_value
 from .planner_service import PlannerService
 from .raw_publish import GilFreePublisher
+from .realtime import set_step_priority, thread_scheduling
 from .tf_input import FrameInput
 
 _TAKE_MAX = 10
@@ -664,6 +665,7 @@ class TissueSimNode(Node):
             "markers_skipped": w.skipped,
             "marker_encode_ms_mean": 1e3 * w.encode_seconds / max(w.published + w.errors, 1),
             "marker_thread_niceness": "unknown" if w.niceness is None else w.niceness,
+            "step_thread_scheduling": thread_scheduling(),  # this timer runs on the step thread
             "markers_gil_free": getattr(self.pub_markers, "gil_free", False),
             "heap_trims": self.heap_trimmer.trims,
             "heap_trim_ms_max": 1e3 * self.heap_trimmer.seconds_max,
@@ -864,6 +866,10 @@ def main(args: list[str] | None = None) -> int:
         # waking step within 0.5 ms instead of Python's default 5 ms
         sys.setswitchinterval(_SWITCH_INTERVAL)
         _fix_mmap_threshold()
+        # this thread spins the executor: steps, poses and services run on it
+        refused = set_step_priority(node.get_parameter("step_rt_priority").value)
+        if refused is not None:
+            node.get_logger().warning(refused)
         rclpy.spin(node)
     except InputError as exc:
         print(f"tissue_sim_node: error: {exc}", file=sys.stderr)

@@ -1,0 +1,50 @@
+"""Pieces of `tissue-sim bench node` that need no ROS graph (the command itself: test_ros_node)."""
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+from tissue_sim_ros.bench.node import _memory_parts_kib, _rss_kib
+
+SMAPS = """\
+55d0c0000000-55d0c0021000 r--p 00000000 08:01 1234  /usr/bin/python3.11
+Size:                132 kB
+Rss:                 128 kB
+55d0c1000000-55d0c5000000 rw-p 00000000 00:00 0     [heap]
+Size:              65536 kB
+KernelPageSize:        4 kB
+Rss:               41000 kB
+Pss:               41000 kB
+7f0000000000-7f0004000000 rw-p 00000000 00:00 0
+Size:              65536 kB
+Rss:               12000 kB
+7ffd00000000-7ffd00021000 rw-p 00000000 00:00 0     [stack]
+Rss:                  64 kB
+"""
+
+STATUS = "Name:\tpython3\nVmRSS:\t  245000 kB\nRssAnon:\t  107000 kB\nRssFile:\t  137000 kB\nRssShmem:\t    1000 kB\n"
+
+
+def test_memory_parts_read_the_heap_mapping_alone(tmp_path: Path) -> None:
+    """RssAnon and RssFile from status; the [heap] mapping's Rss, not the arena beside it nor the stack."""
+    (tmp_path / "42").mkdir()
+    (tmp_path / "42" / "status").write_text(STATUS)
+    (tmp_path / "42" / "smaps").write_text(SMAPS)
+    assert _memory_parts_kib(42, tmp_path) == {"rss_anon_kib": 107000, "rss_file_kib": 137000, "heap_kib": 41000}
+
+
+def test_an_unreadable_process_gives_minus_one_not_an_error(tmp_path: Path) -> None:
+    assert _memory_parts_kib(42, tmp_path) == {"rss_anon_kib": -1, "rss_file_kib": -1, "heap_kib": -1}
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc")
+def test_memory_parts_of_this_process_add_up_to_its_resident_set() -> None:
+    pid = os.getpid()
+    parts = _memory_parts_kib(pid)
+    assert min(parts.values()) > 0, parts
+    # VmRSS = RssAnon + RssFile + RssShmem (read a moment apart: a little slack); the [heap] is anonymous
+    assert parts["rss_anon_kib"] + parts["rss_file_kib"] <= _rss_kib(pid) + 1024
+    assert parts["heap_kib"] <= parts["rss_anon_kib"]
