@@ -29,6 +29,7 @@ from rclpy.time import Time  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 from std_srvs.srv import SetBool, Trigger  # noqa: E402
+from test_realtime import may_use_fifo  # noqa: E402  (one probe for both test files)
 from visualization_msgs.msg import MarkerArray  # noqa: E402
 
 from tissue_sim_ros.core.mesh import mesh_rectangle  # noqa: E402
@@ -601,7 +602,7 @@ def test_bench_node_command_writes_its_table(ros_env: dict[str, str], tmp_path: 
     out = tmp_path / "bench"
     proc = subprocess.run([console_script("tissue-sim"), "bench", "node", "--out", str(out), "--seconds", "1",
                            "--warmup", "0", "--scene", "paper", "--mode", "lock_step",
-                           "--set", "step_rt_priority=3", "--domain-id", ros_env["ROS_DOMAIN_ID"]],
+                           "--set", "step_rt_priority=3"],  # its own free domain: not the module's node's
                           env=ros_env, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "lat_markers_ms_median" in proc.stdout
@@ -610,7 +611,7 @@ def test_bench_node_command_writes_its_table(ros_env: dict[str, str], tmp_path: 
     # --set reached the node, which ran its step thread real-time where this process may (root, CAP_SYS_NICE,
     # an rtprio limit), and said why not where it may not
     row = dict(zip(rows[0].split(","), rows[1].split(",")))
-    may = sys.platform.startswith("linux") and _may_use_fifo(3)
+    may = sys.platform.startswith("linux") and may_use_fifo(3)
     assert row["step_scheduling"] == ("SCHED_FIFO 3" if may else "SCHED_OTHER"), row
     if not may and sys.platform.startswith("linux"):
         assert "step_rt_priority=3 not applied" in (out / "node_paper_lock_step.log").read_text()
@@ -622,23 +623,6 @@ def test_bench_node_command_writes_its_table(ros_env: dict[str, str], tmp_path: 
                          env=ros_env, capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "step_rt_priority=100" in bad.stderr and "Traceback" not in bad.stderr
 
-
-def _may_use_fifo(priority: int) -> bool:
-    """Whether a thread of this process may take SCHED_FIFO at ``priority`` (tried on a throwaway thread)."""
-    import threading  # noqa: PLC0415
-
-    ok: list[bool] = []
-
-    def probe() -> None:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-            ok.append(True)
-        except PermissionError:
-            ok.append(False)
-    t = threading.Thread(target=probe)
-    t.start()
-    t.join()
-    return ok[0]
 
 
 @pytest.mark.parametrize("args, expected", [
