@@ -25,7 +25,9 @@ def _in_thread(fn: Any) -> Any:
     return out[0]
 
 
-def _may_raise_to(priority: int) -> bool:
+def may_use_fifo(priority: int) -> bool:
+    """Whether a thread of this process may take SCHED_FIFO at ``priority`` (tried on a throwaway thread)."""
+
     def probe() -> bool:
         try:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
@@ -42,7 +44,7 @@ def test_zero_leaves_the_thread_as_it_was() -> None:
 
 @linux
 def test_a_granted_priority_is_the_callers_alone_and_not_inherited() -> None:
-    if not _may_raise_to(7):
+    if not may_use_fifo(7):
         pytest.skip("this process may not use SCHED_FIFO (no CAP_SYS_NICE, rtprio limit 0): the refusal is tested below")
 
     def in_step_thread() -> tuple[Any, str, str]:

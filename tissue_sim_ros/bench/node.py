@@ -661,17 +661,16 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--phases={args.phases}: expected 0..100")
     if not (math.isfinite(args.settle) and args.settle >= 0):
         raise InputError(f"--settle={args.settle}: expected a time >= 0 s")
-    node_params = parse_assignments(getattr(args, "set", None) or [])
+    node_params = parse_assignments(args.set)
     resolve_config(node_params, source="--set")  # a bad name or value: one line, exit 2, before any node starts
-    args.scene_overrides = {name: {**SCENES[name], **node_params} for name in SCENES}
     if args.soak is not None:
-        return _run_soak(args, out, domain_id)
+        return _run_soak(args, out, domain_id, node_params)
     locks = {"both": (False, True), "on": (True,), "off": (False,)}[args.phase_lock]
     load = [os.getloadavg()[0]]
     results: list[SceneResult] = []
     for name in args.scene or list(SCENES):
         for mode in args.mode or list(MODES):
-            results += bench_scene(name, args.scene_overrides[name], args.seconds, args.warmup, out, domain_id, mode,
+            results += bench_scene(name, {**SCENES[name], **node_params}, args.seconds, args.warmup, out, domain_id, mode,
                                    marker_rate=args.marker_rate, phase_locks=locks,
                                    phases=args.phases if mode == "timer" else 0, settle=args.settle)
     load.append(os.getloadavg()[0])
@@ -714,7 +713,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_soak(args: argparse.Namespace, out: Path, domain_id: int) -> int:
+def _run_soak(args: argparse.Namespace, out: Path, domain_id: int, node_params: dict[str, Any]) -> int:
     """``--soak SECONDS``: one long run; RSS samples and counters to node_soak.csv/png and a summary."""
     if not (math.isfinite(args.soak) and args.soak >= 2 * SOAK_SAMPLE_PERIOD):
         raise InputError(f"--soak={args.soak}: expected at least {2 * SOAK_SAMPLE_PERIOD:g} s")
@@ -722,7 +721,7 @@ def _run_soak(args: argparse.Namespace, out: Path, domain_id: int) -> int:
     modes = args.mode or ["timer"]
     if len(scenes) != 1 or len(modes) != 1:
         raise InputError("--soak runs one scene in one mode: give at most one --scene and one --mode")
-    r = bench_scene(scenes[0], args.scene_overrides[scenes[0]], args.soak, max(args.warmup, 5.0), out, domain_id, modes[0],
+    r = bench_scene(scenes[0], {**SCENES[scenes[0]], **node_params}, args.soak, max(args.warmup, 5.0), out, domain_id, modes[0],
                     marker_rate=args.marker_rate, soak=True, phase_locks=(args.phase_lock != "off",))[0]
     rows = r.soak
     with open(out / "node_soak.csv", "w", newline="") as f:

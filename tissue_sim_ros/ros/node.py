@@ -666,7 +666,7 @@ class TissueSimNode(Node):
             "marker_encode_ms_mean": 1e3 * w.encode_seconds / max(w.published + w.errors, 1),
             "marker_thread_niceness": "unknown" if w.niceness is None else w.niceness,
             "step_thread_scheduling": thread_scheduling(),  # this timer runs on the step thread
-            "markers_gil_free": getattr(self.pub_markers, "gil_free", False),
+            "markers_gil_free": self.pub_markers.gil_free,
             "heap_trims": self.heap_trimmer.trims,
             "heap_trim_ms_max": 1e3 * self.heap_trimmer.seconds_max,
             **self._phase_lock_values(),

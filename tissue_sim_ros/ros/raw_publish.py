@@ -26,8 +26,8 @@ use its allocator to publish, so it is left zeroed.
 from __future__ import annotations
 
 import ctypes
+import functools
 import re
-import threading
 from pathlib import Path
 from typing import Any
 
@@ -43,11 +43,6 @@ class _SerializedMessage(ctypes.Structure):
                 ("buffer_capacity", ctypes.c_size_t), ("allocator", _Allocator)]
 
 
-_RCL_LOCK = threading.Lock()
-_RCL_FN: Any = None
-_RCL_SEARCHED = False
-
-
 def _loaded_librcl() -> str | None:
     """Path of the librcl.so this process already loaded (through rclpy), from /proc/self/maps."""
     try:
@@ -58,23 +53,19 @@ def _loaded_librcl() -> str | None:
     return found.group(1) if found else None
 
 
+@functools.cache
 def rcl_publish_serialized() -> Any:
-    """ctypes function for ``rcl_publish_serialized_message`` of the loaded librcl, or None."""
-    global _RCL_FN, _RCL_SEARCHED
-    with _RCL_LOCK:
-        if not _RCL_SEARCHED:
-            _RCL_SEARCHED = True
-            path = _loaded_librcl()
-            if path is not None:
-                try:
-                    fn = ctypes.CDLL(path).rcl_publish_serialized_message  # CDLL: the GIL is released per call
-                except (OSError, AttributeError):
-                    fn = None
-                if fn is not None:
-                    fn.argtypes = [ctypes.c_void_p, ctypes.POINTER(_SerializedMessage), ctypes.c_void_p]
-                    fn.restype = ctypes.c_int
-                    _RCL_FN = fn
-        return _RCL_FN
+    """ctypes function for ``rcl_publish_serialized_message`` of the loaded librcl, or None (looked up once)."""
+    path = _loaded_librcl()
+    if path is None:
+        return None
+    try:
+        fn = ctypes.CDLL(path).rcl_publish_serialized_message  # CDLL: the GIL is released per call
+    except (OSError, AttributeError):
+        return None
+    fn.argtypes = [ctypes.c_void_p, ctypes.POINTER(_SerializedMessage), ctypes.c_void_p]
+    fn.restype = ctypes.c_int
+    return fn
 
 
 class GilFreePublisher:
