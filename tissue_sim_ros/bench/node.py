@@ -48,7 +48,11 @@ is the policy the node's step thread actually ran under (``/diagnostics``).
 ``--soak SECONDS``: one long timer-mode run of one scene (default 5k) with
 markers, sampling the node's resident memory (``/proc/PID/status`` VmRSS) and
 its counters every few seconds; reports RSS growth from the end of the warm-up
-and the overruns, writes ``node_soak.csv`` and ``node_soak.png``.
+and the overruns, writes ``node_soak.csv`` and ``node_soak.png``. The warm-up
+first fills the node's reliable histories to their depth: a second reader
+process is stopped for STALL_SECONDS (:mod:`~tissue_sim_ros.bench.stall_reader`:
+Fast DDS keeps each history's high-water mark, 5.4 MB for the 5k scene's
+points, which a run otherwise meets whenever a reader first falls 1 s behind).
 """
 from __future__ import annotations
 
@@ -230,6 +234,34 @@ def _memory_parts_kib(pid: int, proc: Path = Path("/proc")) -> dict[str, int]:
 #: Seconds between memory samples of a soak.
 SOAK_SAMPLE_PERIOD = 5.0
 
+#: Seconds the soak's warm-up keeps its second reader stopped: longer than the deepest reliable history
+#: (100 steps at 100 Hz) lasts, so every history fills to its depth.
+STALL_SECONDS = 3.0
+
+
+def _fill_histories(env: dict[str, str], log: Path, spin_until: Any, spin_for: Any, timeout: float) -> None:
+    """Start :mod:`~tissue_sim_ros.bench.stall_reader`, stop it STALL_SECONDS once it hears every per-step topic,
+    let it go and end it: the node's reliable histories have then held their depth once (see that module)."""
+    import threading  # noqa: PLC0415
+
+    with open(log, "wb") as err:
+        reader = subprocess.Popen([sys.executable, "-m", "tissue_sim_ros.bench.stall_reader", "tissue_sim_node"],
+                                  env=env, stdout=subprocess.PIPE, stderr=err, text=True)
+    line: list[str] = []
+    threading.Thread(target=lambda: line.append(reader.stdout.readline()), daemon=True).start()
+    try:
+        spin_until(lambda: line, timeout, "the stall reader")
+        if not line[0].startswith("ready"):
+            raise InputError(f"the stall reader did not hear the node: {line[0].strip()!r}; see {log}")
+        reader.send_signal(signal.SIGSTOP)
+        try:
+            spin_for(STALL_SECONDS)
+        finally:
+            reader.send_signal(signal.SIGCONT)
+        spin_for(0.5)  # it catches up (acknowledges) before it goes
+    finally:
+        _stop_node(reader)
+
 SEQ_STEP = 1e-9
 """x offset per pose sequence number [m]: identifies the pose in tool/applied_pose."""
 
@@ -361,6 +393,11 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
                 raise InputError(f"timed out after {timeout} s waiting for {what}; see {log_path}")
             executor.spin_once(timeout_sec=0.05)
 
+    def settle_for(seconds_: float) -> None:
+        end = time.monotonic() + seconds_
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.01)
+
     try:
         spin_until(lambda: pose_pub.get_subscription_count() > 0 and node.count_publishers("tissue/markers") > 0,
                    discovery_timeout, "the node's topics")
@@ -368,9 +405,9 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         pose_timer = node.create_timer(dt, publish_pose)  # ROS clock of this process (system time)
         # in lock-step the node publishes only once poses come
         spin_until(lambda: sizes["markers"] > 0 and sizes["points"] > 0, discovery_timeout, "the first markers")
-        end = time.monotonic() + warmup
-        while time.monotonic() < end:
-            executor.spin_once(timeout_sec=0.01)
+        if soak:
+            _fill_histories(env, out / f"stall_reader_{tag}.log", spin_until, settle_for, discovery_timeout)
+        settle_for(warmup)
 
         def place(offset_ns: int) -> None:
             """Move the pose timer so that it fires offset_ns after the node's ticks (one stretched interval)."""
@@ -434,11 +471,6 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
                 soak_rows.append(_soak_row(t1 - t0, proc.pid, d0, d1))
             _fill(result, d0, d1, t1 - t0, params, sizes, counts, markers, points, applied, sent, by_x)
             result.soak = soak_rows
-
-        def settle_for(seconds_: float) -> None:
-            end = time.monotonic() + seconds_
-            while time.monotonic() < end:
-                executor.spin_once(timeout_sec=0.01)
 
         if mode != "timer":
             results.append(SceneResult(name, mode))
@@ -756,7 +788,8 @@ def _run_soak(args: argparse.Namespace, out: Path, domain_id: int, node_params: 
           f"markers at {r.marker_rate:g} Hz ({r.markers_received} received, {r.markers_skipped} skipped by the node)")
     print(f"RSS {rss[0]:.2f} MiB after warm-up -> {rss[-1]:.2f} MiB at the end: growth {growth:+.2f} MiB "
           f"(max {rss.max():.2f} MiB; trend {slope:+.2f} MiB/h); target < 5 MiB: "
-          f"{'met' if growth < 5.0 else 'MISSED'}")
+          f"{'met' if growth < 5.0 else 'MISSED'}; the reliable histories were filled to their depth in the "
+          f"warm-up (a second reader stopped {STALL_SECONDS:g} s)")
     load = np.array([row["load1"] for row in rows], dtype=float)
     print(f"load average (1 min) beside it: median {np.median(load):.2f}, min {load.min():.2f}, max {load.max():.2f}")
     print(f"overruns {r.overruns}, missed ticks {r.missed_ticks} of {r.steps + r.missed_ticks} ticks "
