@@ -48,3 +48,44 @@ def test_memory_parts_of_this_process_add_up_to_its_resident_set() -> None:
     # VmRSS = RssAnon + RssFile + RssShmem (read a moment apart: a little slack); the [heap] is anonymous
     assert parts["rss_anon_kib"] + parts["rss_file_kib"] <= _rss_kib(pid) + 1024
     assert parts["heap_kib"] <= parts["rss_anon_kib"]
+
+
+
+def _running(pid: int) -> bool:
+    """True while ``pid`` exists and is not a zombie (state Z, waiting to be reaped)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (FileNotFoundError, IndexError):
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG")
+@pytest.mark.parametrize("preexec", ["end_with_parent", "None"])
+def test_a_benchmarks_child_ends_when_the_benchmark_is_killed(preexec: str) -> None:
+    """A soak stopped by a signal left its node stepping: its children now get SIGTERM when the benchmark dies
+    (and without end_with_parent the same child outlives it: the test can tell)."""
+    import subprocess  # noqa: PLC0415
+    import time  # noqa: PLC0415
+
+    parent = subprocess.Popen(
+        [sys.executable, "-c", "import subprocess, time\n"
+         "from tissue_sim_ros.bench.node import end_with_parent\n"
+         f"child = subprocess.Popen(['sleep', '30'], preexec_fn={preexec})\n"
+         "print(child.pid, flush=True)\n"
+         "time.sleep(30)\n"], stdout=subprocess.PIPE, text=True)
+    child = -1
+    try:
+        child = int(parent.stdout.readline())
+        assert _running(child)
+        parent.kill()  # SIGKILL: no finally and no handler runs in the benchmark
+        parent.wait(timeout=10)
+        deadline = time.monotonic() + (5.0 if preexec != "None" else 1.0)  # the survivor: watched 1 s
+        while _running(child) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert _running(child) == (preexec == "None")
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+        parent.stdout.close()
+        if _running(child):
+            os.kill(child, 9)

@@ -181,6 +181,21 @@ def _node_command() -> list[str]:
     return [str(script)] if script.exists() else [sys.executable, "-m", "tissue_sim_ros.ros.node"]
 
 
+def end_with_parent() -> None:
+    """``preexec_fn`` of a benchmark's child (Linux): SIGTERM when the benchmark dies, however it dies.
+
+    A soak stopped with SIGTERM (or killed) otherwise left its node stepping on the cores: the
+    benchmark's ``finally`` that stops the node does not run on a signal."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes  # noqa: PLC0415
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 def _stop_node(proc: subprocess.Popen) -> None:
     """End a node process started by a benchmark: SIGTERM (a clean shutdown), SIGKILL after 15 s."""
     if proc.poll() is None:
@@ -246,7 +261,7 @@ def _fill_histories(env: dict[str, str], log: Path, spin_until: Any, spin_for: A
 
     with open(log, "wb") as err:
         reader = subprocess.Popen([sys.executable, "-m", "tissue_sim_ros.bench.stall_reader", "tissue_sim_node"],
-                                  env=env, stdout=subprocess.PIPE, stderr=err, text=True)
+                                  env=env, stdout=subprocess.PIPE, stderr=err, text=True, preexec_fn=end_with_parent)
     line: list[str] = []
     threading.Thread(target=lambda: line.append(reader.stdout.readline()), daemon=True).start()
     try:
@@ -310,7 +325,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
     with open(log_path, "wb") as log:
         proc = subprocess.Popen(_node_command() + ["--ros-args", "--params-file", str(params_file)],
-                                env=env, stdout=log, stderr=subprocess.STDOUT)
+                                env=env, stdout=log, stderr=subprocess.STDOUT, preexec_fn=end_with_parent)
     context = Context()
     rclpy.init(context=context, domain_id=domain_id)
     node = rclpy.create_node("bench_node_client", context=context)

@@ -147,7 +147,7 @@ def bench_node(cfg: Config, seconds: float, out: Path, domain_id: int, workers: 
     from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
 
     from ..ros import qos  # noqa: PLC0415
-    from .node import _isolated_env, _node_command, _stop_node, _write_params  # noqa: PLC0415
+    from .node import _isolated_env, _node_command, _stop_node, _write_params, end_with_parent  # noqa: PLC0415
 
     params = cfg.replace(**{"marker_rate": 100.0, "points_rate": 100.0, "diagnostics_rate": 1.0,
                              "plan_angle_min": -40.0, "plan_angle_max": 35.0, "plan_angle_step": 5.0,
@@ -159,7 +159,7 @@ def bench_node(cfg: Config, seconds: float, out: Path, domain_id: int, workers: 
     env = _isolated_env(domain_id)
     with open(log_path, "wb") as log:
         proc = subprocess.Popen(_node_command() + ["--ros-args", "--params-file", str(params_file)],
-                                env=env, stdout=log, stderr=subprocess.STDOUT)
+                                env=env, stdout=log, stderr=subprocess.STDOUT, preexec_fn=end_with_parent)
     context = Context()
     rclpy.init(context=context, domain_id=domain_id)
     node = rclpy.create_node("bench_plan_client", context=context)
