@@ -32,8 +32,9 @@ def state_stream(depth: int = 100) -> QoSProfile:
 
     A reliable writer resends only what its history still holds: with 2, a recorder
     on a loaded machine lost 4 of 300 point clouds in the demo (load 5), with 10 it
-    lost 12 (load 4). A second of points (31 kB each at 5k triangles: 3 MB at most)
-    costs little and never blocks the step (keep-last); markers (1 MB) keep 2.
+    lost 12 (load 4). A second of points (55 kB each at 5k triangles: 5.5 MB at most, which
+    Fast DDS allocates once a reader first falls that far behind and then keeps: msg_docs/topics.md)
+    never blocks the step (keep-last); markers (1 MB) keep 2.
     """
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
                       reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
