@@ -15,11 +15,16 @@ subscribes (reliable, raw bytes, nothing deserialized) to every topic ``NODE_NAM
 """
 from __future__ import annotations
 
+import signal
 import sys
 import time
 
 #: Topics that carry one message per step (or per marker tick): the reader waits for one of each.
 PER_STEP = ("tissue/points", "tissue/markers", "tool/wrench", "tool/applied_pose", "tissue/energy")
+
+
+def _interrupt(_signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
 
 
 def message_class(type_name: str) -> type:
@@ -32,12 +37,16 @@ def message_class(type_name: str) -> type:
 
 def main(argv: list[str] | None = None) -> int:
     import rclpy  # noqa: PLC0415
-    from rclpy.executors import ExternalShutdownException  # noqa: PLC0415
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: PLC0415
+    from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415
 
     args = sys.argv[1:] if argv is None else argv
     target = args[0] if args else "tissue_sim_node"
-    rclpy.init()
+    # our own handlers: rclpy's shut the context down under a spin, which then raised RCLError (seen in a
+    # soak's log); SIGTERM and SIGINT now leave the loop and the node is destroyed in order
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGINT, _interrupt)
     node = rclpy.create_node("bench_stall_reader")
     profile = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
@@ -68,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         while True:
             rclpy.spin_once(node, timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):  # SIGINT, or SIGTERM through rclpy's handler
+    except KeyboardInterrupt:  # SIGTERM or SIGINT (_interrupt)
         return 0
     finally:
         node.destroy_node()
