@@ -35,6 +35,8 @@ from typing import Any, Callable, Iterator
 
 import pytest
 
+from tissue_sim_ros.bench.node import end_with_parent  # SIGTERM to a child when the test process dies
+
 FAST_DISCOVERY_XML = Path("/work/shared/fastdds_fast_discovery.xml")
 VENV_BIN = Path(sys.executable).parent
 
@@ -75,19 +77,6 @@ def console_script(name: str) -> str:
     return found
 
 
-def _end_with_parent() -> None:
-    """In the child before exec (Linux): SIGTERM when the test process dies, so a pytest killed mid-test
-    (a timeout, a Ctrl-C twice) leaves no node spinning on the cores (one was found 20 minutes later)."""
-    if sys.platform != "linux":
-        return
-    import ctypes  # noqa: PLC0415
-
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
 class RosProcess:
     """A child process with its output in a log file; ``stop()`` ends it and returns the exit code."""
 
@@ -96,7 +85,7 @@ class RosProcess:
         self.log_path = log_path
         self._log = open(log_path, "wb")  # noqa: SIM115  closed in stop()
         self.proc = subprocess.Popen(cmd, env=env, stdout=self._log, stderr=subprocess.STDOUT, cwd=cwd,
-                                     preexec_fn=_end_with_parent)
+                                     preexec_fn=end_with_parent)
 
     @property
     def returncode(self) -> int | None:

@@ -624,7 +624,6 @@ def test_bench_node_command_writes_its_table(ros_env: dict[str, str], tmp_path: 
     assert bad.returncode == 2 and "step_rt_priority=100" in bad.stderr and "Traceback" not in bad.stderr
 
 
-
 @pytest.mark.parametrize("args, expected", [
     (["-p", "method:=xpbd_jacobi"], ("xpbd", "jacobi", 1, 30)),
     (["-p", "method:=xpbd_substep"], ("xpbd", "gauss_seidel", 30, 1)),

@@ -51,7 +51,7 @@ its counters every few seconds; reports RSS growth from the end of the warm-up
 and the overruns, writes ``node_soak.csv`` and ``node_soak.png``. The warm-up
 first fills the node's reliable histories to their depth: a second reader
 process is stopped for STALL_SECONDS (:mod:`~tissue_sim_ros.bench.stall_reader`:
-Fast DDS keeps each history's high-water mark, 5.4 MB for the 5k scene's
+Fast DDS keeps each history's high-water mark, 5.5 MB for the 5k scene's
 points, which a run otherwise meets whenever a reader first falls 1 s behind).
 """
 from __future__ import annotations
@@ -182,10 +182,11 @@ def _node_command() -> list[str]:
 
 
 def end_with_parent() -> None:
-    """``preexec_fn`` of a benchmark's child (Linux): SIGTERM when the benchmark dies, however it dies.
+    """``preexec_fn`` of a benchmark's or a test's child (Linux): SIGTERM when its parent dies, however it dies.
 
     A soak stopped with SIGTERM (or killed) otherwise left its node stepping on the cores: the
-    benchmark's ``finally`` that stops the node does not run on a signal."""
+    benchmark's ``finally`` that stops the node does not run on a signal (a test's node was once found
+    spinning 20 minutes after its pytest was killed)."""
     if not sys.platform.startswith("linux"):
         return
     import ctypes  # noqa: PLC0415

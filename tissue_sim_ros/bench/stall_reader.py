@@ -2,7 +2,7 @@
 
 A reliable writer keeps what its readers have not acknowledged, up to its history depth (keep-last; the step
 never waits). Fast DDS takes each kept sample's buffer from a pool that grows to the most samples ever held at
-once and keeps them: the node's points history (depth 100, 55 kB a cloud at 5k triangles) reaches 5.4 MB the
+once and keeps them: the node's points history (depth 100, 55 kB a cloud at 5k triangles) reaches 5.5 MB the
 first time a reader, a recorder on a loaded machine say, falls 1 s behind. That is a bounded high-water mark, not
 a leak, but a soak that only meets it half an hour in reads it as growth (seen: +5 MiB in one 5 s sample at
 405, 710 and 800 s in three soaks; heaptrack put it in ``TopicPayloadPool::do_get_payload`` under
