@@ -12,7 +12,15 @@ import pickle
 import numpy as np
 import pytest
 
-from tissue_sim_ros.core.batch import BatchScene, RolloutPool, ToolPath, as_tool_path, rollout_batch, rollout_candidate
+from tissue_sim_ros.core.batch import (
+    BaselineTrack,
+    BatchScene,
+    RolloutPool,
+    ToolPath,
+    as_tool_path,
+    rollout_batch,
+    rollout_candidate,
+)
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.rollout import rollout
 from tissue_sim_ros.core.scene import build_simulation
@@ -132,6 +140,43 @@ def test_batch_serial_matches_plain_rollouts_one_by_one(live):
     assert res.best() == int(np.argmin(res.costs))
 
 
+@pytest.mark.parametrize("over", [{}, {"contact_model": "paper"}, {"method": "xpbd"},
+                                  {"sleep_speed": 0.05, "sleep_wake_radius": 0.1}, {"contact_surface": "edges"},
+                                  {"contact_model": "none"}, {"material": "neo_hookean"}],
+                         ids=["projection", "paper", "xpbd", "sleeping", "edges", "no-contact", "neo-hookean"])
+def test_steps_beyond_reach_taken_from_the_baseline_are_the_solved_steps(over):
+    """A candidate's leading steps with the tool beyond reach are the baseline's (BaselineTrack): every number
+    and the final state equal a rollout that solves every step, with the track's memory ample or nearly full."""
+    sim = _sim(**over)
+    for _ in range(5):
+        sim.step(None)
+    snap = sim.snapshot()
+    ample = BaselineTrack(sim, snap)
+    tight = BaselineTrack(sim, snap, max_bytes=3 * 4 * snap.particle_q.nbytes)  # the snapshot and 2 steps
+    skipped, lengths = [], []
+    for angle in (-15.0, -35.0):
+        path = as_tool_path(_insertion(sim, angle, speed=0.003), sim.params.dt)
+        solved = rollout_candidate(sim, snap, path, 0, True)
+        assert solved.baseline_steps == 0
+        for track in (ample, tight):
+            r = rollout_candidate(sim, snap, path, 0, True, track)
+            assert r.metrics() == solved.metrics()
+            assert np.array_equal(r.energy, solved.energy)
+            assert np.array_equal(r.final_state.particle_q, solved.final_state.particle_q)
+            assert np.array_equal(r.final_state.particle_qd, solved.final_state.particle_qd)
+            assert sim.tool_pose == ToolPose(*path.poses[-1]) and sim.step_count == 5 + path.n_steps
+        assert len(tight.states) == 3 and tight.steps >= 2
+        skipped.append(rollout_candidate(sim, snap, path, 0, False, ample).baseline_steps)
+        lengths.append(path.n_steps)
+    # the insertions start outside the tissue: their approach is taken from the baseline (all of it without contact)
+    assert max(skipped) > 0
+    if over.get("contact_model") == "none":
+        assert skipped == lengths
+    ample.extend(max(lengths))
+    batch = rollout_batch(snap, [path], scene=BatchScene.from_simulation(sim))
+    assert np.array_equal(batch.baseline_energy, ample.energy[: path.n_steps])
+
+
 def test_pool_results_are_bit_identical_to_serial(live):
     sim, cands = live
     snap = sim.snapshot()
@@ -195,7 +240,7 @@ def test_bench_plan_writes_its_table(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "identical" in out and "pool 1" in out and " NO" not in out
     rows = (tmp_path / "plan_bench.csv").read_text().splitlines()
-    assert len(rows) == 3 and rows[0].startswith("backend,workers,candidates")
+    assert len(rows) == 4 and rows[0].startswith("backend,workers,candidates")
     assert (tmp_path / "plan_bench.png").stat().st_size > 1000
     assert main(["bench", "plan", "--candidates", "0", "--no-node", "--out", str(tmp_path)]) == 2
 

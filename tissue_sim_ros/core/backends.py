@@ -31,6 +31,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .batch import (
+    BaselineTrack,
     BatchResult,
     BatchScene,
     CandidateResult,
@@ -121,20 +122,28 @@ class _RolloutActor:
         numba.set_num_threads(1)
         self.sim = scene.build()
         warm_up(self.sim)
+        self._track: tuple[int, BaselineTrack] | None = None
 
     def set_scene(self, scene: BatchScene) -> int:
         self.sim = scene.build()
         warm_up(self.sim)
+        self._track = None
         return os.getpid()
 
     def pid(self) -> int:
         return os.getpid()
 
-    def baseline(self, snap: SimSnapshot, steps: int) -> np.ndarray:
-        return rollout_baseline(self.sim, snap, steps)
+    def _track_of(self, batch: int, snap: SimSnapshot) -> BaselineTrack:
+        """The baseline track of batch ``batch`` (one batch kept: a new batch drops the previous one's)."""
+        if self._track is None or self._track[0] != batch:
+            self._track = (batch, BaselineTrack(self.sim, snap))
+        return self._track[1]
 
-    def run(self, snap: SimSnapshot, path: ToolPath, index: int, keep: bool) -> CandidateResult:
-        return rollout_candidate(self.sim, snap, path, index, keep)
+    def baseline(self, batch: int, snap: SimSnapshot, steps: int) -> np.ndarray:
+        return rollout_baseline(self.sim, snap, steps, self._track_of(batch, snap))
+
+    def run(self, batch: int, snap: SimSnapshot, path: ToolPath, index: int, keep: bool) -> CandidateResult:
+        return rollout_candidate(self.sim, snap, path, index, keep, self._track_of(batch, snap))
 
 
 class RayRolloutPool:
@@ -163,6 +172,7 @@ class RayRolloutPool:
         actor = ray.remote(num_cpus=1)(_RolloutActor)
         scene_ref = ray.put(self.scene)
         self._actors = [actor.remote(scene_ref) for _ in range(workers)]
+        self._batch = 0
         self.pids = ray.get([a.pid.remote() for a in self._actors])
 
     @property
@@ -192,6 +202,8 @@ class RayRolloutPool:
         t0 = time.perf_counter()
         paths = _paths(candidates, self.scene.model.params.dt)
         snap_ref = ray.put(snap)  # once per batch, shared by every actor
+        self._batch += 1
+        batch = self._batch
         tasks: list[tuple] = [("baseline", max(p.n_steps for p in paths))]
         tasks += [("run", i, p) for i, p in enumerate(paths)]
         pending: dict[Any, tuple[int, tuple]] = {}
@@ -202,8 +214,8 @@ class RayRolloutPool:
             task = tasks[next_task]
             next_task += 1
             actor = self._actors[a]
-            ref = (actor.baseline.remote(snap_ref, task[1]) if task[0] == "baseline"
-                   else actor.run.remote(snap_ref, task[2], task[1], final_state))
+            ref = (actor.baseline.remote(batch, snap_ref, task[1]) if task[0] == "baseline"
+                   else actor.run.remote(batch, snap_ref, task[2], task[1], final_state))
             pending[ref] = (a, task)
 
         for _ in range(2):  # two in flight per actor: none waits for the driver's round trip

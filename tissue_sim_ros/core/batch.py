@@ -35,6 +35,18 @@ with ``np.array_equal``):
 Both build their simulation with :meth:`BatchScene.build`: the scene's model
 and tool with the serial Gauss-Seidel solver (one core per candidate; the
 parallel path's sweep order would differ from a serial run's).
+
+Steps before the tool reaches the tissue are not solved again. A step whose
+contact detection finds nothing (no body in contact, nothing held, no
+projection candidate or surface edge) hands the solver no contact: the same
+floating-point operations as the tool-free step from the same state. So its
+state, energy and counts are the baseline's, bit for bit. A
+:class:`BaselineTrack` keeps the baseline's states of one snapshot, and each
+candidate runs its detection against them until the first step that finds
+something, restores the track's state there and solves from it
+(``test/test_batch.py`` compares every number with rollouts that solve every
+step). A new insertion starts outside the tissue, so its approach costs a
+detection per step, not a solve.
 """
 from __future__ import annotations
 
@@ -55,7 +67,20 @@ from .model import Model, State
 from .simulation import Simulation
 from .snapshot import SimSnapshot, scene_key
 from .solvers import Solver
-from .tool import StraightInsertion, ToolPose, ToolShape, ToolTwist, Trajectory, tool_shape_array, wrap_angle
+from .tool import (
+    StraightInsertion,
+    ToolPose,
+    ToolShape,
+    ToolTwist,
+    Trajectory,
+    tool_shape_array,
+    twist_from_poses,
+    wrap_angle,
+)
+
+TRACK_BYTES = 256 * 2**20
+"""Baseline states a :class:`BaselineTrack` keeps at most [bytes]: ~1,500 steps of a 5k-triangle scene, ~25,000 of
+the paper scene; a candidate still beyond reach after them is solved from there on."""
 
 # --------------------------------------------------------------------------- inputs
 
@@ -197,6 +222,9 @@ class CandidateResult:
     final_state: State | None = None
     wall_s: float = 0.0
     """Wall time of the rollout in its process [s] (not part of the comparison with a serial run)."""
+    baseline_steps: int = 0
+    """Leading steps taken from the tool-free baseline, not solved: the tool was still beyond reach
+    (:class:`BaselineTrack`)."""
 
     def metrics(self) -> dict[str, Any]:
         """The scalar numbers (a CSV row)."""
@@ -230,8 +258,64 @@ class BatchResult:
 # --------------------------------------------------------------------------- one rollout (worker and serial alike)
 
 
-def rollout_baseline(sim: Simulation, snap: SimSnapshot, steps: int) -> np.ndarray:
-    """The scene energy of ``steps`` tool-free steps from ``snap``, shape (steps,)."""
+class BaselineTrack:
+    """The tool-free steps from one snapshot, each state kept: the steps of a candidate before its tool reaches the tissue.
+
+    ``states[k]`` is the snapshot after k tool-free steps (``states[0]`` the snapshot itself), kept while they
+    fit in ``max_bytes``; ``energy``, ``n_inverted``, ``diverged`` and ``displacement`` (the largest distance
+    of a particle from the snapshot) are kept for every step. :meth:`extend` steps ``sim`` further on demand
+    (it restores the track's newest state first, so ``sim`` may be used for candidates in between).
+    """
+
+    def __init__(self, sim: Simulation, snap: SimSnapshot, max_bytes: int = TRACK_BYTES) -> None:
+        self.sim = sim
+        self.snap = snap
+        self.states: list[SimSnapshot] = [snap]
+        self.energy: list[float] = []
+        self.n_inverted: list[int] = []
+        self.diverged: list[bool] = []
+        self.displacement: list[float] = []
+        per_state = 4 * snap.particle_q.nbytes  # positions, velocities and the last good pair
+        self.max_states = max(1, int(max_bytes) // max(per_state, 1))
+        self._newest = snap
+        """The state after the last step taken (kept when ``states`` is full)."""
+
+    @property
+    def steps(self) -> int:
+        """Tool-free steps taken so far."""
+        return len(self.energy)
+
+    def extend(self, steps: int) -> None:
+        """Take tool-free steps until ``steps`` are known."""
+        if self.steps >= steps:
+            return
+        sim = self.sim
+        sim.restore(self._newest)
+        x0 = self.snap.particle_q
+        while self.steps < steps:
+            r = sim.step(None)
+            self.energy.append(r.energy.scene_total)
+            self.n_inverted.append(r.n_inverted)
+            self.diverged.append(bool(r.diverged))
+            self.displacement.append(max_displacement(sim.state.particle_q, x0))
+            if len(self.states) < self.max_states:
+                self.states.append(sim.snapshot())
+        self._newest = self.states[-1] if len(self.states) > self.steps else sim.snapshot()
+
+
+def max_displacement(x: np.ndarray, x0: np.ndarray) -> float:
+    """max_i |x_i - x0_i| [m] (0 for no particles): as a rollout measures its indentation."""
+    if x.shape[0] == 0:
+        return 0.0
+    d = x - x0
+    return math.sqrt(float((d * d).sum(axis=1).max()))
+
+
+def rollout_baseline(sim: Simulation, snap: SimSnapshot, steps: int, track: BaselineTrack | None = None) -> np.ndarray:
+    """The scene energy of ``steps`` tool-free steps from ``snap``, shape (steps,) (kept in ``track`` when given)."""
+    if track is not None:
+        track.extend(steps)
+        return np.array(track.energy[:steps], dtype=np.float64)
     sim.restore(snap)
     out = np.empty(steps)
     for k in range(steps):
@@ -239,13 +323,28 @@ def rollout_baseline(sim: Simulation, snap: SimSnapshot, steps: int) -> np.ndarr
     return out
 
 
+def _beyond_reach(sim: Simulation, state: SimSnapshot, pose0: ToolPose, pose: ToolPose, twist: ToolTwist) -> bool:
+    """True when the step from ``state`` with the tool moving to ``pose`` hands the solver no contact.
+
+    The step's own detection (:meth:`~tissue_sim_ros.core.collision.ContactModel.detect`, with the pose it
+    would use for the start of the step) finds no body in contact, nothing held, no projection candidate and
+    no surface edge: the solver then runs exactly the tool-free step (``Solver.step``: no projection, no held
+    particles; the reaction is zero).
+    """
+    if sim.params.contact_model == "none":
+        return True
+    c = sim.contact.detect(State(state.particle_q, state.particle_qd), pose0, pose, twist, sim.params.dt)
+    return not (c.held_idx.size or c.candidates.size or np.size(c.surface_edges) or c.in_contact.any())
+
+
 def rollout_candidate(sim: Simulation, snap: SimSnapshot, path: ToolPath, index: int = 0,
-                      final_state: bool = False) -> CandidateResult:
-    """Roll ``path`` out from ``snap`` in ``sim``; ``cost`` and the added energies are filled by :func:`finish`."""
+                      final_state: bool = False, track: BaselineTrack | None = None) -> CandidateResult:
+    """Roll ``path`` out from ``snap`` in ``sim``; ``cost`` and the added energies are filled by :func:`finish`.
+
+    With ``track`` (the baseline of ``snap``) the leading steps with the tool beyond reach are the track's
+    (see the module docstring): the same numbers as solving them.
+    """
     t0 = time.perf_counter()
-    sim.restore(snap)
-    if path.start is not None:
-        sim.tool_pose = path.start
     n = path.n_steps
     energy = np.empty(n)
     x0 = snap.particle_q
@@ -255,7 +354,32 @@ def rollout_candidate(sim: Simulation, snap: SimSnapshot, path: ToolPath, index:
     peak_force = max_pen = max_disp = 0.0
     contact = inverted = diverged = 0
     poses, twists = path.poses, path.twists
-    for k in range(n):
+    dt = sim.params.dt
+    prev = path.start if path.start is not None else snap.tool_pose
+    k = 0
+    if track is not None and n_part and sim.contact is not None:
+        while k < n:
+            track.extend(k + 1)
+            if len(track.states) < k + 2:
+                break  # the track's memory is full: solve from here
+            pose = ToolPose(float(poses[k, 0]), float(poses[k, 1]), float(poses[k, 2]))
+            twist = (twist_from_poses(prev, pose, dt) if twists is None
+                     else ToolTwist(float(twists[k, 0]), float(twists[k, 1]), float(twists[k, 2])))
+            if not _beyond_reach(sim, track.states[k], prev or pose, pose, twist):
+                break
+            # the step is the baseline's: its numbers as the loop below measures them
+            energy[k] = track.energy[k]
+            points_sdf(track.states[k + 1].particle_q, tool_shape_array(sim.tool, pose, 0.0), sdf, grad)
+            max_pen = max(max_pen, -float(sdf.min()))
+            max_disp = max(max_disp, track.displacement[k])
+            inverted = max(inverted, track.n_inverted[k])
+            diverged += track.diverged[k]
+            prev = pose
+            k += 1
+    skipped = k
+    sim.restore(track.states[k] if skipped else snap)
+    sim.tool_pose = prev
+    for k in range(skipped, n):
         pose = ToolPose(float(poses[k, 0]), float(poses[k, 1]), float(poses[k, 2]))
         twist = None if twists is None else ToolTwist(float(twists[k, 0]), float(twists[k, 1]), float(twists[k, 2]))
         r = sim.step(pose, twist)
@@ -266,8 +390,7 @@ def rollout_candidate(sim: Simulation, snap: SimSnapshot, path: ToolPath, index:
         if n_part:
             points_sdf(x, tool_shape_array(sim.tool, pose, 0.0), sdf, grad)
             max_pen = max(max_pen, -float(sdf.min()))
-            d = x - x0
-            max_disp = max(max_disp, math.sqrt(float((d * d).sum(axis=1).max())))
+            max_disp = max(max_disp, max_displacement(x, x0))
         contact += bool(r.in_contact.any())
         inverted = max(inverted, r.n_inverted)
         diverged += bool(r.diverged)
@@ -276,7 +399,7 @@ def rollout_candidate(sim: Simulation, snap: SimSnapshot, path: ToolPath, index:
                            final_added=math.nan, peak_force=peak_force, max_penetration=max(0.0, max_pen),
                            max_displacement=max_disp, contact_steps=contact, max_inverted=inverted,
                            diverged_steps=diverged, finite=bool(np.isfinite(energy).all()) and diverged == 0,
-                           energy=energy, final_state=state, wall_s=time.perf_counter() - t0)
+                           energy=energy, final_state=state, wall_s=time.perf_counter() - t0, baseline_steps=skipped)
 
 
 def finish(result: CandidateResult, baseline: np.ndarray) -> CandidateResult:
@@ -302,7 +425,7 @@ def _snapshot_of(source: Simulation | SimSnapshot) -> SimSnapshot:
 
 def rollout_batch(source: Simulation | SimSnapshot, candidates: Sequence[ToolPath | Trajectory | np.ndarray], *,
                   scene: BatchScene | None = None, pool: "RolloutPool | None" = None,
-                  final_state: bool = False) -> BatchResult:
+                  final_state: bool = False, reuse_baseline: bool = True) -> BatchResult:
     """Roll every candidate out from ``source`` (a Simulation: its snapshot now; or a snapshot).
 
     Parameters
@@ -317,6 +440,9 @@ def rollout_batch(source: Simulation | SimSnapshot, candidates: Sequence[ToolPat
         Run on its workers; None: serially in this process.
     final_state : bool
         Keep each candidate's final State.
+    reuse_baseline : bool
+        Serial only: take the steps with the tool beyond reach from the baseline (:class:`BaselineTrack`, the same
+        numbers); False solves every step (for benchmarks). Pools always reuse it.
     """
     snap = _snapshot_of(source)
     if pool is not None:
@@ -328,8 +454,9 @@ def rollout_batch(source: Simulation | SimSnapshot, candidates: Sequence[ToolPat
     t0 = time.perf_counter()
     sim = scene.build()
     paths = _paths(candidates, scene.model.params.dt)
-    baseline = rollout_baseline(sim, snap, max(p.n_steps for p in paths))
-    results = [finish(rollout_candidate(sim, snap, p, i, final_state), baseline) for i, p in enumerate(paths)]
+    track = BaselineTrack(sim, snap) if reuse_baseline else None
+    baseline = rollout_baseline(sim, snap, max(p.n_steps for p in paths), track)
+    results = [finish(rollout_candidate(sim, snap, p, i, final_state, track), baseline) for i, p in enumerate(paths)]
     return BatchResult(results, baseline, time.perf_counter() - t0, 0)
 
 
@@ -364,7 +491,7 @@ def _worker_main(conn: Connection, scene: BatchScene) -> None:
     except Exception:  # noqa: BLE001  reported to the parent, which raises it
         conn.send(("error", -1, -1, traceback.format_exc()))
         return
-    snaps: dict[int, SimSnapshot] = {}
+    tracks: dict[int, BaselineTrack] = {}
     while True:
         try:
             msg = conn.recv()
@@ -377,17 +504,19 @@ def _worker_main(conn: Connection, scene: BatchScene) -> None:
             if kind == "scene":
                 sim = msg[1].build()
                 warm_up(sim)
-                snaps.clear()
+                tracks.clear()
                 conn.send(("scene", os.getpid()))
             elif kind == "snapshot":
-                snaps.clear()
-                snaps[msg[1]] = msg[2]
+                tracks.clear()
+                tracks[msg[1]] = BaselineTrack(sim, msg[2])
             elif kind == "baseline":
                 _, batch, steps = msg
-                conn.send(("baseline", batch, -1, rollout_baseline(sim, snaps[batch], steps)))
+                track = tracks[batch]
+                conn.send(("baseline", batch, -1, rollout_baseline(sim, track.snap, steps, track)))
             elif kind == "run":
                 _, batch, index, path, keep = msg
-                conn.send(("result", batch, index, rollout_candidate(sim, snaps[batch], path, index, keep)))
+                track = tracks[batch]
+                conn.send(("result", batch, index, rollout_candidate(sim, track.snap, path, index, keep, track)))
         except Exception:  # noqa: BLE001
             conn.send(("error", msg[1] if len(msg) > 1 else -1, msg[2] if len(msg) > 2 else -1, traceback.format_exc()))
 
