@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 import numpy as np
@@ -57,22 +58,29 @@ def test_service_answers_with_the_librarys_plan(ros_client: RosClient, start_pro
     proc, client = _start(start_process, ros_client, "-p", "lock_step:=true")
     costs = ros_client.raw_subscription(Float64MultiArray, "plan/costs", qos.latched())
     cands = ros_client.raw_subscription(MarkerArray, "plan/candidates", qos.latched())
+    ros_client.spin_until(lambda: client.service_is_ready(), TIMEOUT, proc)
+    before = time.time_ns()
     res = ros_client.call(client, _request(), TIMEOUT, proc)
+    after = time.time_ns()
     path = res.plan
     assert path.header.frame_id == "world" and len(path.poses) > 10, proc.output()[-2000:]
     rows, labels = M.decode_float64_multiarray(ros_client.spin_until(lambda: costs.messages, TIMEOUT, proc)[-1])
     assert labels == ["candidate", "field:" + ",".join(COST_FIELDS)]
     col = {name: rows[:, i] for i, name in enumerate(COST_FIELDS)}
-    assert rows.shape == (10, len(COST_FIELDS)) and col["best"].sum() == 1
+    assert col["best"].sum() == 1
 
     # the same plan in this process, serially, from a fresh scene at rest
     sim = build_simulation({"tool_length": 0.3})
     req = InsertionRequest(ENTRY, TARGET, 0.01, sweep_values(-20.0, 20.0, 10.0), [0.1, 0.2], 500)
     plan = plan_insertion(sim.snapshot(), BatchScene.from_simulation(sim), req)
     assert plan.ok
-    assert np.array_equal(col["cost"], [c.cost for c in plan.candidates])
-    assert np.array_equal(col["target_error_m"], [c.target_error for c in plan.candidates])
-    assert int(np.flatnonzero(col["best"])[0]) == plan.best
+    # rolled out: the 10 candidates but the two steepest angles (the tool at their entry lies through the upper
+    # tissue) at both speeds; plan/costs has a row for each, in sweep order
+    rolled = [i for i, c in enumerate(plan.candidates) if c.result is not None]
+    assert rows.shape == (6, len(COST_FIELDS)) and len(rolled) == 6
+    assert np.array_equal(col["cost"], [plan.candidates[i].cost for i in rolled])
+    assert np.array_equal(col["target_error_m"], [plan.candidates[i].target_error for i in rolled])
+    assert rolled[int(np.flatnonzero(col["best"])[0])] == plan.best
     best = plan.candidates[plan.best]
     got = np.array([[p.pose.position.x, p.pose.position.y, 2 * math.atan2(p.pose.orientation.z, p.pose.orientation.w)]
                     for p in path.poses])
@@ -82,6 +90,9 @@ def test_service_answers_with_the_librarys_plan(ros_client: RosClient, start_pro
     ns = np.array([p.header.stamp.sec * 10**9 + p.header.stamp.nanosec for p in path.poses])
     t0 = path.header.stamp.sec * 10**9 + path.header.stamp.nanosec
     assert np.array_equal(ns - t0, np.arange(1, len(ns) + 1) * 10_000_000)
+    # the answer's time, not the request's: this first request starts the worker (seconds), so a stamp taken
+    # when the request came in would lie in the first half of the call (its poses already stale when they arrive)
+    assert before <= t0 <= after and t0 - before > (after - before) / 2, (before, t0, after)
     assert all(p.header.frame_id == "world" for p in path.poses)
     # the tip of the last pose is at the goal (the tool's centre is half its length behind the tip)
     x, y, yaw = got[-1]
@@ -104,10 +115,14 @@ def test_node_steps_while_it_plans_and_survives_bad_requests(ros_client: RosClie
     assert len(future.result().plan.poses) > 0
     assert len(during) > 3, f"only {len(during)} tissue/points messages while planning: the step timer was blocked"
 
+    costs = ros_client.raw_subscription(Float64MultiArray, "plan/costs", qos.latched())
+    ros_client.spin_until(lambda: costs.messages, TIMEOUT, proc, "the latched plan/costs")
     bad = {
         "frame": _request(frame="map"),
         "outside": _request(target=(0.5, 0.5)),
         "inside": _request(entry=(0.5, 0.2)),
+        "negative tolerance": _request(tolerance=-0.01),
+        "NaN goal": _request(target=(math.nan, 0.38)),
     }
     for name, req in bad.items():
         res = ros_client.call(client, req, TIMEOUT, proc)
@@ -121,6 +136,9 @@ def test_node_steps_while_it_plans_and_survives_bad_requests(ros_client: RosClie
     out = proc.output()
     assert "in frame 'map': expected 'world'" in out
     assert "is outside the tissue" in out and "is inside the tissue" in out
+    assert "tolerance -0.01: expected a finite value >= 0 m" in out
+    # refused before any rollout: the latched candidates and costs are still the last plan's
+    assert len(costs.messages) == 1
     assert "no candidate within tolerance 0.1 mm" in tracked.output()
     # still stepping after all that
     n = len(points.messages)

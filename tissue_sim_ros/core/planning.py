@@ -11,8 +11,10 @@ node's ``~/plan_insertion`` service converts messages and calls it):
   offsets given, at every speed; each one's tip starts at ``target - distance
   (cos a, sin a)`` and moves straight to the target (the tool along its motion,
   tip first), placed at its start without a sweep;
-* a candidate whose tool at its start overlaps the tissue, or that needs more
-  than ``max_steps`` steps, is not rolled out (its reason is kept);
+* a candidate whose tool at its start overlaps the tissue (a particle inside
+  the tool, or the tool crossing a triangle, as a thin tool lying across the
+  tissue does between its particles: :func:`tool_overlaps`), or that needs
+  more than ``max_steps`` steps, is not rolled out (its reason is kept);
 * the target is also a point of the tissue, which moves as the tool pushes
   the tissue: it is followed as the barycentric point of the snapshot's
   triangle that holds it, and every candidate reports ``target_error``, the
@@ -40,9 +42,9 @@ from typing import Sequence
 import numpy as np
 
 from .batch import BatchResult, BatchScene, CandidateResult, RolloutPool, ToolPath, rollout_batch
-from .collision import points_sdf
+from .collision import ContactModel
 from .snapshot import SimSnapshot
-from .tool import StraightInsertion, tool_shape_array
+from .tool import StraightInsertion, ToolPose
 
 
 @dataclass(frozen=True)
@@ -125,6 +127,16 @@ def locate(x: np.ndarray, tris: np.ndarray, point: tuple[float, float]) -> tuple
     return t, np.array([l0[t], l1[t], l2[t]])
 
 
+def tool_overlaps(contact: ContactModel, x: np.ndarray, pose: ToolPose) -> bool:
+    """True when the tool at ``pose`` overlaps the tissue at positions ``x`` (N, 2) [m].
+
+    The contact model's own query (:meth:`~tissue_sim_ros.core.collision.ContactModel.distances` with reach 0):
+    a particle inside the tool's shape, or python-fcl finding the tool's shape through a triangle (a tool 5 mm
+    wide lying across the tissue can cross triangles without holding any of their particles).
+    """
+    return any(d.overlap or d.d_star <= 0.0 for d in contact.distances(x, pose, 0.0))
+
+
 def candidates_for(scene: BatchScene, snap: SimSnapshot, req: InsertionRequest) -> list[PlanCandidate]:
     """The sweep's candidates, each with its path or the reason it is not rolled out."""
     dt = scene.model.params.dt
@@ -133,8 +145,8 @@ def candidates_for(scene: BatchScene, snap: SimSnapshot, req: InsertionRequest) 
     distance = math.hypot(tx - ex, ty - ey)
     base = math.atan2(ty - ey, tx - ex)
     x = np.ascontiguousarray(snap.particle_q)
-    sdf = np.empty(x.shape[0])
-    grad = np.empty((x.shape[0], 2))
+    contact = ContactModel(scene.model, scene.tool)
+    overlapping: dict[float, bool] = {}  # per angle: the entry pose does not depend on the speed
     out: list[PlanCandidate] = []
     for speed in req.speeds:
         for off in req.angle_offsets_deg:
@@ -149,8 +161,9 @@ def candidates_for(scene: BatchScene, snap: SimSnapshot, req: InsertionRequest) 
                 continue
             start = traj.pose_at(0.0)
             if x.shape[0]:
-                points_sdf(x, tool_shape_array(scene.tool, start, 0.0), sdf, grad)
-                if sdf.min() < 0.0:
+                if off not in overlapping:
+                    overlapping[off] = tool_overlaps(contact, x, start)
+                if overlapping[off]:
                     cand.reason = (f"the tool at its entry ({entry[0]:.3f}, {entry[1]:.3f}) m, "
                                    f"{math.degrees(a):+.1f} deg, overlaps the tissue")
                     continue

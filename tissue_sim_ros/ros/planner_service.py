@@ -138,9 +138,9 @@ class PlannerService:
         if vhi < vlo:
             return None, f"plan_speed_max={vhi} < plan_speed_min={vlo}: expected max >= min"
         speeds = [vlo] if count == 1 else list(np.linspace(vlo, vhi, count))
+        if not (math.isfinite(req.tolerance) and req.tolerance >= 0.0):
+            return None, f"tolerance {req.tolerance:g}: expected a finite value >= 0 m (0: the parameter plan_tolerance)"
         tolerance = float(req.tolerance) if req.tolerance > 0 else float(self._param("plan_tolerance"))
-        if not math.isfinite(req.tolerance):
-            return None, f"tolerance {req.tolerance}: expected a finite value >= 0 m"
         s, g = req.start.pose.position, req.goal.pose.position
         return InsertionRequest(entry=(float(s.x), float(s.y)), target=(float(g.x), float(g.y)), tolerance=tolerance,
                                 angle_offsets_deg=sweep_values(lo, hi, step), speeds=[float(v) for v in speeds],
@@ -164,9 +164,7 @@ class PlannerService:
         t0 = time.perf_counter()
         self.requests += 1
         log = self.node.get_logger()
-        now = self.node.get_clock().now().to_msg()
         response.plan = Path()
-        response.plan.header.stamp = now
         response.plan.header.frame_id = self.node.frame_id
         try:
             req, reason = self._request(request)
@@ -181,7 +179,11 @@ class PlannerService:
                     plan = plan_insertion(snap, scene, req, pool=self._pool_for(scene))
                     self.last_plan = plan
                     reason = plan.reason
-                    self._publish(plan, now)
+            # stamped at the answer: a client that publishes the poses at their stamps starts now, not in the past
+            now = self.node.get_clock().now().to_msg()
+            response.plan.header.stamp = now
+            if plan is not None and plan.batch is not None:
+                self._publish(plan, now)  # only what was rolled out replaces the latched candidates
             if plan is not None and plan.ok:
                 self._fill_path(response.plan, plan, now, sim.params.dt)
                 best = plan.candidates[plan.best]
@@ -195,6 +197,7 @@ class PlannerService:
         except Exception as exc:  # noqa: BLE001  a bad request or a planner bug must not end the node
             log.error(f"plan_insertion: no plan: the planner failed: {type(exc).__name__}: {exc}")
             response.plan.poses = []
+            response.plan.header.stamp = self.node.get_clock().now().to_msg()
         self.last_latency = time.perf_counter() - t0
         return response
 
