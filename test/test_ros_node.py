@@ -23,8 +23,9 @@ from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped  # noqa: E402
 from rcl_interfaces.msg import Parameter as ParameterMsg  # noqa: E402
 from rcl_interfaces.msg import ParameterType, ParameterValue  # noqa: E402
-from rcl_interfaces.srv import SetParameters  # noqa: E402
+from rcl_interfaces.srv import GetParameters, SetParameters  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from rclpy.serialization import deserialize_message  # noqa: E402
 from rclpy.time import Time  # noqa: E402
 from sensor_msgs.msg import PointCloud2  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
@@ -94,6 +95,7 @@ class Node:
         self.reset_srv = n.create_client(Trigger, f"{ns}/tissue_sim_node/reset")
         self.pause_srv = n.create_client(SetBool, f"{ns}/tissue_sim_node/pause")
         self.param_srv = n.create_client(SetParameters, f"{ns}/tissue_sim_node/set_parameters")
+        self.get_param_srv = n.create_client(GetParameters, f"{ns}/tissue_sim_node/get_parameters")
 
     def wait_ready(self) -> None:
         c = self.client
@@ -132,6 +134,10 @@ class Node:
             pv = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
         request = SetParameters.Request(parameters=[ParameterMsg(name=name, value=pv)])
         return self.client.call(self.param_srv, request, TIMEOUT, self.proc).results[0]
+
+    def get_param(self, name: str) -> ParameterValue:
+        request = GetParameters.Request(names=[name])
+        return self.client.call(self.get_param_srv, request, TIMEOUT, self.proc).values[0]
 
     def latest_points(self) -> np.ndarray:
         _, frame, cloud = M.decode_point_cloud(self.points.messages[-1])
@@ -271,6 +277,16 @@ def test_parameters_are_validated_at_runtime(node: Node) -> None:
     assert not bad.successful and "poisson_ratio" in bad.reason
     read_only = node.set_param("density", 900.0)
     assert not read_only.successful and "read-only" in read_only.reason
+    unknown = node.set_param("iteratons", 5)
+    assert not unknown.successful and "unknown parameter 'iteratons'; did you mean 'iterations'?" in unknown.reason
+    inverted = node.set_param("plan_angle_min", 30.0)  # above plan_angle_max (20)
+    assert not inverted.successful and "plan_angle_max=20.0: expected >= plan_angle_min=30.0" in inverted.reason
+    assert node.get_param("plan_angle_min").double_value == -20.0
+    # an integer for a float parameter is taken and kept a double (a reader of double_value gets it)
+    assert node.set_param("plan_speed_max", 1).successful
+    value = node.get_param("plan_speed_max")
+    assert value.type == ParameterType.PARAMETER_DOUBLE and value.double_value == 1.0
+    assert node.set_param("plan_speed_max", 0.2).successful
     ok = node.set_param("iterations", 10)
     assert ok.successful, ok.reason
     ok = node.set_param("contact_radius", 0.06)
@@ -494,6 +510,33 @@ def test_lock_step_node_beside_it_steps_once_per_pose_and_replays_exactly(
     assert node.proc.alive()
     assert proc.stop(signal.SIGINT) == 0, proc.output()[-2000:]
     assert "Traceback" not in proc.output()
+
+
+def test_lock_step_pairs_each_pose_with_the_twist_sent_just_before_it(
+        ros_client: RosClient, start_process: Any, scene_files: dict[str, Any]) -> None:
+    """Twist then pose, same stamp, back to back and in a burst: every step uses its own twist (the executor may
+    hand out the pose first; the node takes the waiting twists before stepping), never a later pair's."""
+    proc = start_process(["tissue_sim_node", "--ros-args", "-r", "__ns:=/pair", "--params-file",
+                          str(scene_files["params"]), "-p", "lock_step:=true"], name="pairing")
+    pair = Node(proc, ros_client, ns="/pair")
+    applied = ros_client.raw_subscription(TwistStamped, "/pair/tool/applied_twist", BEST_EFFORT)
+    ros_client.wait_for_subscriber(pair.pose_pub, TIMEOUT, proc)
+    ros_client.wait_for_subscriber(pair.twist_pub, TIMEOUT, proc)
+    ros_client.wait_for_publisher("/pair/tool/applied_twist", TIMEOUT, proc)
+    ros_client.spin_for(0.3)  # let the applied_twist reader match too
+    t0 = ros_client.node.get_clock().now()
+    n = 40
+    for k in range(n):
+        stamp = (t0 + rclpy_duration(k * DT)).to_msg()
+        twist = TwistStamped()
+        twist.header.frame_id, twist.header.stamp = "world", stamp
+        twist.twist.linear.x = 0.01 + 1e-4 * k  # not what the poses (moving in y) would give
+        pair.twist_pub.publish(twist)
+        pair.pose_pub.publish(pair.pose(0.2, -0.06 + 1e-3 * k, stamp=stamp))
+    ros_client.spin_until(lambda: len(applied.messages) >= n, TIMEOUT, proc, "an applied twist per pose")
+    vx = [deserialize_message(m, TwistStamped).twist.linear.x for m in applied.messages]
+    np.testing.assert_array_equal(vx, [0.01 + 1e-4 * k for k in range(n)])
+    assert proc.stop(signal.SIGINT) == 0, proc.output()[-2000:]
 
 
 def test_use_sim_time_steps_with_the_clock(ros_client: RosClient, start_process: Any,

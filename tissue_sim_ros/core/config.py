@@ -661,7 +661,15 @@ def resolve_config(overrides: Mapping[str, Any] | None = None,
     return _build(values)
 
 
+#: Pairs (low, high) whose high must not be below its low (the planner's sweep).
+ORDERED_PAIRS = (("plan_angle_min", "plan_angle_max"), ("plan_speed_min", "plan_speed_max"))
+
+
 def _build(values: Mapping[str, Any]) -> Config:
+    for lo, hi in ORDERED_PAIRS:
+        if lo in values and hi in values and values[hi] < values[lo]:
+            raise InputError(f"parameter {hi}={values[hi]!r}: expected >= {lo}={values[lo]!r} (to move the range past "
+                             "its other end, set both at once: a parameter file, or ~/set_parameters_atomically)")
     by_home: dict[str, dict[str, Any]] = {"sim": {}, "scene": {}, "tool": {}, "node": {}}
     for name, value in values.items():
         home = HOME[name]

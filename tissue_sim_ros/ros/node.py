@@ -24,6 +24,7 @@ import math
 import os
 import sys
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,7 +34,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.exceptions import InvalidHandle
+from rclpy.exceptions import InvalidHandle, ParameterNotDeclaredException
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
 from rclpy.node import Node
@@ -44,7 +45,7 @@ from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
-from ..core.config import FOREIGN_PREFIXES, METHOD_ALIASES, Config, load_params_file, resolve_config
+from ..core.config import FOREIGN_PREFIXES, METHOD_ALIASES, Config, closest_name, load_params_file, resolve_config
 from ..core.errors import InputError
 from ..core.frames import FrameLookupError
 from ..core.phase_lock import PhaseLock
@@ -101,10 +102,29 @@ class ToolInput:
     twist_stamp: tuple[int, int] = (0, 0)
     twist_received: float = -math.inf
     """Node-clock time the twist arrived [s]."""
+    recent_twists: deque = field(default_factory=lambda: deque(maxlen=64))
+    """The newest accepted twists as (stamp, ToolTwist): lock-step pairs a pose with the twist of its own stamp
+    among those that arrived before it, as ``tissue-sim replay`` does, however many came in between."""
+
+    def twist_at(self, stamp: tuple[int, int]) -> ToolTwist | None:
+        """The newest accepted twist stamped ``stamp``, or None."""
+        for s, twist in reversed(self.recent_twists):
+            if s == stamp:
+                return twist
+        return None
 
 
 def _stamp_of(t: Time) -> Stamp:
     return stamp_from_ns(t.nanoseconds)
+
+
+class UnknownParameter(ParameterNotDeclaredException):
+    """A set of a name the node does not have; rclpy's services answer with this message as the reason."""
+
+    def __init__(self, name: str) -> None:
+        near = closest_name(name)
+        hint = f"; did you mean {near!r}?" if near else "; the names are listed in msg_docs/parameters.md"
+        Exception.__init__(self, f"unknown parameter {name!r}{hint}")
 
 
 class TissueSimNode(Node):
@@ -183,7 +203,7 @@ class TissueSimNode(Node):
         self.diagnostics_timer = self.create_timer(1.0 / self._values["diagnostics_rate"], self._publish_diagnostics)
         self.heap_trimmer = HeapTrimmer()
         self.memory_trace = MemoryTrace.from_env(self.get_logger())
-        self.add_pre_set_parameters_callback(self._expand_alias)
+        self.add_pre_set_parameters_callback(self._pre_set)
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
         self._publish_rest_mesh()
@@ -224,6 +244,18 @@ class TissueSimNode(Node):
         for spec in PARAMETERS:
             self.declare_parameter(spec.name, flat[spec.name], descriptor(spec), ignore_override=True)
         return cfg
+
+    def _pre_set(self, params: list[Parameter]) -> list[Parameter]:
+        """Pre-set, before rclpy's own checks: an unknown name is refused naming the closest known one (rclpy's
+        reason names neither); an integer for a float parameter becomes a float (the parameter stays a double
+        for every reader); a method alias is expanded (:meth:`_expand_alias`)."""
+        for p in params:
+            if not self.has_parameter(p.name):
+                raise UnknownParameter(p.name)
+        params = [Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+                  if p.type_ == Parameter.Type.INTEGER and p.name in BY_NAME and BY_NAME[p.name].kind is float else p
+                  for p in params]
+        return self._expand_alias(params)
 
     def _expand_alias(self, params: list[Parameter]) -> list[Parameter]:
         """Pre-set: a method alias set at run time becomes the orthogonal values it resolves to."""
@@ -345,6 +377,10 @@ class TissueSimNode(Node):
 
     def _on_pose(self, msg: PoseStamped, info: dict[str, Any] | None = None) -> None:
         """A tool/pose message; ``info`` (rclpy's message info) gives its reception time to the phase lock."""
+        if self._values["lock_step"]:
+            # the pose steps now: first every twist that arrived before it (the executor may run this callback
+            # before the twist's, though the twist came first), and recorded before it in that order
+            self._take_waiting(self.sub_twist)
         if self.recorder is not None:
             self.recorder.write(self.sub_pose.topic_name, msg)  # as received, before any check
         p, o = msg.pose.position, msg.pose.orientation
@@ -389,8 +425,8 @@ class TissueSimNode(Node):
         if self.phase_lock is not None:
             self.phase_lock.arrival(arrival_ns if arrival_ns is not None else time.time_ns())
         if self._values["lock_step"] and not self.paused:
-            twist = self.tool.twist if (self._values["twist_source"] == "auto" and stamp != (0, 0)
-                                        and self.tool.twist_stamp == stamp) else None
+            twist = self.tool.twist_at(stamp) if (self._values["twist_source"] == "auto"
+                                                  and stamp != (0, 0)) else None
             self._step(stamp if stamp != (0, 0) else _stamp_of(self.get_clock().now()), twist)
 
     def _on_twist(self, msg: TwistStamped) -> None:
@@ -413,11 +449,13 @@ class TissueSimNode(Node):
         self.tool.twist = ToolTwist(vx, vy, wz)
         self.tool.twist_stamp = stamp
         self.tool.twist_received = self.get_clock().now().nanoseconds * 1e-9
+        self.tool.recent_twists.append((stamp, self.tool.twist))
 
     def _on_clock_switch(self, following: bool) -> None:
         """The node's clock changed between /clock and the system clock: forget the input stamps."""
         self.tool.pose_stamp = self.tool.twist_stamp = (0, 0)
         self.tool.twist_received = -math.inf
+        self.tool.recent_twists.clear()
         self._last_tick = None
         if self.phase_lock is not None:
             self.phase_lock.reset()
@@ -500,18 +538,22 @@ class TissueSimNode(Node):
     def _take_queued_input(self) -> None:
         """Take the tool messages already received before stepping (the executor runs a ready timer first)."""
         for sub in (self.sub_twist, self.sub_pose):
-            for _ in range(_TAKE_MAX):
-                try:
-                    with sub.handle:
-                        taken = sub.handle.take_message(sub.msg_type, sub.raw)
-                except InvalidHandle:
-                    return
-                if taken is None:
-                    break
-                if sub is self.sub_pose:
-                    self._on_pose(*taken)
-                else:
-                    self._on_twist(taken[0])
+            self._take_waiting(sub)
+
+    def _take_waiting(self, sub: Any) -> None:
+        """Run ``sub``'s callback on the messages it has received and the executor has not handed out yet."""
+        for _ in range(_TAKE_MAX):
+            try:
+                with sub.handle:
+                    taken = sub.handle.take_message(sub.msg_type, sub.raw)
+            except InvalidHandle:
+                return
+            if taken is None:
+                return
+            if sub is self.sub_pose:
+                self._on_pose(*taken)
+            else:
+                self._on_twist(taken[0])
 
     def _step(self, stamp: tuple[int, int], twist: ToolTwist | None, from_timer: bool = False) -> None:
         """One simulation step and its messages; ``stamp`` stamps every output."""
