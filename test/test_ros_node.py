@@ -740,12 +740,6 @@ def test_replay_of_a_timer_mode_recording_is_bit_for_bit(ros_client: RosClient, 
     ``tissue-sim replay --mode applied`` steps with the tool/applied_* the node recorded: the energy series, the
     wrenches and the particle positions equal the live run's to the bit.
     """
-    import subprocess  # noqa: PLC0415
-
-    from tissue_sim_ros.ros.bags import Bag  # noqa: PLC0415
-
-    from ros_env import console_script  # noqa: PLC0415
-
     bag_path = tmp_path / "live"
     proc = start_process(["tissue_sim_node", "--ros-args", "-r", "__ns:=/live", "--params-file",
                           str(scene_files["params"]), "-p", f"record_path:={bag_path}"], name="live")
@@ -763,7 +757,19 @@ def test_replay_of_a_timer_mode_recording_is_bit_for_bit(ros_client: RosClient, 
         c.spin_for(DT)
     c.spin_for(0.2)
     assert proc.stop(signal.SIGINT) == 0, proc.output()[-2000:]
-    out = tmp_path / "replay"
+    w_live_values = _assert_replay_is_the_live_run(bag_path, "/live", tmp_path / "replay")
+    assert np.abs(w_live_values).max() > 0
+
+
+def _assert_replay_is_the_live_run(bag_path: Path, ns: str, out: Path) -> np.ndarray:
+    """``tissue-sim replay BAG --mode applied``: energy, wrench (stamps and values) and the last positions equal the
+    node's own recording, step by step in the order recorded; returns the wrenches."""
+    import subprocess  # noqa: PLC0415
+
+    from tissue_sim_ros.ros.bags import Bag  # noqa: PLC0415
+
+    from ros_env import console_script  # noqa: PLC0415
+
     run = subprocess.run([console_script("tissue-sim"), "replay", str(bag_path), "--mode", "applied", "--out",
                           str(out), "--no-progress", "--frame-every", "-1"],
                          capture_output=True, text=True, timeout=300)
@@ -778,12 +784,13 @@ def test_replay_of_a_timer_mode_recording_is_bit_for_bit(ros_client: RosClient, 
 
     e_off, w_off, p_off = series(out / "replay_bag", "")
     with Bag(bag_path) as bag:
-        n_live = bag.message_counts["/live/tissue/energy"]
+        n_live = bag.message_counts[f"{ns}/tissue/energy"]
     # the signal may end the node inside a step: its outputs may be out without its applied tool (published
     # last), never the other way round
     assert len(e_off) > 50 and n_live - len(e_off) in (0, 1), (n_live, len(e_off))
-    e_live, w_live, p_live = series(bag_path, "/live", len(e_off))
+    e_live, w_live, p_live = series(bag_path, ns, len(e_off))
     assert e_off == e_live  # float64, every step
+
     def wrenches(raw: list[bytes]) -> tuple[list[Any], np.ndarray]:
         decoded = [M.decode_wrench_stamped(w) for w in raw]
         return [d[0] for d in decoded], np.array([np.concatenate([d[2], d[3]]) for d in decoded])
@@ -791,10 +798,10 @@ def test_replay_of_a_timer_mode_recording_is_bit_for_bit(ros_client: RosClient, 
     (stamps_off, w_off_values), (stamps_live, w_live_values) = wrenches(w_off), wrenches(w_live)
     assert stamps_off == stamps_live
     np.testing.assert_array_equal(w_off_values, w_live_values)
-    assert np.abs(w_live_values).max() > 0
     _, _, cloud_live = M.decode_point_cloud(p_live)
     _, _, cloud_off = M.decode_point_cloud(p_off)
     np.testing.assert_array_equal(cloud_off[["x", "y"]], cloud_live[["x", "y"]])
+    return w_live_values
 
 
 def test_record_path_that_exists_is_refused(start_process: Any, scene_files: dict[str, Any], tmp_path: Path) -> None:
@@ -896,8 +903,10 @@ def test_play_into_a_node_started_plainly_moves_the_tool(ros_client: RosClient, 
     bag = write_bag(tmp_path / "old", [("/tool/pose", ty, t0 + k * 20_000_000, tool_msg(ty, t0 + k * 20_000_000,
                                                                                         float(x), -0.1, 0.0))
                                        for k, x in enumerate(xs)])
+    rec = tmp_path / "rec"
     proc = start_process(["tissue_sim_node", "--ros-args", "-r", "__ns:=/played", "--params-file",
-                          str(scene_files["params"]), "-p", "follow_clock:=true"], name="played")
+                          str(scene_files["params"]), "-p", "follow_clock:=true", "-p", f"record_path:={rec}"],
+                         name="played")
     node = Node(proc, ros_client, ns="/played")
     node.wait_ready()
     applied = ros_client.raw_subscription(PoseStamped, "/played/tool/applied_pose", BEST_EFFORT)
@@ -924,3 +933,7 @@ def test_play_into_a_node_started_plainly_moves_the_tool(ros_client: RosClient, 
     # so the tool holds at the last pose that arrived, at or after the last one stepped on the bag's clock
     assert abs(s[0] + s[1] * 1e-9 - _time.time()) < 5.0
     assert p[0] in xs[-3:] and p[0] >= in_bag_time[-1][1][0]
+    # the node's own recording, made while its clock went from the system's to the bag's and back, replays the
+    # run bit for bit (its messages are written in the order they happened, whatever the clock said)
+    assert proc.stop(signal.SIGINT) == 0, proc.output()[-2000:]
+    _assert_replay_is_the_live_run(rec, "/played", tmp_path / "replay")

@@ -6,9 +6,17 @@ and can fall behind; recording in the node writes the very bytes it publishes
 written from their serialized CDR bytes, never re-encoded; the tool inputs
 and diagnostics, which arrive or are built as message objects, are serialized
 once with rclpy.
+
+Each message is written at the system clock's time of writing (made strictly
+increasing), not the node's clock: a node that follows ``/clock`` (``tissue-sim
+play``) jumps from the system's time to the bag's and back, and a bag reader
+sorts by these times, so they must keep the order in which the node took its
+inputs and stepped. The messages' own header stamps carry the node's clock.
 """
 from __future__ import annotations
 
+import threading
+import time
 from typing import Any
 
 from rclpy.node import Node
@@ -43,12 +51,14 @@ class RecordingPublisher:
 
 
 class NodeRecorder:
-    """Owns the node's bag: topics with their types and QoS, writes stamped with the node's clock."""
+    """Owns the node's bag: topics with their types and QoS, written at the system time of writing, in order."""
 
     def __init__(self, node: Node, path: str, storage: str) -> None:
         self._node = node
         self.writer = BagWriter(path, storage, hold_signals=False)
         self.path = path
+        self._lock = threading.Lock()  # the step, marker and executor threads write
+        self._last_ns = 0
 
     def add(self, topic: str, msg_class: Any, qos: Any) -> None:
         self.writer.add_topic(topic, _type_name(msg_class),
@@ -62,7 +72,9 @@ class NodeRecorder:
         if self.writer.closed:
             return
         data = msg if isinstance(msg, (bytes, bytearray, memoryview)) else serialize_message(msg)
-        self.writer.write(topic, data, self._node.get_clock().now().nanoseconds)
+        with self._lock:
+            self._last_ns = max(time.time_ns(), self._last_ns + 1)
+            self.writer.write(topic, data, self._last_ns)
 
     def close(self) -> None:
         self.writer.close()

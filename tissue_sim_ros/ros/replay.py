@@ -155,6 +155,7 @@ class ReplayBagSink:
         self.frame_id = frame_id
         self.points_every = points_every
         self._n = 0
+        self._log_ns = -1
         for name, msgtype in OUTPUT_TOPICS.items():
             writer.add_topic(name, msgtype)
         self.encoder = msgs.StepEncoder(sim.model, sim.tool)
@@ -164,9 +165,12 @@ class ReplayBagSink:
         self._n += 1
         out = self.encoder.encode(stamp, self.frame_id, report, self.sim.state.particle_q,
                                   points=self._n % self.points_every == 0)
+        # written at the step's stamp, kept increasing: stamps that jump back (a node that began following a
+        # played /clock) must not reorder the steps for a reader, which sorts by these times
+        log_ns = self._log_ns = max(t_ns, self._log_ns + 1)
         items = [] if pose is None else [
-            ("/tool/pose", msgs.encode_pose_stamped(stamp, self.frame_id, pose.x, pose.y, pose.yaw), t_ns)]
-        items += [(f"/{topic}", data, t_ns) for topic, data in out.messages.items()]
+            ("/tool/pose", msgs.encode_pose_stamped(stamp, self.frame_id, pose.x, pose.y, pose.yaw), log_ns)]
+        items += [(f"/{topic}", data, log_ns) for topic, data in out.messages.items()]
         self.writer.write_many(items)
 
 

@@ -114,23 +114,25 @@ def read_applied_steps(path: str | Path, namespace: str | None = None) -> Applie
         if twist_topic not in bag.topics:
             raise InputError(f"bag {str(path)!r} has no {twist_topic}: it is not a recording of the node's applied "
                              f"tool (record with the node's record_path); it has: {bag.describe_topics()}")
-        poses: dict[Stamp, ToolPose] = {}
+        # in the order written: each step writes its pose (when it had a tool), then its twist. The stamps
+        # need not increase (a node that starts following /clock jumps to the bag's time), so a twist takes
+        # the pose written just before it when that pose has its stamp
+        poses: list[ToolPose | None] = []
         steps: list[tuple[Stamp, ToolTwist]] = []
+        pending: tuple[Stamp, ToolPose] | None = None
         topics = [twist_topic] + ([pose_topic] if pose_topic in bag.topics else [])
         for topic, _, _, raw in bag.messages(topics):
             data = bytes(raw)
             if topic == pose_topic:
-                stamp, pose = decode_applied_pose(data)
-                poses[stamp] = pose
+                pending = decode_applied_pose(data)
             else:
-                steps.append(decode_applied_twist(data))
+                stamp, twist = decode_applied_twist(data)
+                poses.append(pending[1] if pending is not None and pending[0] == stamp else None)
+                steps.append((stamp, twist))
+                pending = None
     finally:
         bag.close()
     if not steps:
         raise InputError(f"bag {str(path)!r}: {twist_topic} holds no messages")
     t_ns = np.array([s * 1_000_000_000 + ns for (s, ns), _ in steps], dtype=np.int64)
-    if np.any(np.diff(t_ns) <= 0):
-        raise InputError(f"bag {str(path)!r}: {twist_topic} stamps are not increasing: the recording holds more "
-                         "than one run; record each run to its own bag")
-    return AppliedSteps(t_ns=t_ns, poses=[poses.get(stamp) for stamp, _ in steps], twists=[tw for _, tw in steps],
-                        twist_topic=twist_topic)
+    return AppliedSteps(t_ns=t_ns, poses=poses, twists=[tw for _, tw in steps], twist_topic=twist_topic)
