@@ -860,8 +860,27 @@ def test_poses_in_other_frames_are_projected_onto_the_placed_plane(ros_client: R
     ros_client.spin_for(0.3)
     assert len(applied.messages) == n
     assert "camera" in proc.output() and "no transform" in proc.output()
+
+    def frame_change(stamp_s: float) -> None:
+        """frame_id set at run time: the old plane name is just a frame the node cannot place any more, base_link
+        still lands where the transforms put it (now reported in the new frame), and world_frame is refused."""
+        assert node.set_param("frame_id", "tissue2").successful
+        k = len(applied.messages)
+        node.pose_pub.publish(node.pose(0.2, 0.0, frame="world", stamp=(t0 + rclpy_duration(stamp_s)).to_msg()))
+        msg.header.stamp = (t0 + rclpy_duration(stamp_s + 0.01)).to_msg()
+        node.pose_pub.publish(msg)
+        ros_client.spin_until(lambda: len(applied.messages) > k, TIMEOUT, proc, "the base_link pose in tissue2")
+        ros_client.spin_for(0.2)
+        assert len(applied.messages) == k + 1  # the 'world' pose was dropped
+        _, frame2, p3, _ = M.decode_pose_stamped(applied.messages[-1])
+        assert frame2 == "tissue2"
+        np.testing.assert_allclose(p3[:2], (x, y), atol=1e-12)
+        refused = node.set_param("frame_id", "map")
+        assert not refused.successful and "world_frame='map'" in refused.reason
+
     if not tf_input.TF_AVAILABLE:
         assert "tf2_msgs not installed" in proc.output()
+        frame_change(0.1)
         return
     from geometry_msgs.msg import TransformStamped  # noqa: PLC0415
     from tf2_msgs.msg import TFMessage  # noqa: PLC0415
@@ -887,6 +906,11 @@ def test_poses_in_other_frames_are_projected_onto_the_placed_plane(ros_client: R
     ros_client.spin_until(lambda: len(applied.messages) > n, TIMEOUT, proc, "the step of the /tf tool")
     _, _, p2, _ = M.decode_pose_stamped(applied.messages[-1])
     np.testing.assert_allclose(p2[:2], (x2, y2), atol=1e-12)
+    frame_change(0.1)
+    # the broadcast names the new plane frame
+    ros_client.spin_until(lambda: any(t.child_frame_id == "tissue2" for m in static.messages
+                                      for t in deserialize_message(m, TFMessage).transforms),
+                          TIMEOUT, proc, "tissue2 on /tf_static")
 
 
 def test_play_into_a_node_started_plainly_moves_the_tool(ros_client: RosClient, start_process: Any,

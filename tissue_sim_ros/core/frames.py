@@ -238,6 +238,13 @@ class TransformBuffer:
         self._times.pop(child, None)
         self._samples.pop(child, None)
 
+    def remove(self, child: str) -> None:
+        """Forget the link from ``child`` to its parent (static or stamped); nothing if there is none."""
+        self._parent.pop(child, None)
+        self._static.pop(child, None)
+        self._times.pop(child, None)
+        self._samples.pop(child, None)
+
     def set(self, parent: str, child: str, transform: Transform, t_ns: int) -> None:
         """T_parent_child at time t_ns; a sample older than the link's newest is inserted in order."""
         self._set_parent(parent, child)

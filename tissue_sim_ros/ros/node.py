@@ -289,12 +289,18 @@ class TissueSimNode(Node):
         try:
             cfg = self.config.replace(**changes)
             changed = self.config.changed(cfg)
+            if "frame_id" in changed:
+                self.frames.check_plane(cfg.flat()["frame_id"])
             if any(name in SIM_NAMES for name in changed):
                 self.sim.retune(cfg)
         except InputError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         old, new = self._values, cfg.flat()
         self.config, self._values = cfg, new
+        if new["frame_id"] != old["frame_id"]:
+            self.frames.set_plane(self, new["frame_id"])  # poses in the old frame are no longer the plane's
+        if new["tf_tolerance"] != old["tf_tolerance"]:
+            self.frames.buffer.tolerance_ns = int(new["tf_tolerance"] * 1e9)
         if any(new[k] != old[k] for k in ("strain_color_max", "wire_width", "markers_wireframe")):
             self._encoder = self._make_encoder()
         if new["frame_id"] != old["frame_id"]:

@@ -83,9 +83,7 @@ class FrameInput:
         self.world = values["world_frame"]
         self.plane_in_world: Transform | None = None
         if self.world:
-            if self.world == self.plane:
-                raise InputError(f"parameter world_frame={self.world!r}: expected a frame other than frame_id "
-                                 f"{self.plane!r} (the plane is placed in it)")
+            self.check_plane(self.plane)
             self.plane_in_world = Transform.from_xyz_rpy(values["plane_x"], values["plane_y"], values["plane_z"],
                                                          values["plane_roll"], values["plane_pitch"],
                                                          values["plane_yaw"])
@@ -107,6 +105,23 @@ class FrameInput:
             raise InputError(f"parameter tool_frame={self.tool_frame!r}: reading the tool from /tf needs tf2_msgs, "
                              "which is not installed (no PyPI wheel): run scripts/build_tf2_msgs.sh, or use a full "
                              "ROS install, or publish the tool on tool/pose")
+
+    def check_plane(self, frame: str) -> None:
+        """InputError unless ``frame`` can be the plane's frame (not ``world_frame``, in which the plane is placed)."""
+        if self.world and frame == self.world:
+            raise InputError(f"parameter world_frame={self.world!r}: expected a frame other than frame_id "
+                             f"{frame!r} (the plane is placed in it)")
+
+    def set_plane(self, node: Node, frame: str) -> None:
+        """``frame_id`` changed at run time: tool inputs are now taken into ``frame``, placed in ``world_frame`` as
+        the old one was (the old name's link to the world is forgotten and the broadcast names the new one)."""
+        self.check_plane(frame)
+        if self.plane_in_world is not None:
+            self.buffer.remove(self.plane)
+            self.buffer.set_static(self.world, frame, self.plane_in_world)
+        self.plane = frame
+        if self.pub_static is not None:
+            self.pub_static.publish(self._plane_message(node))
 
     @property
     def status(self) -> str:
