@@ -622,6 +622,33 @@ def test_sigterm_ends_the_node_cleanly(node: Node) -> None:
     assert "Traceback" not in node.proc.output()
 
 
+def test_an_interrupt_while_the_node_starts_ends_it_cleanly(ros_env: dict[str, str], scene_files: dict[str, Any],
+                                                             tmp_path: Path) -> None:
+    """SIGINT raised once the node's construction has started its marker and planner threads (here at its last
+    step, made to raise KeyboardInterrupt): exit 0, no traceback, no abort ('terminate called...' was seen in 4 of
+    10 interrupts at start-up), and the bag of record_path closed."""
+    import subprocess  # noqa: PLC0415
+
+    code = ("import sys\n"
+            "from tissue_sim_ros.ros import node\n"
+            "def interrupted(self):\n"
+            "    raise KeyboardInterrupt\n"
+            "node.TissueSimNode._publish_rest_mesh = interrupted\n"
+            "code = node.main()\n"
+            "import threading\n"
+            "print('threads left:', sorted(t.name for t in threading.enumerate() if t is not threading.main_thread()))\n"
+            "sys.exit(code)\n")
+    bag = tmp_path / "startup_bag"
+    run = subprocess.run([sys.executable, "-c", code, "--ros-args", "--params-file", str(scene_files["params"]),
+                          "-r", "__ns:=/interrupted", "-p", f"record_path:={bag}"],
+                         env=ros_env, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "Traceback" not in run.stderr and "terminate called" not in run.stderr + run.stdout
+    # the marker and planner threads were ended, not left to the interpreter's exit (which aborted on them)
+    assert "threads left: []" in run.stdout, run.stdout
+    assert (bag / "metadata.yaml").exists()  # closed, not left to --recover
+
+
 def test_tool_driver_bad_preset_exits_2(start_process: Any) -> None:
     proc = start_process(["tool_driver", "--ros-args", "-p", "preset:=bogus"], name="bad_driver")
     assert proc.wait(timeout=60) == 2

@@ -145,6 +145,15 @@ class TissueSimNode(Node):
 
     def __init__(self, node_name: str = "tissue_sim_node", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
+        try:
+            self._build()
+        except BaseException:
+            # a bad parameter, or SIGINT/SIGTERM while starting: end the threads already started (marker,
+            # planner) and close the bag, or the interpreter's exit aborts on them ("terminate called ...")
+            self.destroy_node()
+            raise
+
+    def _build(self) -> None:
         self.config: Config = self._declare_parameters()
         self._values = self.config.flat()
         self.sim: Simulation = Simulation.from_config(self.config)
@@ -187,7 +196,7 @@ class TissueSimNode(Node):
         # markers are encoded and published on their own thread: the step thread never waits for 1 MB of DDS
         self.marker_worker = MarkerPublisher(
             lambda data: self.pub_markers.publish(data),
-            on_error=lambda exc: self._warn("markers", f"tissue/markers not published: {exc}"),
+            on_error=self._marker_error,
             nice=self._values["marker_nice"])
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
@@ -619,11 +628,18 @@ class TissueSimNode(Node):
         self.frames.record = self.recorder.write
         self.get_logger().info(f"recording every message in and out to {path} ({storage})")
 
+    def _marker_error(self, exc: Exception) -> None:
+        """The marker thread could not publish: a warning, unless the node is shutting down (SIGINT/SIGTERM: rcl
+        then refuses the last array, which loses nothing a reader could still receive)."""
+        if rclpy.ok(context=self.context):
+            self._warn("markers", f"tissue/markers not published: {exc}")
+
     def destroy_node(self) -> None:
-        self.marker_worker.close()  # before the bag closes: its last markers go in
-        self.planner.close()
-        if self.recorder is not None:
-            self.recorder.close()  # a closed bag, whatever ended the node
+        """Stop the marker and planner threads, close the bag, destroy the node (also of one half built)."""
+        for name in ("marker_worker", "planner", "recorder"):  # the markers before the bag: their last go in
+            part = getattr(self, name, None)
+            if part is not None:
+                part.close()
         super().destroy_node()
 
     def _publish_step(self, stamp: tuple[int, int], report: StepReport) -> None:
@@ -931,7 +947,10 @@ def main(args: list[str] | None = None) -> int:
     finally:
         if node is not None:
             node.destroy_node()
-        rclpy.try_shutdown()
+        try:
+            rclpy.try_shutdown()
+        except _rclpy_impl.RCLError:
+            pass  # the signal handler shut the context down meanwhile ("rcl_shutdown already called")
     return code
 
 
