@@ -483,7 +483,7 @@ def test_lock_step_node_beside_it_steps_once_per_pose_and_replays_exactly(
     ros_client.spin_until(lambda: left.rest.messages, TIMEOUT, proc, "/left/tissue/rest_mesh")
     ros_client.wait_for_publisher("/left/tissue/energy", TIMEOUT, proc)
     ros_client.spin_for(0.3)  # let the energy reader match too
-    path = np.stack([np.full(60, 0.2), np.linspace(-0.06, 0.02, 60)], axis=1)
+    path = np.stack([np.full(61, 0.2), np.linspace(-0.06, 0.02, 61)], axis=1)  # 61: not a multiple of 3
     t0 = ros_client.node.get_clock().now()
 
     def replay() -> tuple[np.ndarray, list[tuple[int, int]]]:
@@ -501,6 +501,10 @@ def test_lock_step_node_beside_it_steps_once_per_pose_and_replays_exactly(
     assert len(left.energy.messages) == len(path)
     expected = [(t0 + rclpy_duration(k * DT)).seconds_nanoseconds() for k in range(len(path))]
     assert stamps == [tuple(s) for s in expected]
+    # the poses stopped: the last one's state still reaches tissue/markers (lock-step: by the clock, not per step)
+    last = tuple(expected[-1])
+    ros_client.spin_until(lambda: any(M.decode_marker_array(m)[1].stamp == last for m in left.markers.messages),
+                          TIMEOUT, proc, "the last pose's state on tissue/markers")
     assert np.abs(first - scene_files["mesh"].vertices).max() > 0.01
     left.reset()
     ros_client.spin_for(0.1)

@@ -202,6 +202,10 @@ class TissueSimNode(Node):
         self.create_service(SetBool, "~/pause", self._on_pause)
         self.planner = PlannerService(self)  # ~/plan_insertion, on its own thread
         self.step_timer = None if lock_step else self.create_timer(self.sim.params.dt, self._on_tick)
+        self._marker_due: MarkerSnapshot | None = None
+        self._marker_sent = -math.inf
+        self.marker_timer = (self.create_timer(1.0 / self._values["marker_rate"], self._flush_markers)
+                             if lock_step else None)
         self._period_ns = None if self.step_timer is None else self.step_timer.timer_period_ns
         self.phase_lock = None if self._period_ns is None else PhaseLock(self._period_ns)
         self._stretched = False
@@ -314,6 +318,9 @@ class TissueSimNode(Node):
             self._encoder = self._make_encoder()
         if new["frame_id"] != old["frame_id"]:
             self._publish_rest_mesh()
+        if self.marker_timer is not None and new["marker_rate"] != old["marker_rate"]:
+            self.destroy_timer(self.marker_timer)
+            self.marker_timer = self.create_timer(1.0 / new["marker_rate"], self._flush_markers)
         if new["diagnostics_rate"] != old["diagnostics_rate"]:
             self.destroy_timer(self.diagnostics_timer)
             self.diagnostics_timer = self.create_timer(1.0 / new["diagnostics_rate"], self._publish_diagnostics)
@@ -653,15 +660,34 @@ class TissueSimNode(Node):
             self._steps_since_markers = 0
         q = self.sim.state.particle_q
         self._publish(self._encoder.encode(stamp, self.frame_id, report, q, points=publish_points, markers=False))
-        if publish_markers and np.isfinite(q).all():
+        if not np.isfinite(q).all():
+            return
+        if self.step_timer is None:
+            # lock-step: poses come at any rate and may stop; markers at marker_rate by the clock, and the newest
+            # state is kept due until the flush timer hands it over (the last pose's state is always shown)
+            self._marker_due = self._marker_snapshot(stamp, report, q)
+            self._flush_markers()
+        elif publish_markers:
             # encoded and published on the marker worker's thread, newest state only: never blocks the step
-            pose = self.sim.tool_pose
-            contact = report.contact_particles
-            self.marker_worker.submit(MarkerSnapshot(
-                self._encoder.scene, stamp, self.frame_id, q.copy(),
-                tool_pose=None if pose is None else (pose.x, pose.y, pose.yaw),
-                tool_stamp=self.tool.pose_stamp if pose is not None else None,
-                contact_particles=None if contact is None else np.array(contact)))
+            self.marker_worker.submit(self._marker_snapshot(stamp, report, q))
+
+    def _marker_snapshot(self, stamp: tuple[int, int], report: StepReport, q: np.ndarray) -> MarkerSnapshot:
+        pose = self.sim.tool_pose
+        contact = report.contact_particles
+        return MarkerSnapshot(
+            self._encoder.scene, stamp, self.frame_id, q.copy(),
+            tool_pose=None if pose is None else (pose.x, pose.y, pose.yaw),
+            tool_stamp=self.tool.pose_stamp if pose is not None else None,
+            contact_particles=None if contact is None else np.array(contact))
+
+    def _flush_markers(self) -> None:
+        """Lock-step: hand the newest unshown state to the marker worker if 1/marker_rate has passed since the last."""
+        if self._marker_due is None:
+            return
+        now = time.monotonic()
+        if now - self._marker_sent >= 1.0 / self._values["marker_rate"]:
+            self.marker_worker.submit(self._marker_due)
+            self._marker_due, self._marker_sent = None, now
 
     def _publish_rest_mesh(self) -> None:
         self.pub_rest.publish(self._encoder.rest_markers(_stamp_of(self.get_clock().now()), self.frame_id,
