@@ -91,8 +91,18 @@ def bad_inputs(tmp_path: Path, disc_png: Path) -> list[tuple[list, str]]:
     cv2.imwrite(str(tmp_path / "thin.png"), thin)
     (tmp_path / "huge.png").write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR" + (9000).to_bytes(4, "big") * 2
                                         + b"\x08\x02\x00\x00\x00")
+    (tmp_path / "text.npz").write_text("not a zip archive")
+    np.savez(tmp_path / "other.npz", a=np.zeros(3))
+    (tmp_path / "a_dir").mkdir()
+    (tmp_path / "dir.npz").mkdir()
     return [
         ([tmp_path / "missing.png"], "missing.png' does not exist"),
+        # a directory is named as one (was "does not exist")
+        ([tmp_path / "a_dir"], "a_dir' is a directory: expected a file"),
+        ([tmp_path / "dir.npz"], "dir.npz' is a directory: expected a file"),
+        # no NumPy advice about allow_pickle (a text file was loaded as a pickle)
+        ([tmp_path / "text.npz"], "text.npz' is not a valid .npz mesh (not an .npz archive)"),
+        ([tmp_path / "other.npz"], "other.npz' is not a valid .npz mesh (no vertices, triangles, edges, boundary, body)"),
         ([tmp_path / "missing.msh"], "missing.msh' does not exist"),
         ([tmp_path / "text.png"], "text.png' is not an image"),
         ([tmp_path / "white.png"], "white.png' is one flat grey level"),
@@ -119,7 +129,7 @@ def test_bad_input_exits_2_with_one_line(tmp_path: Path, disc_png: Path, capsys)
         lines = err.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("tissue-sim: error: "), (argv, err)
         assert message in lines[0], (argv, err)
-        assert "Traceback" not in err and not (tmp_path / "out.npz").exists()
+        assert "Traceback" not in err and "pickle" not in err and not (tmp_path / "out.npz").exists()
 
 
 def test_help_explains_the_command(capsys):

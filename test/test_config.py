@@ -107,6 +107,13 @@ def test_groups_and_replace() -> None:
     assert set(SIM_NAMES).isdisjoint(cfg.group("node"))
 
 
+def test_a_directory_is_not_a_parameter_file(tmp_path) -> None:
+    with pytest.raises(InputError, match=r"parameter file '.*' is a directory: expected a file"):
+        load_params_file(tmp_path)
+    with pytest.raises(InputError, match=r"parameter file '.*nope.yaml' does not exist"):
+        load_params_file(tmp_path / "nope.yaml")
+
+
 def test_malformed_file_is_one_readable_line(tmp_path) -> None:
     bad = tmp_path / "bad.yaml"
     bad.write_text("tissue_sim_node:\n  ros__parameters:\n    dt: [0.01\n")

@@ -40,7 +40,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import yaml
 
-from .errors import InputError
+from .errors import InputError, input_file
 from .mesh import MAX_PARTICLES, OUTLINE_CORNERS, TissueMesh, load_meshes
 from .model import (
     AREA_MODES,
@@ -404,9 +404,7 @@ def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, 
     Accepts the node's own section, a ``/**`` wildcard section, or a flat mapping.
     A file that cannot be read or parsed is an InputError of one line.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"parameter file {str(path)!r} does not exist")
+    path = input_file(path, "parameter file")
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:

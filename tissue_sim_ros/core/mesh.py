@@ -13,12 +13,13 @@ one body (a connected tissue region).
 from __future__ import annotations
 
 import re
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, input_file
 
 #: Meshes estimated to have more vertices than this are refused before meshing (the ``max_particles``
 #: parameter): meshing takes ~1 min per 100k vertices and a step ~10 ms per 20k particles, so a spacing
@@ -289,21 +290,28 @@ def load_mesh(path: str | Path) -> TissueMesh:
     boundary comes from the topology, and bodies (connected components) are numbered
     by descending centroid y like image meshes.
     """
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"mesh file {str(path)!r} does not exist")
+    path = input_file(path, "mesh file")
     suffix = path.suffix.lower()
     if suffix == ".npz":
+        expected = "expected an .npz written by TissueMesh.save (vertices, triangles, edges, boundary, body)"
+        if not zipfile.is_zipfile(path):  # np.load would try it as a pickle and talk about allow_pickle
+            raise InputError(f"mesh file {str(path)!r} is not a valid .npz mesh (not an .npz archive): {expected}")
         try:
-            with np.load(path) as data:
+            with np.load(path, allow_pickle=False) as data:
+                missing = [k for k in ("vertices", "triangles", "edges", "boundary", "body") if k not in data.files]
+                if missing:
+                    raise InputError(f"mesh file {str(path)!r} is not a valid .npz mesh (no {', '.join(missing)}): "
+                                     f"{expected}")
                 names = tuple(str(n) for n in data["body_names"]) if "body_names" in data.files else ()
                 return TissueMesh(vertices=data["vertices"].astype(np.float64),
                                   triangles=data["triangles"].astype(np.int32),
                                   edges=data["edges"].astype(np.int32), boundary=data["boundary"].astype(bool),
                                   body=data["body"].astype(np.int32), body_names=names)
-        except (KeyError, ValueError, OSError) as exc:
-            raise InputError(f"mesh file {str(path)!r}: expected an .npz written by TissueMesh.save "
-                             f"(vertices, triangles, edges, boundary, body): {exc}") from None
+        except (KeyError, ValueError, TypeError, OSError, EOFError, zipfile.BadZipFile) as exc:
+            if isinstance(exc, InputError):
+                raise
+            why = " ".join(str(exc).split(". ")[0].split())  # the first sentence, on one line
+            raise InputError(f"mesh file {str(path)!r} is not a valid .npz mesh ({why}): {expected}") from None
     if suffix in (".node", ".ele", ".poly"):
         vertices, triangles = _read_triangle(path)
     elif suffix == ".msh":
@@ -585,9 +593,7 @@ def read_image(image: str | Path | np.ndarray, max_pixels: int = MAX_PIXELS) -> 
                 img = img * 255.0
             img = np.clip(np.nan_to_num(img), 0, 255).astype(np.uint8)
         return np.ascontiguousarray(img)
-    path = Path(image)
-    if not path.is_file():
-        raise InputError(f"image file {str(path)!r} does not exist")
+    path = input_file(image, "image file")
     # check the size from the header before decoding a huge image into memory
     header_size = _image_header_size(path)
     if header_size is not None and header_size[0] * header_size[1] > max_pixels:

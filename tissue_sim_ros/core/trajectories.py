@@ -48,7 +48,7 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from .errors import InputError
+from .errors import InputError, input_file
 from .tool import StraightInsertion, ToolShape, Trajectory, WaypointTrajectory
 
 #: Experiment a: tip start [m], direction [deg], speed [m per step], steps.
@@ -211,9 +211,7 @@ def resolve_trajectory(spec: str, tool: ToolShape, dt: float, scene: str = "pape
 
 def load_trajectory(path: str | Path, dt: float) -> Trajectory:
     """A trajectory file (module text): CSV of timed poses, or YAML waypoints or a straight motion."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"trajectory file {str(path)!r} does not exist")
+    path = input_file(path, "trajectory file")
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as exc:

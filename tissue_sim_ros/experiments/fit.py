@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import InputError
+from ..core.errors import InputError, input_file
 from ..core.fitting import FitParameter, FitResult, fit, make_parameter
 from ..core.tracking import (
     MappedTrackSimulator,
@@ -67,9 +67,7 @@ class FitSetup:
 
 def read_correspondence(path: str | Path) -> np.ndarray:
     """A correspondence CSV: header 'vertex' or 'triangle,w0,w1,w2', one row per tracked point."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"--correspondence {str(path)!r} does not exist")
+    path = input_file(path, "--correspondence")
     lines = [ln.strip() for ln in path.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
     if not lines:
         raise InputError(f"--correspondence {str(path)!r} is empty")
