@@ -171,3 +171,20 @@ def test_config_command_prints_what_the_library_resolves(tmp_path) -> None:
     bad = subprocess.run([sys.executable, "-m", "tissue_sim_ros.cli", "config", "--set", "iteratons=3"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "did you mean 'iterations'" in bad.stderr
+
+
+def test_config_out_creates_its_directory_and_bad_paths_are_one_line(tmp_path, capsys) -> None:
+    from tissue_sim_ros.cli import main
+
+    out = tmp_path / "new" / "dir" / "c.yaml"
+    assert main(["config", "--out", str(out)]) == 0  # as every --out FILE: the directory is made
+    assert resolve_config(params_file=out).changed(resolve_config()) == []
+    capsys.readouterr()
+    (tmp_path / "afile").write_text("")
+    for path, message in [(tmp_path / "afile" / "c.yaml", "afile' is not a directory"),
+                          (tmp_path / "new", "is a directory: expected a file name")]:
+        assert main(["config", "--out", str(path)]) == 2, path  # was a FileNotFoundError traceback, exit 1
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err and "Traceback" not in err, err
+    assert main(["config", "--out", str(tmp_path / "other" / "c.yaml"), "--set", "iteratons=3"]) == 2
+    assert not (tmp_path / "other").exists()  # bad input creates nothing

@@ -12,10 +12,10 @@ load it identically.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 from typing import Any, Mapping
 
 from .core.config import Config, parse_assignments, resolve_config
+from .core.errors import make_parent, output_file
 
 HELP = "print the resolved configuration (shipped YAML + --params + --set) as a parameter YAML"
 DESCRIPTION = """Resolve the configuration once, as every command and the node do, and print it.
@@ -49,13 +49,16 @@ def config_from_args(args: argparse.Namespace, defaults: Mapping[str, Any] | Non
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_config_arguments(parser)
-    parser.add_argument("--out", metavar="FILE", help="write the YAML here instead of printing it")
+    parser.add_argument("--out", metavar="FILE",
+                        help="write the YAML here instead of printing it (its directory is created)")
 
 
 def run(args: argparse.Namespace) -> int:
+    out = output_file(args.out, "--out") if args.out else None
     text = config_from_args(args).to_yaml()
-    if args.out:
-        Path(args.out).write_text(text)
+    if out is not None:
+        make_parent(out, "--out")  # as every command's --out FILE: its directory is created
+        out.write_text(text)
         print(f"wrote {args.out}")
     else:
         print(text, end="")

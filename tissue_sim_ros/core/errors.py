@@ -30,3 +30,26 @@ def input_file(path: str | os.PathLike[str], what: str) -> Path:
         raise InputError(f"{what} {str(p)!r} is not a regular file: expected a file")
     return p
 
+
+def output_file(path: str | os.PathLike[str], option: str) -> Path:
+    """A file ``option`` names to write, checked before anything is created: not a directory, and no
+    existing file where a directory of its path should be. Its parent is created later, by :func:`make_parent`
+    (as every command's ``--out FILE`` does), once the rest of the input has been checked."""
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{option} {str(p)!r} is a directory: expected a file name")
+    for parent in p.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise InputError(f"{option} {str(p)!r}: {str(parent)!r} is not a directory: expected a path "
+                                 "under a directory")
+            break
+    return p
+
+
+def make_parent(path: Path, option: str) -> None:
+    """Create ``path``'s parent directories (as ``mkdir -p``); an OSError becomes one line naming ``option``."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{option} {str(path)!r}: cannot create its directory: {exc.strerror or exc}") from None
