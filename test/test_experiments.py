@@ -107,6 +107,22 @@ def test_experiment_cli_bad_input_exits_2(tmp_path, capsys):
     assert len(err) == 1 and "about 7.3e+07 particles, over the limit max_particles=300000" in err[0], err
 
 
+def test_readme_names_the_files_experiment_a_writes(tmp_path, capsys):
+    """README's file names are what `tissue-sim experiment a` writes (it named an experiment_a_trajectory.csv
+    that the default run does not write)."""
+    import re
+
+    from tissue_sim_ros.cli import main
+
+    assert main(["experiment", "a", "--out", str(tmp_path), "--steps", "3", "--no-progress"]) == 0
+    written = {p.name for p in tmp_path.iterdir()}
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    named = set(re.findall(r"experiment_a_(?:paper|projection)_\w+\.(?:csv|png)", readme))
+    assert named and named <= written, named - written
+    for name in sorted(n for n in written if n.endswith("_trajectory.csv")):
+        assert f"`{name}`" in readme, name
+
+
 def _mcap_messages(bag_dir: Path) -> dict[str, list[bytes]]:
     """Every message of the bag's MCAP file(s) by topic, read with the independent `mcap` library."""
     from mcap.reader import make_reader
