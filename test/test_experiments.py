@@ -107,6 +107,25 @@ def test_experiment_cli_bad_input_exits_2(tmp_path, capsys):
     assert len(err) == 1 and "about 7.3e+07 particles, over the limit max_particles=300000" in err[0], err
 
 
+def test_experiment_cli_bad_input_creates_nothing(tmp_path, capsys):
+    from tissue_sim_ros.cli import main
+
+    out = tmp_path / "ex1"
+    for extra, message in [(["--settle", "-3"], "--settle -3: expected a number of steps >= 0"),
+                           (["--set", f"mesh_file={tmp_path / 'nonexist.npz'}"], "nonexist.npz' does not exist"),
+                           (["--trajectory", str(tmp_path / "nonexist.csv")], "nonexist.csv' does not exist")]:
+        assert main(["experiment", "a", "--out", str(out), "--no-progress", *extra]) == 2, extra
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err
+        assert not out.exists(), extra  # was an empty ex1/ left behind
+    assert main(["experiment", "b", "--out", str(out), "--no-progress", "--set",
+                 f"mesh_file={tmp_path / 'nonexist.npz'}"]) == 2
+    assert not out.exists()
+    (tmp_path / "afile").write_text("")
+    assert main(["experiment", "a", "--out", str(tmp_path / "afile"), "--no-progress"]) == 2
+    assert "exists and is not a directory" in capsys.readouterr().err
+
+
 def test_readme_names_the_files_experiment_a_writes(tmp_path, capsys):
     """README's file names are what `tissue-sim experiment a` writes (it named an experiment_a_trajectory.csv
     that the default run does not write)."""

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from ..cli_config import add_config_arguments
 from ..core import trajectories as tr
@@ -65,8 +66,12 @@ def run(args: argparse.Namespace) -> int:
                 if args.which == "b" and tool is not None else None)
     cfg = resolve_config(overrides=parse_assignments(args.set), params_file=files or None, defaults=defaults,
                          source="--set")
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise InputError(f"--out {args.out!r} exists and is not a directory: expected a directory")
     if args.which == "a" and args.steps is not None and args.steps < 1:
         raise InputError(f"--steps {args.steps}: expected at least 1 step")
+    if args.settle < 0:
+        raise InputError(f"--settle {args.settle}: expected a number of steps >= 0")
     if args.which == "a" and args.trajectory and len(args.trajectory) > 1:
         raise InputError(f"--trajectory given {len(args.trajectory)} times: experiment a runs one trajectory")
     for spec in args.trajectory or []:  # a bad name or file fails before anything runs

@@ -130,10 +130,9 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None =
     from ..render import plot_energy, save_snapshots  # noqa: PLC0415  (matplotlib only when drawing)
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    sim = build_simulation(params)
     if isinstance(settle, bool) or not isinstance(settle, int) or settle < 0:
         raise InputError(f"--settle {settle!r}: expected a number of steps >= 0")
+    sim = build_simulation(params)
     if settle:
         for _ in range(settle):
             sim.step()
@@ -146,6 +145,7 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None =
         traj = tr.resolve_trajectory(trajectory, sim.tool, sim.params.dt)
     n = traj.n_steps(sim.params.dt) if steps is None else min(steps, traj.n_steps(sim.params.dt))
     snaps = [s for s in snapshot_steps if s <= n]
+    out.mkdir(parents=True, exist_ok=True)  # only once the scene and trajectory are known good: bad input creates nothing
     run, wall = run_trajectory(sim, traj, snapshot_steps=snaps, progress="experiment a" if progress else False,
                                max_steps=n)
     res = ExperimentResult("a", rollouts={"a": run})
@@ -213,7 +213,6 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None =
     from ..render import TERM_STYLES, draw_scene  # noqa: PLC0415
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     tool_values = ({"tool_shape": scene.b_tool.kind, "tool_length": scene.b_tool.length,
                     "tool_width": scene.b_tool.width} if scene.b_tool is not None else {})
     values = params if isinstance(params, Config) else resolve_config(dict(params or {}), defaults=tool_values)
@@ -243,6 +242,7 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None =
             baseline = baseline_rollout(values, len(run.steps))
         runs.append((label, run, sim, wall))
         res.rollouts[tag(label)] = run
+        out.mkdir(parents=True, exist_ok=True)  # after the first scene is built: bad input creates nothing
         run.write_csv(out / f"{prefix}_{tag(label)}_energy.csv")
         res.files.append(out / f"{prefix}_{tag(label)}_energy.csv")
 
