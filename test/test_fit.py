@@ -406,7 +406,7 @@ def test_cli_bad_input(tmp_path, scene_image, capsys, case, match):
     else:
         _cloud_bag(bag, t, [3] * 6)
         extra = {"holdout": ["--holdout", "1.5"], "unknown": ["--fit", "stiffnes"], "nonempty": []}[case]
-    out = tmp_path / "out"
+    out = tmp_path / "out" if case == "nonempty" else tmp_path / "new" / "deeper" / "out"
     if case == "nonempty":
         out.mkdir()
         (out / "keep.txt").write_text("mine")
@@ -420,8 +420,23 @@ def test_cli_bad_input(tmp_path, scene_image, capsys, case, match):
     if case == "nonempty":
         assert sorted(p.name for p in out.iterdir()) == ["keep.txt"]
     else:
-        assert not out.exists()
-    assert not list(tmp_path.glob(".out.*")), "nothing half written"
+        assert not (tmp_path / "new").exists()  # nor the directories above --out it would have made
+    assert not list(tmp_path.rglob(".out.*")), "nothing half written"
+
+
+def test_output_directory_has_the_mode_of_any_other(tmp_path):
+    """The staging directory (tempfile.mkdtemp: 0700) becomes --out with an ordinary directory's mode."""
+    import os
+    import stat
+
+    from tissue_sim_ros.experiments.fit import commit_outputs, staging_dir
+
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    out = tmp_path / "fit1"
+    staging = staging_dir(out)
+    commit_outputs(staging, out)
+    assert stat.S_IMODE(os.stat(out).st_mode) == stat.S_IMODE(os.stat(plain).st_mode)  # was 0o700
 
 
 def test_bench_fit_quick(tmp_path, capsys):

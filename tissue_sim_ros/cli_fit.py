@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import time
 from pathlib import Path
 
@@ -53,8 +52,10 @@ from .experiments.fit import (
     POINTS_TOPIC,
     TOOL_TOPIC,
     commit_outputs,
+    discard_staging,
     load_scene_values,
     make_demo_recording,
+    missing_parents,
     prepare,
     read_correspondence,
     run_fit,
@@ -137,6 +138,7 @@ def run(args: argparse.Namespace) -> int:
     from .ros.recording import read_recording  # noqa: PLC0415
 
     out = Path(args.out)
+    created = missing_parents(out)
     staging = staging_dir(out)
     try:
         truth = None
@@ -177,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
                               extra={"jobs": args.jobs, "total_wall_s": time.perf_counter() - t0})
         commit_outputs(staging, out)
     except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
+        discard_staging(staging, created)
         raise
     for line in summary_lines(setup, result, truth):
         print(line)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -317,7 +318,28 @@ def staging_dir(out: Path) -> Path:
             raise InputError(f"--out {str(out)!r} exists and is not empty: choose another (nothing is overwritten)")
     parent = out.resolve().parent
     parent.mkdir(parents=True, exist_ok=True)
-    return Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=parent))
+    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=parent))
+    # mkdtemp makes it private (0700); the output is an ordinary directory, as every other command's
+    umask = os.umask(0)
+    os.umask(umask)
+    staging.chmod(0o777 & ~umask)
+    return staging
+
+
+def missing_parents(out: Path) -> list[Path]:
+    """The directories above ``out`` that do not exist yet, deepest first (what :func:`staging_dir` creates)."""
+    return [p for p in out.resolve().parents if not p.exists()]
+
+
+def discard_staging(staging: Path, created: list[Path]) -> None:
+    """Remove the staging directory and the ``created`` parents (:func:`missing_parents`): bad input leaves
+    nothing behind."""
+    shutil.rmtree(staging, ignore_errors=True)
+    for d in created:  # deepest first; rmdir: only if still empty
+        try:
+            d.rmdir()
+        except OSError:
+            break
 
 
 def commit_outputs(staging: Path, out: Path) -> None:
