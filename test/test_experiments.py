@@ -204,3 +204,14 @@ def test_plan_ranks_insertions_on_two_processes(tmp_path, capsys):
     assert code == 0 and (tmp_path / "plan.png").is_file() and (tmp_path / "plan.csv").is_file()
     assert "cheapest" in capsys.readouterr().out
     assert main(["plan", "--speeds", "-1", "--out", str(tmp_path), "--no-progress"]) == 2
+
+
+def test_plan_refuses_a_target_outside_the_tissue(tmp_path, capsys):
+    """As the node's planner service does: every insertion would cost 0 (was exit 0 with a note)."""
+    from tissue_sim_ros.cli import main
+
+    out = tmp_path / "plan"
+    assert main(["plan", "--target", "5", "5", "--jobs", "1", "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--target 5 5" in err and "is outside the tissue: expected a target inside it" in err
+    assert not out.exists()

@@ -38,7 +38,7 @@ DESCRIPTION = __doc__
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from ..core.backends import add_backend_arguments  # noqa: PLC0415
     parser.add_argument("--target", type=float, nargs=2, default=list(tr.B_TARGET), metavar=("X", "Y"),
-                        help="target of the tool tip [m] (default: experiment b's, %(default)s)")
+                        help="target of the tool tip [m], a point inside the tissue (default: experiment b's, %(default)s)")
     parser.add_argument("--angles", type=float, nargs=3, default=[-5.0, -40.0, 5.0], metavar=("FROM", "TO", "STEP"),
                         help="insertion angles [deg], direction of the tip's motion (default: -5 to -40 every 5)")
     parser.add_argument("--speeds", type=float, nargs="+", default=[0.001, 0.002],
@@ -108,6 +108,12 @@ def plan(values: Config, angles: list[float], speeds: list[float], target: tuple
     check_backend(backend)
     tasks = [(a, s) for s in speeds for a in angles]
     sim = build_simulation(values)
+    from ..core.planning import locate  # noqa: PLC0415
+
+    if locate(sim.state.particle_q, sim.model.tri_indices, target) is None:
+        # as the node's planner service (~/plan_insertion) refuses it: no insertion can reach such a target
+        raise InputError(f"--target {target[0]:g} {target[1]:g}: the point ({target[0]:.4f}, {target[1]:.4f}) m "
+                         "is outside the tissue: expected a target inside it")
     dt = sim.params.dt
     trajs = [tr.experiment_b(sim.tool, dt, a, speed=s, target=target, distance=distance) for a, s in tasks]
     bar = tqdm(total=1, desc=f"{len(tasks)} insertions", unit="batch", disable=not progress)
@@ -160,11 +166,13 @@ def run(args: argparse.Namespace) -> int:
     angles = angle_grid(*args.angles)
     target = (float(args.target[0]), float(args.target[1]))
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {args.out!r} exists and is not a directory: expected a directory")
     t0 = time.perf_counter()
     rows = plan(values, angles, list(args.speeds), target, args.distance, args.jobs, progress=not args.no_progress,
                 backend=args.backend, address=args.address)
     wall = time.perf_counter() - t0
+    out.mkdir(parents=True, exist_ok=True)  # after the input is checked: bad input creates nothing
     cols = list(rows[0])
     with open(out / "plan.csv", "w") as fh:
         fh.write(",".join(cols) + "\n")
