@@ -26,10 +26,24 @@ def test_tune_quick_writes_loadable_parameters(tmp_path: Path) -> None:
     assert sim.params.method == values["method"]
 
 
-def test_tune_impossible_tolerance_returns_1(tmp_path: Path) -> None:
+def test_tune_impossible_tolerance_returns_1(tmp_path: Path, capsys) -> None:
     out = tmp_path / "params.yaml"
     assert main(["tune", "--quick", "--tolerance", "1e-9", "--budget-ms", "50", "--out", str(out)]) == 1
     assert not out.exists()
+    assert f"{out} not written (exit 1)" in capsys.readouterr().out
+
+
+def test_tune_help_documents_its_exit_status(capsys) -> None:
+    """Exit 1 when no setting qualifies was documented only for --verify."""
+    import pytest
+
+    with pytest.raises(SystemExit):
+        main(["tune", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "Exit status: 0 when a setting meets the tolerance within the budget" in text
+    assert "1 when none does (nothing is written" in text and "2 on bad input" in text
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    assert "exit 1 (nothing written) when no setting meets it within the budget" in readme
 
 
 def test_tune_bad_input_exits_2() -> None:

@@ -20,6 +20,11 @@ With ``material: neo_hookean`` (e.g. ``--params config/scenes/liver_probe.yaml``
 material's physical one instead, mesh plus solver error at rest under the scene's instrument, over
 uniform and graded meshes (finer near the instrument), substeps and iterations
 (:mod:`~tissue_sim_ros.bench.tune_material`).
+
+Exit status: 0 when a setting meets the tolerance within the budget (written to
+--out if given); 1 when none does (nothing is written; the most accurate setting
+within the budget is printed), and with --verify when the file's error exceeds
+--tolerance; 2 on bad input.
 """
 from __future__ import annotations
 
@@ -55,7 +60,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tolerance", type=float, required=True,
                         help="largest accepted error (relative to the tissue's displacement), e.g. 0.1")
     parser.add_argument("--budget-ms", type=float, required=True, help="largest accepted solve time per step [ms]")
-    parser.add_argument("--out", default="", help="write the chosen parameters to this YAML file")
+    parser.add_argument("--out", default="",
+                        help="write the chosen parameters to this YAML file (nothing is written, exit 1, when no "
+                             "setting meets the tolerance within the budget)")
     parser.add_argument("--params", default="", help="scene parameter file (default: config/tissue_sim.yaml)")
     parser.add_argument("--spacings", default="0.1,0.05",
                         help="candidate mesh spacings [m], comma-separated (the reference is twice as fine as the "
@@ -203,7 +210,7 @@ def run(args: argparse.Namespace) -> int:
         if hint:
             msg += (f"; the most accurate within budget: {hint['method']} count {hint['count']} at spacing "
                     f"{hint['spacing']:g} (error {hint['error']:.3g}, {hint['ms_per_step']:.3g} ms)")
-        print(msg)
+        print(msg + (f"; {args.out} not written" if args.out else "") + " (exit 1)")
         return 1
     print(f"\nchosen: spacing {best['spacing']:g} m ({best['particles']} particles), {best['method']} count "
           f"{best['count']}: {best['ms_per_step']:.3g} ms per step, error {best['error']:.3g} "

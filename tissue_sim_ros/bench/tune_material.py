@@ -348,7 +348,7 @@ def run_tune_material(args: Any, cfg: Config, **backend: Any) -> int:
                     f"{hint['grade_spacing']:g} m, {hint['substeps']} x {hint['iterations']} (error field "
                     f"{hint['err_field']:.3g}, force {hint['err_force']:.3g}, energy {hint['err_energy']:.3g}, "
                     f"{hint['ms_per_step']:.3g} ms)")
-        print(msg)
+        print(msg + (f"; {args.out} not written" if args.out else "") + " (exit 1)")
         return 1
     print(f"\nchosen: spacing {best['spacing']:g} m" + (f", {best['grade_spacing']:g} m near the tool"
                                                        if best["grade_spacing"] else "")
