@@ -18,6 +18,7 @@ from tissue_sim_ros.ros import messages as m
 from tissue_sim_ros.ros.bags import (
     POSE_TYPES,
     STORAGES,
+    BadSampleError,
     Bag,
     BagWriter,
     read_tool_track,
@@ -288,7 +289,7 @@ def test_out_of_order_and_repeated_times_are_counted_skips_or_errors(tmp_path):
     np.testing.assert_array_equal(track.t_ns, np.array([100, 200, 300, 400]) * 1_000_000)
     np.testing.assert_allclose(track.pose[:, 0], [0.0, 0.01, 0.04, 0.06])
     assert "repeated 2" in track.summary() and "out_of_order 1" in track.summary()
-    with pytest.raises(InputError, match="sample 3 has time 200000000 ns, equal to"):
+    with pytest.raises(BadSampleError, match="sample 3 has time 200000000 ns, equal to.*: expected increasing sample times$"):
         read_tool_track(path, on_bad_time="error")
     # receive times are in order: no skips
     assert read_tool_track(path, time_source="bag").n == len(stamps)
@@ -301,8 +302,14 @@ def test_non_finite_and_invalid_quaternion_are_counted(tmp_path):
     bad_q = tool_msg(ty, 11_000_000, 0.0, 0.0, 0.0)
     bad_q.pose.orientation.w = 0.0
     msgs = [("/tool/pose", ty, i + 1, msg) for i, msg in enumerate(good + [bad_pos, bad_q])]
-    track = read_tool_track(write_bag(tmp_path / "bag", msgs))
+    path = write_bag(tmp_path / "bag", msgs)
+    track = read_tool_track(path)
     assert track.n == 4 and track.skipped["non_finite"] == 1 and track.skipped["bad_quaternion"] == 1
+    with pytest.raises(BadSampleError, match=r"sample 5 has a non-finite position \(nan, 0.0\) \(non_finite\)"):
+        read_tool_track(path, on_bad_pose="error")
+    with pytest.raises(BadSampleError, match=r"sample 5 has an invalid quaternion \(0.0, 0.0, 0.0, 0.0\)"):
+        read_tool_track(write_bag(tmp_path / "bag2", [m for m in msgs if m[3] is not bad_pos]), on_bad_pose="error")
+    assert read_tool_track(path, on_bad_time="error").n == 4  # times are fine: only poses are refused by on_bad_pose
 
 
 def test_twist_topic_sample_and_hold(tmp_path):

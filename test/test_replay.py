@@ -150,7 +150,28 @@ def test_skips_are_reported_and_strict_refuses(tmp_path, capsys):
     assert "2 of 6 tool samples skipped (repeated: 1, out_of_order: 1)" in out
     assert len(np.genfromtxt(tmp_path / "o" / "energy.csv", delimiter=",", names=True)) == 4
     assert cli(args + ["--out", str(tmp_path / "o2"), "--strict"]) == 2
-    assert "equal to the previous sample" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "equal to the previous sample" in err and err.count("\n") == 1
+    # the CLI's words, not the Python API's (was "use on_bad_time='skip' to drop such samples")
+    assert "on_bad_time" not in err and "(--strict; without it such samples are skipped and counted)" in err
+    assert not (tmp_path / "o2").exists()
+
+
+def test_strict_refuses_every_skip_it_is_offered_for(tmp_path, capsys):
+    """The note says "--strict makes this an error": so it does for a bad quaternion (was exit 0)."""
+    ty = "geometry_msgs/msg/PoseStamped"
+    good = [tool_msg(ty, (i + 1) * 1_000_000, -0.3 + 0.01 * i, 0.15, 0.0) for i in range(5)]
+    bad_q = tool_msg(ty, 10_000_000, -0.2, 0.15, 0.0)
+    bad_q.pose.orientation.w = 0.0
+    path = write_bag(tmp_path / "in", [("/tool/pose", ty, i + 1, msg) for i, msg in enumerate(good + [bad_q])])
+    args = ["replay", str(path), "--params", str(write_params(tmp_path)), "--no-progress", "--frame-every", "-1",
+            "--no-bag"]
+    assert cli(args + ["--out", str(tmp_path / "o")]) == 0
+    assert "1 of 6 tool samples skipped (bad_quaternion: 1); --strict makes this an error" in capsys.readouterr().out
+    assert cli(args + ["--out", str(tmp_path / "o2"), "--strict"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "sample 6 has an invalid quaternion (0.0, 0.0, 0.0, 0.0) (bad_quaternion)" in err
+    assert not (tmp_path / "o2").exists()
 
 
 def test_cli_bad_input(tmp_path, capsys, monkeypatch):

@@ -48,7 +48,7 @@ from .core.simulation import Simulation
 from .core.stamps import ns_from_seconds
 from .core.tool import ToolPose
 from .core.trajectories import resolve_trajectory
-from .ros.bags import BagWriter, ToolTrack, read_tool_track
+from .ros.bags import BadSampleError, BagWriter, ToolTrack, read_tool_track
 from .ros.replay import (
     MODES,
     ReplayBagSink,
@@ -83,7 +83,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--time-source", choices=("header", "bag"), default="header",
                         help="sample times from header stamps (default) or bag receive times")
     parser.add_argument("--strict", action="store_true",
-                        help="repeated or out-of-order sample times are an error instead of counted skips")
+                        help="a tool sample that would be skipped (repeated or out-of-order time, non-finite "
+                             "position, invalid quaternion) is an error (exit 2) instead of a counted skip")
     parser.add_argument("--frame-every", type=int, default=0,
                         help="write a PNG frame every K steps (default: about 40 frames in all; -1: none)")
     parser.add_argument("--video", action="store_true", help="also write replay.mp4 (needs the video extra)")
@@ -128,8 +129,12 @@ def run(args: argparse.Namespace) -> int:
         track = track_from_trajectory(resolve_trajectory(args.trajectory, cfg.tool, dt), dt, args.trajectory)
         print(f"trajectory {args.trajectory}: {track.n} steps of {dt} s")
     else:
-        track = read_tool_track(args.bag, topic=args.tool_topic, frame=args.frame, twist_topic=args.twist_topic,
-                                time_source=args.time_source, on_bad_time="error" if args.strict else "skip")
+        on_bad = "error" if args.strict else "skip"
+        try:
+            track = read_tool_track(args.bag, topic=args.tool_topic, frame=args.frame, twist_topic=args.twist_topic,
+                                    time_source=args.time_source, on_bad_time=on_bad, on_bad_pose=on_bad)
+        except BadSampleError as exc:
+            raise InputError(f"{exc} (--strict; without it such samples are skipped and counted)") from None
         print(track.summary())
         if sum(track.skipped.values()):
             print(f"note: {sum(track.skipped.values())} of {track.n_messages} tool samples skipped "

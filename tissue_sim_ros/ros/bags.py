@@ -33,7 +33,8 @@ Timestamp policy of :func:`read_tool_track` (documented, never silent):
     sample's (``repeated``) or precedes it (``out_of_order``) is skipped and
     counted; a sample with a non-finite position or an invalid quaternion is
     skipped and counted (``non_finite``, ``bad_quaternion``).
-    ``on_bad_time="error"`` raises instead of skipping. The counts travel with
+    ``on_bad_time="error"`` (times) and ``on_bad_pose="error"`` (positions,
+    quaternions) raise :class:`BadSampleError` instead. The counts travel with
     the track (:attr:`ToolTrack.skipped`) and ``tissue-sim replay`` prints them.
 """
 from __future__ import annotations
@@ -76,6 +77,12 @@ TWIST_TYPES = ("geometry_msgs/msg/TwistStamped", "geometry_msgs/msg/Twist")
 """Message types a tool velocity is read from."""
 
 TF_TYPE = "tf2_msgs/msg/TFMessage"
+
+
+class BadSampleError(InputError):
+    """A tool sample :func:`read_tool_track` was told to refuse (``on_bad_time``/``on_bad_pose`` "error")."""
+
+
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 _SIGNALS = (int(signal.SIGINT), int(signal.SIGTERM))
 try:  # the C functions: the signal module wraps them in enum conversions that cost ~10 us a call
@@ -698,7 +705,7 @@ def _choose(bag: Bag, topic: str | None, frame: str | None) -> tuple[str, str, s
 
 def read_tool_track(path: str | Path | Bag, topic: str | None = None, frame: str | None = None,
                     twist_topic: str | None = None, time_source: str = "header",
-                    on_bad_time: str = "skip") -> ToolTrack:
+                    on_bad_time: str = "skip", on_bad_pose: str = "skip") -> ToolTrack:
     """Extract the tool's planar trajectory from a bag.
 
     Parameters
@@ -715,7 +722,9 @@ def read_tool_track(path: str | Path | Bag, topic: str | None = None, frame: str
     time_source : {"header", "bag"}
         Sample time: header stamps (receive time where absent or 0) or receive times.
     on_bad_time : {"skip", "error"}
-        Repeated or out-of-order sample times: skip and count, or raise InputError.
+        Repeated or out-of-order sample times: skip and count, or raise :class:`BadSampleError`.
+    on_bad_pose : {"skip", "error"}
+        Non-finite positions and invalid quaternions: skip and count, or raise :class:`BadSampleError`.
 
     Returns
     -------
@@ -726,6 +735,8 @@ def read_tool_track(path: str | Path | Bag, topic: str | None = None, frame: str
         raise InputError(f"time_source={time_source!r}: expected 'header' or 'bag'")
     if on_bad_time not in ("skip", "error"):
         raise InputError(f"on_bad_time={on_bad_time!r}: expected 'skip' or 'error'")
+    if on_bad_pose not in ("skip", "error"):
+        raise InputError(f"on_bad_pose={on_bad_pose!r}: expected 'skip' or 'error'")
     own = not isinstance(path, Bag)
     bag = Bag(path) if own else path
     try:
@@ -751,18 +762,25 @@ def read_tool_track(path: str | Path | Bag, topic: str | None = None, frame: str
                 n_messages += 1
                 t = t_bag if (time_source == "bag" or stamp == 0) else stamp
                 yaw = _yaw(q)
+                where = f"bag {str(bag.path)!r}, topic {topic}: sample {n_messages}"
                 if not (math.isfinite(x) and math.isfinite(y)):
+                    if on_bad_pose == "error":
+                        raise BadSampleError(f"{where} has a non-finite position ({x}, {y}) (non_finite): "
+                                             "expected finite coordinates")
                     skipped["non_finite"] += 1
                     continue
                 if yaw is None:
+                    if on_bad_pose == "error":
+                        raise BadSampleError(f"{where} has an invalid quaternion ({q.x}, {q.y}, {q.z}, {q.w}) "
+                                             "(bad_quaternion): expected a finite, non-zero quaternion")
                     skipped["bad_quaternion"] += 1
                     continue
                 if t <= last:
                     reason = "repeated" if t == last else "out_of_order"
                     if on_bad_time == "error":
-                        raise InputError(f"bag {str(bag.path)!r}, topic {topic}: sample {n_messages} has time {t} ns, "
-                                         f"{'equal to' if t == last else 'before'} the previous sample's {last} ns "
-                                         f"({reason}); use on_bad_time='skip' to drop such samples")
+                        raise BadSampleError(f"{where} has time {t} ns, "
+                                             f"{'equal to' if t == last else 'before'} the previous sample's {last} ns "
+                                             f"({reason}): expected increasing sample times")
                     skipped[reason] += 1
                     continue
                 last = t
@@ -824,5 +842,5 @@ def _read_twist(bag: Bag, topic: str, t_pose: np.ndarray,
     return out, times, received
 
 
-__all__ = ["STORAGES", "POSE_TYPES", "TWIST_TYPES", "BagWriter", "Bag", "ToolTrack", "read_tool_track",
-           "tool_candidates", "recover_mcap", "recover_bag", "typestore"]
+__all__ = ["STORAGES", "POSE_TYPES", "TWIST_TYPES", "BagWriter", "Bag", "ToolTrack", "BadSampleError",
+           "read_tool_track", "tool_candidates", "recover_mcap", "recover_bag", "typestore"]
