@@ -21,6 +21,7 @@ from tissue_sim_ros.ros.bags import (
     BadSampleError,
     Bag,
     BagWriter,
+    is_node_tool_output,
     read_tool_track,
     recover_mcap,
     tool_candidates,
@@ -257,6 +258,41 @@ def test_two_pose_topics_are_ambiguous(tmp_path):
     with pytest.raises(InputError, match=r"2 possible tool poses.*--tool-topic /a/pose.*--tool-topic /b/pose"):
         read_tool_track(path)
     assert read_tool_track(path, topic="/b/pose").n == 5
+
+
+def _node_bag(path, pose_topics, n=5, applied=("/tool/applied_pose",)):
+    """A bag like the node's recordings: tool input(s), plus the node's own tool/applied_* outputs."""
+    msgs = []
+    for i in range(n):
+        t = 1_000_000_000 + i * 10_000_000
+        for topic in pose_topics:
+            msgs.append((topic, "geometry_msgs/msg/PoseStamped", t, tool_msg("geometry_msgs/msg/PoseStamped", t, i, 0, 0)))
+        for topic in applied:
+            msgs.append((topic, "geometry_msgs/msg/PoseStamped", t + 1,
+                         tool_msg("geometry_msgs/msg/PoseStamped", t, 10 + i, 0, 0)))
+            msgs.append((topic.replace("applied_pose", "applied_twist"), "geometry_msgs/msg/TwistStamped", t + 1,
+                         twist_msg(t, 0.0, 0.0, 0.0)))
+    return write_bag(path, msgs)
+
+
+def test_the_nodes_applied_outputs_are_not_chosen_unasked(tmp_path):
+    """Every bag the project makes holds tool/pose and the node's tool/applied_pose: the input is the tool."""
+    path = _node_bag(tmp_path / "bag", ["/tool/pose"], applied=("/tool/applied_pose", "/left/tool/applied_pose"))
+    track = read_tool_track(path)  # was "3 possible tool poses"
+    assert track.topic == "/tool/pose" and track.n == 5 and track.pose[0, 0] == 0
+    assert read_tool_track(path, topic="/tool/applied_pose").pose[0, 0] == 10  # named: read as asked
+    # two genuine pose topics still ask, and list only them
+    two = _node_bag(tmp_path / "two", ["/a/pose", "/b/pose"])
+    with pytest.raises(InputError, match=r"2 possible tool poses.*--tool-topic /a/pose.*--tool-topic /b/pose") as err:
+        read_tool_track(two)
+    assert "--tool-topic /tool/applied_pose" not in str(err.value)
+    # only the node's output: say how to read it
+    only = _node_bag(tmp_path / "only", [])
+    with pytest.raises(InputError, match=r"only tool pose is the node's own output /tool/applied_pose.*--mode applied"
+                                         r".*--tool-topic /tool/applied_pose"):
+        read_tool_track(only)
+    assert is_node_tool_output("/ns/tool/applied_twist") and is_node_tool_output("tool/applied_pose")
+    assert not is_node_tool_output("/tool/pose") and not is_node_tool_output("/tool/not_applied_pose")
 
 
 def test_missing_topic_lists_topics_and_types(tmp_path):

@@ -286,3 +286,22 @@ def test_sqlite3_output_and_points_every(tmp_path, capsys):
     assert counts["/tissue/energy"] == 12 and counts["/tissue/points"] == 2
     assert cli(["replay", str(path), "--params", params, "--out", str(tmp_path / "o2"), "--points-every", "0"]) == 2
     assert "--points-every 0" in capsys.readouterr().err and not (tmp_path / "o2").exists()
+
+
+def test_a_bag_with_the_nodes_outputs_replays_with_the_documented_command(tmp_path, capsys):
+    """docs/bags.md's `tissue-sim replay run1 --out replay1`: run1 holds tool/pose and the node's own
+    tool/applied_pose/twist, as every bag the project makes (was exit 2, "2 possible tool poses")."""
+    path, times, poses = tool_bag(tmp_path / "in", n=12, twist=True)
+    with Bag(path) as bag:
+        raw = [(topic, ty, t, bytes(data)) for topic, ty, t, data in bag.messages()]
+    ty_pose, ty_twist = "geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/TwistStamped"
+    extra = [(f"{ns}/tool/applied_pose", ty_pose, int(t) + 5, tool_msg(ty_pose, int(t), 9.0, 9.0, 0.0))
+             for ns in ("", "/left") for t in times]
+    extra += [("/tool/applied_twist", ty_twist, int(t) + 5, m.encode_twist_stamped((0, 0), "world", 0.0, 0.0, 0.0))
+              for t in times]
+    node_bag = write_bag(tmp_path / "run1", raw + extra)
+    out = tmp_path / "replay1"
+    assert cli(["replay", str(node_bag), "--params", str(write_params(tmp_path)), "--out", str(out), "--no-progress",
+                "--frame-every", "-1", "--no-bag"]) == 0, capsys.readouterr().err
+    table = np.genfromtxt(out / "energy.csv", delimiter=",", names=True)
+    np.testing.assert_array_equal(table["energy_total"], _direct_energy(small_params(tmp_path), poses))

@@ -71,7 +71,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="output directory (created; must not hold a replay already)")
     parser.add_argument("--tool-topic", default=None,
                         help="topic of the tool pose (PoseStamped, Pose, TransformStamped, TFMessage, "
-                             "PoseWithCovarianceStamped, Odometry); default: the one pose topic in the bag")
+                             "PoseWithCovarianceStamped, Odometry); default: the one pose topic in the bag "
+                             "other than the node's own output tool/applied_pose")
     parser.add_argument("--frame", default=None, help="TF child frame of the tool (for tf2_msgs/TFMessage topics)")
     parser.add_argument("--twist-topic", default=None,
                         help="TwistStamped/Twist topic of the tool velocity (default: derived from poses)")

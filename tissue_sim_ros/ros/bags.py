@@ -78,6 +78,17 @@ TWIST_TYPES = ("geometry_msgs/msg/TwistStamped", "geometry_msgs/msg/Twist")
 
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 
+NODE_TOOL_OUTPUTS = ("tool/applied_pose", "tool/applied_twist")
+"""The node's own tool outputs (relative names): the pose and twist it stepped with (msg_docs/topics.md).
+They carry a pose and a twist, but they are what the node did, not a tool's input: neither ``read_tool_track``
+without a topic nor ``tissue-sim play`` without ``--topics`` takes them (``replay --mode applied`` does)."""
+
+
+def is_node_tool_output(topic: str) -> bool:
+    """Whether ``topic`` is one of :data:`NODE_TOOL_OUTPUTS` in any namespace (``/left/tool/applied_pose``)."""
+    t = topic.rstrip("/")
+    return any(t == name or t.endswith("/" + name) for name in NODE_TOOL_OUTPUTS)
+
 
 class BadSampleError(InputError):
     """A tool sample :func:`read_tool_track` was told to refuse (``on_bad_time``/``on_bad_pose`` "error")."""
@@ -685,7 +696,15 @@ def _choose(bag: Bag, topic: str | None, frame: str | None) -> tuple[str, str, s
             return topic, msgtype, frame  # checked while reading (a scan of a large /tf only if it is absent)
         cands = [c for c in tool_candidates(bag) if c[0] == topic]
     else:
-        cands = tool_candidates(bag)
+        found = tool_candidates(bag)
+        # the node's own outputs (tool/applied_*) are what it did with a tool, not a tool: never chosen unasked
+        cands = [c for c in found if not is_node_tool_output(c[0])]
+        outputs = [c for c in found if is_node_tool_output(c[0])]
+        if not cands and outputs and frame is None:
+            raise InputError(f"bag {str(bag.path)!r}: its only tool pose is the node's own output "
+                             f"{', '.join(c[0] for c in outputs)} (the tool it applied): expected a tool input; "
+                             f"replay a node's recording with --mode applied, or name it with --tool-topic "
+                             f"{outputs[0][0]}")
     if frame is not None:
         matching = [c for c in cands if c[2] == frame]
         if not matching:
@@ -713,7 +732,8 @@ def read_tool_track(path: str | Path | Bag, topic: str | None = None, frame: str
     path : bag path, or an open :class:`Bag`
     topic : str, optional
         The pose topic; when None, the one topic (or TF child frame) that can
-        carry a pose, else an InputError listing the candidates.
+        carry a pose, else an InputError listing the candidates. The node's own
+        outputs (:data:`NODE_TOOL_OUTPUTS`) are never candidates: name them to read them.
     frame : str, optional
         TF child frame that is the tool (for ``tf2_msgs/msg/TFMessage`` topics).
     twist_topic : str, optional
@@ -842,5 +862,5 @@ def _read_twist(bag: Bag, topic: str, t_pose: np.ndarray,
     return out, times, received
 
 
-__all__ = ["STORAGES", "POSE_TYPES", "TWIST_TYPES", "BagWriter", "Bag", "ToolTrack", "BadSampleError",
-           "read_tool_track", "tool_candidates", "recover_mcap", "recover_bag", "typestore"]
+__all__ = ["STORAGES", "POSE_TYPES", "TWIST_TYPES", "NODE_TOOL_OUTPUTS", "BagWriter", "Bag", "ToolTrack",
+           "BadSampleError", "read_tool_track", "is_node_tool_output", "tool_candidates", "recover_mcap", "recover_bag", "typestore"]
