@@ -5,6 +5,7 @@ with the poses the test put into the bag.
 """
 from __future__ import annotations
 
+import math
 import sys
 
 import numpy as np
@@ -305,3 +306,83 @@ def test_a_bag_with_the_nodes_outputs_replays_with_the_documented_command(tmp_pa
                 "--frame-every", "-1", "--no-bag"]) == 0, capsys.readouterr().err
     table = np.genfromtxt(out / "energy.csv", delimiter=",", names=True)
     np.testing.assert_array_equal(table["energy_total"], _direct_energy(small_params(tmp_path), poses))
+
+
+def _strict_json(path):
+    """replay.json parsed as a strict parser would: NaN/Infinity literals refused."""
+    import json
+
+    def refuse(name):
+        raise ValueError(f"{path}: non-standard JSON constant {name}")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+SUMMARY_KEYS = {"bag", "mode", "params", "params_file", "tool_topic", "tool_type", "child_frame", "twist_topic",
+                "time_source", "samples", "samples_read", "skipped", "bodies", "particles", "triangles", "dt",
+                "steps", "wall_s", "real_time_factor", "energy_final"}
+METADATA_KEYS = {"tissue_sim.source_bag", "tissue_sim.mode", "tissue_sim.tool_topic", "tissue_sim.params"}
+
+
+def test_per_message_replay_writes_what_the_docs_list(tmp_path):
+    """docs/bags.md: custom_data holds the source bag, mode, tool topic and every parameter; replay.json the
+    topic, frame, samples, skips and mesh, as strict JSON (its "params" was null without --params)."""
+    import json
+
+    from tissue_sim_ros.core.config import resolve_config
+
+    path, _, _ = tool_bag(tmp_path / "in", n=8, twist=True)
+    out = tmp_path / "o"
+    assert cli(["replay", str(path), "--set", f"mesh_file={small_params(tmp_path)['mesh_file']}", "--set",
+                "boundary_y_top=0.29", "--set", "boundary_y_bottom=0.01", "--twist-topic", "/tool/twist",
+                "--out", str(out), "--no-progress", "--frame-every", "-1"]) == 0
+    summary = _strict_json(out / "replay.json")
+    assert SUMMARY_KEYS <= set(summary)
+    flat = resolve_config(overrides={"mesh_file": small_params(tmp_path)["mesh_file"], "boundary_y_top": 0.29,
+                                     "boundary_y_bottom": 0.01}).flat()
+    assert summary["params"] == {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in flat.items()}
+    assert summary["params_file"] is None and math.isnan(flat["pin_y_top"])  # NaN written as null
+    assert summary["twist_topic"] == "/tool/twist" and summary["samples"] == 8 and summary["particles"] > 0
+    with Bag(out / "replay_bag") as bag:
+        meta = bag.custom_data
+    assert METADATA_KEYS <= set(meta) and meta["tissue_sim.twist_topic"] == "/tool/twist"
+    assert json.loads(meta["tissue_sim.params"])["mesh_file"] == flat["mesh_file"]
+
+
+def test_applied_replay_writes_what_the_docs_list(tmp_path, capsys):
+    """--mode applied wrote only the mode and source bag into custom_data, and a replay.json without topic,
+    frame, samples or skips, with bare NaN literals."""
+    import json
+
+    from tissue_sim_ros.core.config import resolve_config
+    from tissue_sim_ros.ros import tool_applied as ta
+    from tissue_sim_ros.ros.bags import BagWriter
+
+    cfg = resolve_config(small_params(tmp_path))
+    src = tmp_path / "node_bag"
+    with BagWriter(src) as w:  # what the node's record_path writes: its applied tool and its parameters
+        w.add_topic(ta.POSE_TOPIC, ta.POSE_TYPE)
+        w.add_topic(ta.TWIST_TOPIC, ta.TWIST_TYPE)
+        w.set_custom_data("tissue_sim.params", json.dumps(cfg.flat(), default=str))
+        for k in range(1, 7):
+            t = 1_000_000_000 + k * 10_000_000
+            stamp = (t // 1_000_000_000, t % 1_000_000_000)
+            if k > 2:  # no tool on the first two steps
+                w.write(ta.POSE_TOPIC, ta.encode_applied_pose(stamp, "world", -0.3 + 0.01 * k, 0.15,
+                                                              ta.PLANAR), t)
+            w.write(ta.TWIST_TOPIC, ta.encode_applied_twist(stamp, "world", ToolTwist(1.0, 0.0, 0.0)), t)
+    out = tmp_path / "o"
+    assert cli(["replay", str(src), "--mode", "applied", "--out", str(out), "--no-progress",
+                "--frame-every", "-1"]) == 0, capsys.readouterr().err
+    summary = _strict_json(out / "replay.json")
+    assert SUMMARY_KEYS <= set(summary)
+    assert summary["tool_topic"] == "/tool/applied_pose" and summary["twist_topic"] == "/tool/applied_twist"
+    assert summary["samples"] == summary["steps"] == 6 and summary["steps_with_tool"] == 4
+    assert summary["skipped"] == {"repeated": 0, "out_of_order": 0, "non_finite": 0, "bad_quaternion": 0}
+    assert summary["params"]["pin_y_top"] is None and summary["params"]["mesh_file"] == cfg.flat()["mesh_file"]
+    with Bag(out / "replay_bag") as bag:
+        meta = bag.custom_data
+    assert METADATA_KEYS <= set(meta) and meta["tissue_sim.mode"] == "applied"
+    assert meta["tissue_sim.tool_topic"] == "/tool/applied_pose"
+    assert meta["tissue_sim.twist_topic"] == "/tool/applied_twist"
+    assert json.loads(meta["tissue_sim.params"])["mesh_file"] == cfg.flat()["mesh_file"]

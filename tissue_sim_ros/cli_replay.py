@@ -8,6 +8,9 @@ machine allows, and writes into ``--out``:
   (energy total and terms, points, wrench, the tool pose used), stamped with
   the input's times, so it lines up with the input bag in Foxglove/PlotJuggler;
 * ``energy.csv``: the energy series (full float64 precision);
+* ``replay.json``: what was replayed (tool topic, frame, samples, skips,
+  every parameter, mesh) and how fast, the same keys in every mode, strict
+  JSON (a non-finite number is null);
 * ``energy.png``: the energy plot; ``frames/frame_NNNNN.png`` every k steps;
 * ``replay.mp4`` (or ``.gif``) with ``--video`` (needs the ``video`` extra).
 
@@ -37,18 +40,21 @@ No ROS graph and no rclpy: this runs anywhere the core runs.
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from .cli_config import add_config_arguments, config_from_args
+from .core.config import Config
 from .core.errors import InputError
 from .core.simulation import Simulation
 from .core.stamps import ns_from_seconds
 from .core.tool import ToolPose
 from .core.trajectories import resolve_trajectory
-from .ros.bags import BadSampleError, BagWriter, ToolTrack, read_tool_track
+from .ros.bags import SKIP_REASONS, BadSampleError, BagWriter, ToolTrack, read_tool_track
 from .ros.replay import (
     MODES,
     ReplayBagSink,
@@ -166,6 +172,9 @@ def run(args: argparse.Namespace) -> int:
         writer.set_custom_data("tissue_sim.mode", args.mode)
         writer.set_custom_data("tissue_sim.tool_topic", track.topic + (f" frame {track.child_frame}"
                                                                         if track.child_frame else ""))
+        if track.twist_topic:
+            writer.set_custom_data("tissue_sim.twist_topic", track.twist_topic)
+        # as the node writes it into its own recordings (replay --mode applied reads it back the same way)
         writer.set_custom_data("tissue_sim.params", json.dumps(cfg.flat(), default=str))
     try:
         sink = ReplayBagSink(writer, sim, points_every=args.points_every) if writer is not None else None
@@ -179,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
     print(result.speed_line())
     source = Path(args.bag).name if args.bag else f"trajectory {Path(args.trajectory).name}"
     write_outputs(out, sim, result, video=args.video, title=f"replay of {source} ({args.mode})")
-    _write_summary(out / "replay.json", args, track, sim, result)
+    _write_summary(out / "replay.json", args, _track_info(track), cfg, sim, result)
     print(f"wrote {out}/energy.csv, energy.png, replay.json, frames/ ({len(result.rollout.snapshots)} PNG)"
           + (", replay_bag/" if writer is not None else "") + (", replay.mp4" if args.video else ""))
     return 0
@@ -191,7 +200,7 @@ def _run_applied(args: argparse.Namespace, out: Path, bag_out: Path) -> int:
 
     from .core.config import resolve_config  # noqa: PLC0415
     from .ros.bags import Bag  # noqa: PLC0415
-    from .ros.tool_applied import read_applied_steps  # noqa: PLC0415
+    from .ros.tool_applied import POSE_TYPE, read_applied_steps  # noqa: PLC0415
 
     steps = read_applied_steps(args.bag)
     print(f"{steps.n} steps from {steps.twist_topic} ({sum(p is not None for p in steps.poses)} with a tool), "
@@ -216,9 +225,12 @@ def _run_applied(args: argparse.Namespace, out: Path, bag_out: Path) -> int:
     out.mkdir(parents=True, exist_ok=True)
     writer = None if args.no_bag else BagWriter(bag_out, args.storage)
     try:
-        if writer is not None:
+        if writer is not None:  # what made this bag, as in the other modes
             writer.set_custom_data("tissue_sim.source_bag", str(args.bag))
             writer.set_custom_data("tissue_sim.mode", args.mode)
+            writer.set_custom_data("tissue_sim.tool_topic", steps.pose_topic)
+            writer.set_custom_data("tissue_sim.twist_topic", steps.twist_topic)
+            writer.set_custom_data("tissue_sim.params", json.dumps(cfg.flat(), default=str))
         sink = ReplayBagSink(writer, sim, points_every=args.points_every) if writer is not None else None
         result = replay_steps(sim, steps.t_ns, steps.items(), sink=sink, snapshot_every=frame_every,
                               progress=not args.no_progress)
@@ -227,31 +239,52 @@ def _run_applied(args: argparse.Namespace, out: Path, bag_out: Path) -> int:
             writer.close()
     print(result.speed_line())
     write_outputs(out, sim, result, video=args.video, title=f"replay of {Path(args.bag).name} (applied)")
-    (out / "replay.json").write_text(json.dumps({
-        "bag": str(args.bag), "mode": args.mode, "params": cfg.flat(),
-        "steps": result.n_steps, "steps_with_tool": sum(p is not None for p in steps.poses),
-        "particles": sim.model.n_particles, "triangles": sim.model.n_triangles, "dt": sim.params.dt,
-        "wall_s": result.wall_time, "real_time_factor": result.real_time_factor,
-        "energy_final": float(result.rollout.scene_total[-1]) if result.rollout.steps.size else None,
-    }, indent=2) + "\n")
+    with_tool = sum(p is not None for p in steps.poses)
+    info = {"tool_topic": steps.pose_topic, "tool_type": POSE_TYPE, "child_frame": None,
+            "twist_topic": steps.twist_topic, "time_source": "header",
+            "samples": steps.n, "samples_read": steps.n, "skipped": dict.fromkeys(SKIP_REASONS, 0),
+            "steps_with_tool": with_tool,
+            "track_duration_s": float(steps.t_ns[-1] - steps.t_ns[0]) * 1e-9}
+    _write_summary(out / "replay.json", args, info, cfg, sim, result)
     print(f"wrote {out}/energy.csv, energy.png, replay.json, frames/ ({len(result.rollout.snapshots)} PNG)"
           + (", replay_bag/" if writer is not None else "") + (", replay.mp4" if args.video else ""))
     return 0
 
 
-def _write_summary(path: Path, args: argparse.Namespace, track: ToolTrack, sim: Simulation,
+def _track_info(track: ToolTrack) -> dict:
+    """replay.json's account of the tool samples read (the same keys in every mode)."""
+    return {"tool_topic": track.topic, "tool_type": track.msgtype, "child_frame": track.child_frame,
+            "twist_topic": track.twist_topic, "time_source": track.time_source,
+            "samples": track.n, "samples_read": track.n_messages, "skipped": track.skipped,
+            "track_duration_s": track.duration}
+
+
+def strict_json(value: Any) -> Any:
+    """``value`` with every non-finite float (NaN, inf) replaced by None, so ``json.dumps`` writes strict JSON
+    (``null``) instead of the ``NaN`` literals that strict parsers refuse."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict_json(v) for v in value]
+    if isinstance(value, np.generic):
+        return strict_json(value.item())
+    return value
+
+
+def _write_summary(path: Path, args: argparse.Namespace, info: dict, cfg: Config, sim: Simulation,
                    result: ReplayResult) -> None:
-    """What was replayed, how, and how fast, as JSON (for scripts and reports)."""
+    """What was replayed, how, and how fast, as strict JSON (for scripts and reports): the same keys in every
+    mode; a non-finite number (an unset parameter such as pin_y_top, a diverged energy) is null."""
     import json  # noqa: PLC0415
 
     ro = result.rollout
     summary = {
         "bag": str(args.bag) if args.bag else None, "trajectory": args.trajectory, "mode": args.mode,
-        "params": args.params,
-        "tool_topic": track.topic, "tool_type": track.msgtype, "child_frame": track.child_frame,
-        "twist_topic": track.twist_topic, "time_source": track.time_source,
-        "samples": track.n, "samples_read": track.n_messages, "skipped": track.skipped,
-        "track_duration_s": track.duration,
+        "params_file": args.params, "set": list(getattr(args, "set", None) or []),
+        "params": cfg.flat(),
+        **info,
         "bodies": list(sim.model.body_names), "particles": sim.model.n_particles, "triangles": sim.model.n_triangles, "dt": sim.params.dt,
         "steps": result.n_steps, "simulated_s": result.sim_time, "wall_s": result.wall_time,
         "steps_per_s": result.steps_per_second, "real_time_factor": result.real_time_factor,
@@ -261,4 +294,4 @@ def _write_summary(path: Path, args: argparse.Namespace, track: ToolTrack, sim: 
         "energy_final": float(ro.scene_total[-1]) if ro.steps.size else None,
         "steps_in_contact": int(ro.in_contact.any(axis=1).sum()), "diverged_steps": int(ro.diverged.sum()),
     }
-    path.write_text(json.dumps(summary, indent=2) + "\n")
+    path.write_text(json.dumps(strict_json(summary), indent=2, allow_nan=False) + "\n")

@@ -78,6 +78,9 @@ TWIST_TYPES = ("geometry_msgs/msg/TwistStamped", "geometry_msgs/msg/Twist")
 
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 
+SKIP_REASONS = ("repeated", "out_of_order", "non_finite", "bad_quaternion")
+"""Why :func:`read_tool_track` skips a sample (the keys of :attr:`ToolTrack.skipped`)."""
+
 NODE_TOOL_OUTPUTS = ("tool/applied_pose", "tool/applied_twist")
 """The node's own tool outputs (relative names): the pose and twist it stepped with (msg_docs/topics.md).
 They carry a pose and a twist, but they are what the node did, not a tool's input: neither ``read_tool_track``
@@ -769,7 +772,7 @@ def read_tool_track(path: str | Path | Bag, topic: str | None = None, frame: str
             if bag.topics[twist_topic] not in TWIST_TYPES:
                 raise InputError(f"twist topic {twist_topic!r} has type {bag.topics[twist_topic]}: expected one of "
                                  f"{', '.join(TWIST_TYPES)}")
-        skipped = {"repeated": 0, "out_of_order": 0, "non_finite": 0, "bad_quaternion": 0}
+        skipped = dict.fromkeys(SKIP_REASONS, 0)
         times: list[int] = []
         received: list[int] = []
         poses: list[tuple[float, float, float]] = []
@@ -862,5 +865,6 @@ def _read_twist(bag: Bag, topic: str, t_pose: np.ndarray,
     return out, times, received
 
 
-__all__ = ["STORAGES", "POSE_TYPES", "TWIST_TYPES", "NODE_TOOL_OUTPUTS", "BagWriter", "Bag", "ToolTrack",
-           "BadSampleError", "read_tool_track", "is_node_tool_output", "tool_candidates", "recover_mcap", "recover_bag", "typestore"]
+__all__ = ["STORAGES", "POSE_TYPES", "TWIST_TYPES", "NODE_TOOL_OUTPUTS", "SKIP_REASONS", "BagWriter", "Bag",
+           "ToolTrack", "BadSampleError", "read_tool_track", "is_node_tool_output", "tool_candidates",
+           "recover_mcap", "recover_bag", "typestore"]

@@ -85,6 +85,7 @@ class AppliedSteps:
     poses: list[ToolPose | None]
     twists: list[ToolTwist]
     twist_topic: str = TWIST_TOPIC
+    pose_topic: str = POSE_TOPIC
 
     @property
     def n(self) -> int:
@@ -135,4 +136,5 @@ def read_applied_steps(path: str | Path, namespace: str | None = None) -> Applie
     if not steps:
         raise InputError(f"bag {str(path)!r}: {twist_topic} holds no messages")
     t_ns = np.array([s * 1_000_000_000 + ns for (s, ns), _ in steps], dtype=np.int64)
-    return AppliedSteps(t_ns=t_ns, poses=poses, twists=[tw for _, tw in steps], twist_topic=twist_topic)
+    return AppliedSteps(t_ns=t_ns, poses=poses, twists=[tw for _, tw in steps], twist_topic=twist_topic,
+                        pose_topic=pose_topic)
