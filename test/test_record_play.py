@@ -128,7 +128,7 @@ def _clock_ns(raw: bytes) -> int:
     return sec * 1_000_000_000 + nsec
 
 
-def test_play_and_record_bad_input(tmp_path, ros_env):
+def test_play_and_record_bad_input(tmp_path, ros_env, capsys):
     from tissue_sim_ros.cli import main as cli
 
     src, _, _ = tool_bag(tmp_path / "in", n=5)
@@ -139,6 +139,19 @@ def test_play_and_record_bad_input(tmp_path, ros_env):
     (tmp_path / "exists").mkdir()
     assert cli(["record", "-o", str(tmp_path / "exists")]) == 2
     assert cli(["record", "-o", str(tmp_path / "x"), "--duration", "-1"]) == 2
+    capsys.readouterr()
+
+    def refused(argv, message):
+        assert cli(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err and "Traceback" not in err, (argv, err)
+
+    # record: invalid names (were an rclpy traceback leaving the bag directory, and exit 0 with no topics)
+    refused(["record", "-o", str(tmp_path / "r_ns"), "--namespace", "bad name", "--duration", "1"],
+            "--namespace 'bad name': namespace must not contain characters other than alphanumerics")
+    refused(["record", "-o", str(tmp_path / "r_top"), "--topics", "bad topic!", "--duration", "1"],
+            "--topics 'bad topic!': topic name must not contain characters other than alphanumerics")
+    assert not (tmp_path / "r_ns").exists() and not (tmp_path / "r_top").exists()
 
 
 def test_offline_replay_equals_node_in_lock_step(tmp_path, ros_client, start_process):

@@ -45,6 +45,40 @@ KNOWN_INPUTS = {"tool/pose": "geometry_msgs/msg/PoseStamped", "tool/twist": "geo
 _IGNORED = ("/rosout", "/parameter_events")
 
 
+def _name_problem(exc: Exception) -> str:
+    """The one-line reason of an rclpy name validation error (its message spans three lines)."""
+    first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return first.split(": ", 1)[-1].rstrip(":")
+
+
+def check_namespace(namespace: str) -> str:
+    """``namespace`` as an absolute ROS namespace (``left`` -> ``/left``); InputError naming it when invalid."""
+    from rclpy.exceptions import InvalidNamespaceException  # noqa: PLC0415
+    from rclpy.validate_namespace import validate_namespace  # noqa: PLC0415
+
+    ns = "/" + namespace.strip("/")
+    try:
+        validate_namespace(ns)
+    except InvalidNamespaceException as exc:
+        raise InputError(f"--namespace {namespace!r}: {_name_problem(exc)}: expected a ROS namespace such as "
+                         "/left") from None
+    return ns
+
+
+def check_topic_name(name: str, option: str, given: str | None = None) -> str:
+    """``name`` when it is a valid absolute topic name; InputError naming ``option`` and the name (``given``:
+    the name as the user wrote it, before resolving)."""
+    from rclpy.exceptions import InvalidTopicNameException  # noqa: PLC0415
+    from rclpy.validate_full_topic_name import validate_full_topic_name  # noqa: PLC0415
+
+    try:
+        validate_full_topic_name(name)
+    except InvalidTopicNameException as exc:
+        raise InputError(f"{option} {given if given is not None else name!r}: {_name_problem(exc)}: expected a "
+                         "ROS topic name such as /tool/pose") from None
+    return name
+
+
 def resolve(name: str, namespace: str) -> str:
     """Absolute topic name of a relative ``name`` in ``namespace``."""
     if name.startswith("/"):
@@ -191,6 +225,10 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
         print(f"recovered {sum(counts.values())} messages from {recover} into {output}: "
               + (", ".join(f"{t} {n}" for t, n in sorted(counts.items())) or "no topics"))
         return counts
+    # names are checked before the bag directory exists: bad input creates nothing
+    check_namespace(namespace)
+    for t in topics or []:
+        check_topic_name(resolve(t, namespace), "--topics", t)
     writer = BagWriter(output, storage, flush_period=flush_period)
 
     import rclpy  # noqa: PLC0415
@@ -206,7 +244,8 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
 
     # our own handlers, so a signal ends the loop and the bag is closed here, not mid-write
     old_handlers = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    rclpy.init(args=None, signal_handler_options=SignalHandlerOptions.NO)
+    # args=[]: rcl must not parse this process's command line (tissue-sim's own options), only ROS's defaults
+    rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
         from rclpy.parameter import Parameter  # noqa: PLC0415
