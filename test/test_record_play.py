@@ -33,6 +33,13 @@ def _text(proc) -> str:
     return proc.log_path.read_text(errors="replace")
 
 
+def _status_seconds(proc) -> float:
+    """Seconds since start in the recorder's last status line (0 before the first)."""
+    times = [float(line.split()[0]) for line in _text(proc).splitlines()
+             if line.strip().endswith("messages") and line.strip().split()[1] == "s"]
+    return times[-1] if times else 0.0
+
+
 def _recorded_messages(proc) -> int:
     """Messages the recorder reported in its last status line (0 before the first)."""
     counts = [int(line.split()[2]) for line in _text(proc).splitlines()
@@ -152,6 +159,26 @@ def test_play_and_record_bad_input(tmp_path, ros_env, capsys):
     refused(["record", "-o", str(tmp_path / "r_top"), "--topics", "bad topic!", "--duration", "1"],
             "--topics 'bad topic!': topic name must not contain characters other than alphanumerics")
     assert not (tmp_path / "r_ns").exists() and not (tmp_path / "r_top").exists()
+
+
+def test_record_duration_counts_from_the_first_message(tmp_path, ros_client, start_process):
+    """--duration 1 against a publisher that shows up only after the recorder has run for more than 1 s: the
+    recording holds its messages (it stopped at 1 s with 0 messages), and spans no more than the duration."""
+    src, _, _ = tool_bag(tmp_path / "in", n=60, rate_hz=40.0, extras=False)
+    out = tmp_path / "rec"
+    rec = start_process(["tissue-sim", "record", "-o", str(out), "--topics", "/tool/pose", "--duration", "1",
+                         "--flush-period", "0.2"], name="record")
+    # the recorder's own status line: it has been up for more than the duration, with nothing received
+    ros_client.spin_until(lambda: _status_seconds(rec) >= 1.0, 30, rec, "the recorder to run for 1 s")
+    play = start_process(["tissue-sim", "play", str(src), "--wait", "30", "--no-clock"], name="play")
+    assert rec.wait(timeout=60) == 0, _text(rec)
+    assert "first message after" in _text(rec)
+    play.stop(signal.SIGINT)
+    with Bag(out) as bag:
+        recv = np.array([t for _, _, t, _ in bag.messages(["/tool/pose"])])
+    assert recv.size > 0
+    assert set(_payloads(out, "/tool/pose")) <= set(_payloads(src, "/tool/pose"))
+    assert (recv[-1] - recv[0]) * 1e-9 <= 1.0 + 0.1  # nothing after the duration (receive clock ~ wall clock)
 
 
 def test_offline_replay_equals_node_in_lock_step(tmp_path, ros_client, start_process):

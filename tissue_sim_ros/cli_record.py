@@ -11,7 +11,9 @@ known), the rest as their publishers show up (a node started after the
 recorder is picked up then).
 
 SIGINT (Ctrl-C) and SIGTERM end the recording and close the bag properly;
-``--duration`` stops after that many seconds. The bag is flushed to disk every
+``--duration`` stops that many wall-clock seconds after the first message was
+received (the time to discover publishers is not counted; until a message
+comes it waits). The bag is flushed to disk every
 second, so even a killed recorder leaves what it wrote; ``--recover BROKEN -o NEW``
 turns that into a closed bag (sqlite3 also reads as it is).
 
@@ -36,8 +38,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="bag directory to create (default: tissue_sim_YYYYmmdd_HHMMSS)")
     parser.add_argument("--storage", choices=STORAGES, default="mcap",
                         help="storage plugin (default mcap, as ros2 bag in Jazzy)")
-    parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
-    parser.add_argument("--namespace", default="", help="namespace of the node whose topics to record")
+    parser.add_argument("--duration", type=float, default=None,
+                        help="stop this many wall-clock seconds after the first message was received (discovery not "
+                             "counted; until a message comes it waits)")
+    parser.add_argument("--namespace", default="",
+                        help="namespace of the node whose topics to record (a ROS namespace, e.g. /left)")
     parser.add_argument("--topics", nargs="+", default=None,
                         help="topics to record (relative names resolve in --namespace); default: the node's topics")
     parser.add_argument("--all", action="store_true", help="record every topic in the graph")

@@ -11,7 +11,9 @@ known), the rest as their publishers show up (a node started after the
 recorder is picked up then).
 
 SIGINT (Ctrl-C) and SIGTERM end the recording and close the bag properly;
-``duration`` stops after that many seconds. The bag is flushed to disk every
+``duration`` stops that many wall-clock seconds after the first message was
+received (the time to discover publishers is not counted; until a message
+comes it waits). The bag is flushed to disk every
 second, so even a killed recorder leaves what it wrote; ``recover=BROKEN``
 turns that into a closed bag (sqlite3 also reads as it is).
 
@@ -113,13 +115,19 @@ class Recorder:
         Absolute topic names to record; None = every topic (except /rosout, /parameter_events).
     prefixes : tuple of str
         Absolute prefixes also recorded (``/ns/tissue/``, ``/ns/tool/``).
+    duration : float or None
+        Record for this many wall-clock seconds from the first message received (later ones are not written).
     """
 
-    def __init__(self, node: Any, writer: BagWriter, wanted: set[str] | None, prefixes: tuple[str, ...] = ()) -> None:
+    def __init__(self, node: Any, writer: BagWriter, wanted: set[str] | None, prefixes: tuple[str, ...] = (),
+                 duration: float | None = None) -> None:
         self.node = node
         self.writer = writer
         self.wanted = wanted
         self.prefixes = prefixes
+        self.duration = duration
+        self.first_message: float | None = None
+        """time.monotonic() of the first message received: --duration counts from here."""
         self.subscriptions: dict[str, Any] = {}
         self.skipped_types: dict[str, str] = {}
         self._provisional: dict[str, str] = {}
@@ -201,9 +209,19 @@ class Recorder:
             new.append(topic)
         return new
 
+    @property
+    def done(self) -> bool:
+        """``duration`` seconds have passed since the first message."""
+        return (self.duration is not None and self.first_message is not None
+                and time.monotonic() - self.first_message >= self.duration)
+
     def _on_message(self, topic: str, data: bytes) -> None:
         if self.writer.closed:
             return
+        if self.first_message is None:
+            self.first_message = time.monotonic()
+        elif self.done:
+            return  # arrived after the recording's duration
         self.writer.write(topic, data, self.node.get_clock().now().nanoseconds)
 
 
@@ -259,7 +277,7 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
         else:
             wanted = {resolve(t, namespace) for t in DEFAULT_TOPICS}
             prefixes = tuple(resolve(p, namespace) for p in _PREFIXES)
-        recorder = Recorder(node, writer, wanted, prefixes)
+        recorder = Recorder(node, writer, wanted, prefixes, duration=duration)
         for name, msgtype in KNOWN_INPUTS.items():
             topic = resolve(name, namespace)
             if wanted is not None and topic in wanted:
@@ -267,14 +285,20 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
                 print(f"  + {topic} ({msgtype})", flush=True)
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        print(f"recording to {output} ({storage}); Ctrl-C to stop", flush=True)
+        print(f"recording to {output} ({storage}); Ctrl-C to stop"
+              + (f"; {duration:g} s from the first message" if duration is not None else ""), flush=True)
         start = time.monotonic()
         next_discovery = 0.0
         next_status = start + 1.0
+        announced = duration is None
         while not stop.is_set():
             now = time.monotonic()
-            if duration is not None and now - start >= duration:
+            if recorder.done:
                 break
+            if not announced and recorder.first_message is not None:
+                announced = True
+                print(f"  first message after {recorder.first_message - start:.1f} s: recording {duration:g} s "
+                      "from it", flush=True)
             if now >= next_discovery:
                 for topic in recorder.discover():
                     print(f"  + {topic} ({writer.topics[topic]})", flush=True)
