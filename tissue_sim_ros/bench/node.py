@@ -328,7 +328,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         proc = subprocess.Popen(_node_command() + ["--ros-args", "--params-file", str(params_file)],
                                 env=env, stdout=log, stderr=subprocess.STDOUT, preexec_fn=end_with_parent)
     context = Context()
-    rclpy.init(context=context, domain_id=domain_id)
+    rclpy.init(args=[], context=context, domain_id=domain_id)
     node = rclpy.create_node("bench_node_client", context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)

@@ -174,7 +174,7 @@ def bench_node(cfg: Config, seconds: float, out: Path, domain_id: int, workers: 
         proc = subprocess.Popen(_node_command() + ["--ros-args", "--params-file", str(params_file)],
                                 env=env, stdout=log, stderr=subprocess.STDOUT, preexec_fn=end_with_parent)
     context = Context()
-    rclpy.init(context=context, domain_id=domain_id)
+    rclpy.init(args=[], context=context, domain_id=domain_id)
     node = rclpy.create_node("bench_plan_client", context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)

@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     target = args[0] if args else "tissue_sim_node"
     # our own handlers: rclpy's shut the context down under a spin, which then raised RCLError (seen in a
     # soak's log); SIGTERM and SIGINT now leave the loop and the node is destroyed in order
-    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
+    rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
     signal.signal(signal.SIGTERM, _interrupt)
     signal.signal(signal.SIGINT, _interrupt)
     node = rclpy.create_node("bench_stall_reader")

@@ -129,7 +129,7 @@ class _Monitor:
 
         self._rclpy = rclpy
         self.context = rclpy.Context()
-        rclpy.init(args=None, context=self.context, domain_id=domain)
+        rclpy.init(args=[], context=self.context, domain_id=domain)  # not tissue-sim's command line
         self.node = rclpy.create_node("tissue_sim_demo_monitor", context=self.context)
         self.count = 0
         self.last_time = time.monotonic()

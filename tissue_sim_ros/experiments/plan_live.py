@@ -79,7 +79,7 @@ def run_live(args: argparse.Namespace) -> int:
         raise InputError(f"--timeout={args.timeout}: expected seconds > 0")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    rclpy.init()
+    rclpy.init(args=[])  # rcl must not parse tissue-sim's own command line
     node = rclpy.create_node("plan_live")
     executor = SingleThreadedExecutor()
     executor.add_node(node)
