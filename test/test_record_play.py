@@ -20,7 +20,7 @@ from tissue_sim_ros.ros import messages as m  # noqa: E402
 from tissue_sim_ros.ros.bags import Bag, read_tool_track, recover_bag  # noqa: E402
 from tissue_sim_ros.ros.replay import replay  # noqa: E402
 
-from bag_fixtures import small_params, tool_bag, write_params  # noqa: E402
+from bag_fixtures import small_params, tool_bag, write_bag, write_params  # noqa: E402
 
 
 def _payloads(path, topic: str) -> list[bytes]:
@@ -153,12 +153,65 @@ def test_play_and_record_bad_input(tmp_path, ros_env, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err and "Traceback" not in err, (argv, err)
 
+    # play: a negative --wait (was accepted); a remap of a topic that is not played (was silently ignored)
+    refused(["play", str(src), "--wait", "-1"], "--wait -1.0: expected seconds >= 0")
+    refused(["play", str(src), "--remap", "/nope:=/x"],
+            "--remap /nope:=/x: '/nope' is not in the bag: expected one of the played topics /tool/pose "
+            "(the bag's tool topics: /tool/pose")
+    refused(["play", str(src), "--remap", "/chatter:=/x"], "'/chatter' is not played")
+    refused(["play", str(src), "--remap", "/tool/pose:=bad name"], "--remap target 'bad name': topic name must not")
     # record: invalid names (were an rclpy traceback leaving the bag directory, and exit 0 with no topics)
     refused(["record", "-o", str(tmp_path / "r_ns"), "--namespace", "bad name", "--duration", "1"],
             "--namespace 'bad name': namespace must not contain characters other than alphanumerics")
     refused(["record", "-o", str(tmp_path / "r_top"), "--topics", "bad topic!", "--duration", "1"],
             "--topics 'bad topic!': topic name must not contain characters other than alphanumerics")
     assert not (tmp_path / "r_ns").exists() and not (tmp_path / "r_top").exists()
+
+
+def _bag_with_applied_outputs(path, n=5):
+    """A node's recording: tool input and the node's own tool/applied_* outputs (also a namespaced node's)."""
+    src, _, _ = tool_bag(path.parent / (path.name + "_src"), n=n, twist=True, extras=False)
+    with Bag(src) as bag:
+        msgs = [(topic, ty, t, bytes(raw)) for topic, ty, t, raw in bag.messages()]
+    msgs += [(f"{ns}/tool/applied_{kind}", f"geometry_msgs/msg/{ty}", t + 1, raw)
+             for ns in ("", "/left") for topic, _, t, raw in list(msgs)
+             for kind, ty in (("pose", "PoseStamped"), ("twist", "TwistStamped"))
+             if topic == f"/tool/{kind}"]
+    return write_bag(path, msgs)
+
+
+def test_play_leaves_the_nodes_own_outputs_out_unless_named(tmp_path):
+    from tissue_sim_ros.ros.play import choose_topics
+
+    path = _bag_with_applied_outputs(tmp_path / "node_bag")
+    with Bag(path) as bag:
+        assert set(bag.topics) >= {"/tool/applied_pose", "/left/tool/applied_twist"}
+        assert choose_topics(bag, None) == ["/tool/pose", "/tool/twist"]  # was every pose/twist-typed topic
+        assert choose_topics(bag, ["/tool/applied_pose"]) == ["/tool/applied_pose"]  # named: played
+
+
+def test_play_parses_no_ros_arguments_from_its_command_line(tmp_path, ros_client, start_process):
+    """rclpy.init(args=None) made rcl parse tissue-sim's own '--remap FROM:=TO' and warn 'This syntax is
+    deprecated'; the node's outputs were played beside the tool topics."""
+    path = _bag_with_applied_outputs(tmp_path / "node_bag")
+    play = start_process(["tissue-sim", "play", str(path), "--remap", "/tool/pose:=/ee_pose", "--wait", "0",
+                          "--min-subscribers", "0", "--no-clock"], name="play")
+    assert play.wait(timeout=60) == 0, _text(play)
+    text = _text(play)
+    assert "playing 10 messages on /ee_pose, /tool/twist at 1.0x" in text, text
+    assert "deprecated" not in text and "Found remap rule" not in text, text
+
+
+def test_every_rclpy_init_is_given_its_arguments():
+    """A tissue-sim command's rclpy.init must not read sys.argv (tissue-sim's options): args is always explicit."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).parents[1] / "tissue_sim_ros"
+    calls = [(p.name, m.group(0)) for p in root.rglob("*.py") for m in re.finditer(r"rclpy\.init\([^)]*\)",
+                                                                                     p.read_text())]
+    assert calls
+    assert [c for c in calls if "args=" not in c[1] or "args=None" in c[1]] == []
 
 
 def test_record_duration_counts_from_the_first_message(tmp_path, ros_client, start_process):

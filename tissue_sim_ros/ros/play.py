@@ -4,9 +4,12 @@ The bytes stored in the bag are published as they are (rclpy's
 ``Publisher.publish`` accepts serialized messages), so nothing is decoded or
 re-encoded and header stamps stay as recorded. By default the tool topics are
 played: every topic of a pose or twist type (PoseStamped, Pose,
-TransformStamped, TFMessage, TwistStamped, Twist...); ``--topics`` chooses
-others. ``--remap FROM:=TO`` publishes a bag topic under another name (a
-robot's ``/ee_pose`` as the node's ``/tool/pose``).
+TransformStamped, TFMessage, TwistStamped, Twist...) except the node's own
+outputs ``tool/applied_pose`` and ``tool/applied_twist`` (in any namespace: what
+a node stepped with, which a node running now publishes itself); ``--topics``
+chooses others, those included. ``--remap FROM:=TO`` publishes a played topic
+under another name (a robot's ``/ee_pose`` as the node's ``/tool/pose``); a
+FROM that is not played is refused.
 
 Timing: message i goes out at start + (t_i - t_0) / rate of the bag's receive
 times; ``--rate 2`` plays twice as fast. ``--loop`` repeats. By default play
@@ -21,6 +24,7 @@ first messages are not lost.
 """
 from __future__ import annotations
 
+import math
 import signal
 import threading
 import time
@@ -29,8 +33,8 @@ from typing import Any
 
 from ..core.errors import InputError
 from ..core.stamps import ns_from_seconds, stamp_from_ns
-from .bags import POSE_TYPES, TWIST_TYPES, Bag
-from .record import message_class
+from .bags import POSE_TYPES, TWIST_TYPES, Bag, is_node_tool_output
+from .record import check_topic_name, message_class
 
 
 def load_messages(bag: Bag, topics: list[str]) -> list[tuple[str, int, bytes]]:
@@ -38,19 +42,37 @@ def load_messages(bag: Bag, topics: list[str]) -> list[tuple[str, int, bytes]]:
     return [(topic, t, bytes(raw)) for topic, _, t, raw in bag.messages(topics)]
 
 
+def tool_topics(bag: Bag) -> list[str]:
+    """The bag's tool topics, played by default: pose/twist types but the node's own outputs (tool/applied_*)."""
+    return [t for t, ty in sorted(bag.topics.items()) if ty in POSE_TYPES + TWIST_TYPES and not is_node_tool_output(t)]
+
+
 def choose_topics(bag: Bag, requested: list[str] | None) -> list[str]:
-    """The topics to play: the requested ones (checked), else every pose/twist topic of the bag."""
+    """The topics to play: the requested ones (checked), else :func:`tool_topics`."""
     topics = bag.topics
     if requested:
         missing = [t for t in requested if t not in topics]
         if missing:
             raise InputError(f"bag {str(bag.path)!r} has no topic {', '.join(missing)}; it has: {bag.describe_topics()}")
         return list(requested)
-    chosen = [t for t, ty in sorted(topics.items()) if ty in POSE_TYPES + TWIST_TYPES]
+    chosen = tool_topics(bag)
     if not chosen:
-        raise InputError(f"bag {str(bag.path)!r} has no tool topic (pose or twist types); it has: "
-                         f"{bag.describe_topics()}; choose topics with --topics")
+        outputs = [t for t in sorted(topics) if is_node_tool_output(t)]
+        raise InputError(f"bag {str(bag.path)!r} has no tool topic (pose or twist types"
+                         + (f"; the node's own outputs {', '.join(outputs)} are played only when named" if outputs
+                            else "") + f"); it has: {bag.describe_topics()}; choose topics with --topics")
     return chosen
+
+
+def check_remaps(bag: Bag, topics: list[str], remaps: dict[str, str]) -> None:
+    """Every remap's FROM is a played topic and its TO a valid topic name; else one line naming it."""
+    for src, dst in remaps.items():
+        if src not in topics:
+            where = "is not in the bag" if src not in bag.topics else "is not played"
+            raise InputError(f"--remap {src}:={dst}: {src!r} {where}: expected one of the played topics "
+                             f"{', '.join(topics)} (the bag's tool topics: {', '.join(tool_topics(bag)) or 'none'}; "
+                             "--topics plays others)")
+        check_topic_name(dst if dst.startswith(("/", "~")) else "/" + dst, "--remap target", given=dst)
 
 
 def play(bag_path: str | Path, *, topics: list[str] | None = None, remaps: dict[str, str] | None = None,
@@ -69,10 +91,13 @@ def play(bag_path: str | Path, *, topics: list[str] | None = None, remaps: dict[
         raise InputError(f"min_subscribers {min_subscribers}: expected a count >= 0")
     if not clock_rate > 0:
         raise InputError(f"clock_rate {clock_rate}: expected > 0 Hz")
+    if not (math.isfinite(wait) and wait >= 0):
+        raise InputError(f"--wait {wait}: expected seconds >= 0")
     remaps = dict(remaps or {})
     with Bag(bag_path) as bag:
         requested = topics
         topics = choose_topics(bag, requested)
+        check_remaps(bag, topics, remaps)
         types = {t: bag.topics[t] for t in topics}
         classes = {}
         for t in topics:
@@ -101,7 +126,9 @@ def play(bag_path: str | Path, *, topics: list[str] | None = None, remaps: dict[
         stop.set()
 
     old_handlers = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    rclpy.init(args=None, signal_handler_options=SignalHandlerOptions.NO)
+    # args=[]: rcl must not parse this process's command line (a --remap FROM:=TO there is tissue-sim's own
+    # option, which rcl took for a deprecated remap rule and warned about)
+    rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
     node = None
     sent = 0
     try:
