@@ -194,6 +194,7 @@ class BatchScene:
         sim = Simulation(self.model, self.tool)
         if getattr(sim.solver, "parallel", False):
             sim.solver = Solver(self.model, parallel=False)
+        sim.report_tool_checks = False  # the rollout measures its own penetration (CandidateResult)
         return sim
 
 
@@ -275,6 +276,8 @@ class BaselineTrack:
         self.n_inverted: list[int] = []
         self.diverged: list[bool] = []
         self.displacement: list[float] = []
+        self.longest_edge: list[float] = [longest_edge(snap.particle_q, sim.model.tri_indices)]
+        """Per kept state: the longest triangle edge [m] (:func:`_beyond_reach`'s bound)."""
         per_state = 4 * snap.particle_q.nbytes  # positions, velocities and the last good pair
         self.max_states = max(1, int(max_bytes) // max(per_state, 1))
         self._newest = snap
@@ -300,7 +303,19 @@ class BaselineTrack:
             self.displacement.append(max_displacement(sim.state.particle_q, x0))
             if len(self.states) < self.max_states:
                 self.states.append(sim.snapshot())
+                self.longest_edge.append(longest_edge(sim.state.particle_q, sim.model.tri_indices))
         self._newest = self.states[-1] if len(self.states) > self.steps else sim.snapshot()
+
+
+def longest_edge(x: np.ndarray, tris: np.ndarray) -> float:
+    """The longest edge of the triangles ``tris`` at positions ``x`` [m] (0 without triangles)."""
+    if tris.shape[0] == 0:
+        return 0.0
+    longest = 0.0
+    for a, b in ((0, 1), (1, 2), (2, 0)):
+        d = x[tris[:, a]] - x[tris[:, b]]
+        longest = max(longest, float((d * d).sum(axis=1).max()))
+    return math.sqrt(longest)
 
 
 def max_displacement(x: np.ndarray, x0: np.ndarray) -> float:
@@ -323,16 +338,32 @@ def rollout_baseline(sim: Simulation, snap: SimSnapshot, steps: int, track: Base
     return out
 
 
-def _beyond_reach(sim: Simulation, state: SimSnapshot, pose0: ToolPose, pose: ToolPose, twist: ToolTwist) -> bool:
+#: Margin [m] of the paper contact's bound in :func:`_beyond_reach` over python-fcl's distance tolerance.
+BOUND_TOL = 1e-6
+
+
+def _beyond_reach(sim: Simulation, state: SimSnapshot, longest: float, pose0: ToolPose, pose: ToolPose,
+                  twist: ToolTwist, sdf: np.ndarray, grad: np.ndarray) -> bool:
     """True when the step from ``state`` with the tool moving to ``pose`` hands the solver no contact.
 
     The step's own detection (:meth:`~tissue_sim_ros.core.collision.ContactModel.detect`, with the pose it
     would use for the start of the step) finds no body in contact, nothing held, no projection candidate and
     no surface edge: the solver then runs exactly the tool-free step (``Solver.step``: no projection, no held
     particles; the reaction is zero).
+
+    The paper's contact is decided first by a bound, without python-fcl: the tool's signed distance f is
+    1-Lipschitz and every point of a triangle lies within its longest edge L of one of its vertices, so every
+    body's distance d* >= min_i f(x_i) - L. When that exceeds the detection's reach, max(alpha, margin), no
+    body is within reach and detection would report none in contact (its python-fcl distance beyond reach
+    is reported as inf); otherwise the detection itself decides.
     """
-    if sim.params.contact_model == "none":
+    p = sim.params
+    if p.contact_model == "none":
         return True
+    if p.contact_model == "paper":
+        points_sdf(state.particle_q, tool_shape_array(sim.tool, pose, 0.0), sdf, grad)
+        if float(sdf.min()) - longest > max(p.contact_threshold, p.contact_margin) + BOUND_TOL:
+            return True
     c = sim.contact.detect(State(state.particle_q, state.particle_qd), pose0, pose, twist, sim.params.dt)
     return not (c.held_idx.size or c.candidates.size or np.size(c.surface_edges) or c.in_contact.any())
 
@@ -365,7 +396,7 @@ def rollout_candidate(sim: Simulation, snap: SimSnapshot, path: ToolPath, index:
             pose = ToolPose(float(poses[k, 0]), float(poses[k, 1]), float(poses[k, 2]))
             twist = (twist_from_poses(prev, pose, dt) if twists is None
                      else ToolTwist(float(twists[k, 0]), float(twists[k, 1]), float(twists[k, 2])))
-            if not _beyond_reach(sim, track.states[k], prev or pose, pose, twist):
+            if not _beyond_reach(sim, track.states[k], track.longest_edge[k], prev or pose, pose, twist, sdf, grad):
                 break
             # the step is the baseline's: its numbers as the loop below measures them
             energy[k] = track.energy[k]

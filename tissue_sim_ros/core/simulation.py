@@ -132,6 +132,9 @@ class Simulation:
         """Held by :meth:`step`, :meth:`snapshot` and :meth:`restore`: a planner thread snapshots a stepping scene."""
         self._scene_key: str | None = None
         self._settled: State | None = None
+        self.report_tool_checks = True
+        """Fill the report's penetration, tunnelling and buried-tool fields each step (``core/tool_checks.py``, ~15 us
+        of a paper-scene step); batch rollouts' scratch simulations turn it off (they measure what they report)."""
         self.settle_info = None
         """:class:`~tissue_sim_ros.core.statics.SettleInfo` of the last :meth:`settle` (None before)."""
         if self.params.settle == "static":
@@ -319,7 +322,8 @@ class Simulation:
             elif not reference:  # as energy_terms
                 energy.potential[:] = (energy.spring + energy.area) / (p.dt * p.dt)
             force, torque = self._reaction(info.contact_dx, tool_pose, p.dt, contacts, out.particle_q)
-        checks = self._tool_checks(self.state.particle_q, out.particle_q, self.tool_pose or tool_pose, tool_pose)
+        checks = (self._tool_checks(self.state.particle_q, out.particle_q, self.tool_pose or tool_pose, tool_pose)
+                  if self.report_tool_checks else (0, 0.0, -1, 0, False))
         t_energy = time.perf_counter()
 
         self.state, self._state_out = out, self.state
