@@ -473,16 +473,24 @@ def test_divergence_is_restored_counted_and_never_published(node: Node) -> None:
     assert "diverged" in node.proc.output()
 
 
+def _lock_step_node(start_process: Any, ros_client: RosClient, scene_files: dict[str, Any], ns: str, name: str,
+                    *extra: str, output: str = "tissue/energy") -> tuple[Any, "Node"]:
+    """A lock-step node in namespace ``ns`` (``extra``: more ``-p`` arguments), matched: its tool/pose reader and
+    our reader of ``output`` (given a moment to match, as a reliable writer's discovery is not instant)."""
+    proc = start_process(["tissue_sim_node", "--ros-args", "-r", f"__ns:={ns}", "--params-file",
+                          str(scene_files["params"]), "-p", "lock_step:=true", *extra], name=name)
+    node = Node(proc, ros_client, ns=ns)
+    ros_client.wait_for_subscriber(node.pose_pub, TIMEOUT, proc)
+    ros_client.wait_for_publisher(f"{ns}/{output}", TIMEOUT, proc)
+    ros_client.spin_for(0.3)  # let our reader match too
+    return proc, node
+
+
 def test_lock_step_node_beside_it_steps_once_per_pose_and_replays_exactly(
         ros_client: RosClient, start_process: Any, scene_files: dict[str, Any], node: Node) -> None:
     """A second node in namespace /left, lock-step: N poses -> N steps stamped like the poses; a replay is exact."""
-    proc = start_process(["tissue_sim_node", "--ros-args", "-r", "__ns:=/left", "--params-file",
-                          str(scene_files["params"]), "-p", "lock_step:=true"], name="lockstep")
-    left = Node(proc, ros_client, ns="/left")
-    ros_client.wait_for_subscriber(left.pose_pub, TIMEOUT, proc)
+    proc, left = _lock_step_node(start_process, ros_client, scene_files, "/left", "lockstep")
     ros_client.spin_until(lambda: left.rest.messages, TIMEOUT, proc, "/left/tissue/rest_mesh")
-    ros_client.wait_for_publisher("/left/tissue/energy", TIMEOUT, proc)
-    ros_client.spin_for(0.3)  # let the energy reader match too
     path = np.stack([np.full(61, 0.2), np.linspace(-0.06, 0.02, 61)], axis=1)  # 61: not a multiple of 3
     t0 = ros_client.node.get_clock().now()
 
@@ -520,14 +528,10 @@ def test_lock_step_pairs_each_pose_with_the_twist_sent_just_before_it(
         ros_client: RosClient, start_process: Any, scene_files: dict[str, Any]) -> None:
     """Twist then pose, same stamp, back to back and in a burst: every step uses its own twist (the executor may
     hand out the pose first; the node takes the waiting twists before stepping), never a later pair's."""
-    proc = start_process(["tissue_sim_node", "--ros-args", "-r", "__ns:=/pair", "--params-file",
-                          str(scene_files["params"]), "-p", "lock_step:=true"], name="pairing")
-    pair = Node(proc, ros_client, ns="/pair")
     applied = ros_client.raw_subscription(TwistStamped, "/pair/tool/applied_twist", BEST_EFFORT)
-    ros_client.wait_for_subscriber(pair.pose_pub, TIMEOUT, proc)
+    proc, pair = _lock_step_node(start_process, ros_client, scene_files, "/pair", "pairing",
+                                 output="tool/applied_twist")
     ros_client.wait_for_subscriber(pair.twist_pub, TIMEOUT, proc)
-    ros_client.wait_for_publisher("/pair/tool/applied_twist", TIMEOUT, proc)
-    ros_client.spin_for(0.3)  # let the applied_twist reader match too
     t0 = ros_client.node.get_clock().now()
     n = 40
     for k in range(n):
@@ -731,13 +735,8 @@ def test_record_path_writes_every_message_in_and_out(ros_client: RosClient, star
     from tissue_sim_ros.ros.bags import Bag  # noqa: PLC0415
 
     bag_path = tmp_path / "node_bag"
-    proc = start_process(["tissue_sim_node", "--ros-args", "-r", "__ns:=/rec", "--params-file",
-                          str(scene_files["params"]), "-p", "lock_step:=true", "-p", f"record_path:={bag_path}",
-                          "-p", "marker_rate:=100.0"], name="recording")
-    rec = Node(proc, ros_client, ns="/rec")
-    ros_client.wait_for_subscriber(rec.pose_pub, TIMEOUT, proc)
-    ros_client.wait_for_publisher("/rec/tissue/energy", TIMEOUT, proc)
-    ros_client.spin_for(0.3)  # let the energy reader match too
+    proc, rec = _lock_step_node(start_process, ros_client, scene_files, "/rec", "recording",
+                                "-p", f"record_path:={bag_path}", "-p", "marker_rate:=100.0")
     t0 = ros_client.node.get_clock().now()
     n = 12
     for k in range(n):
