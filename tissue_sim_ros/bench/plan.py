@@ -24,8 +24,10 @@ one-worker speed, on an idle machine.
 Node part (skip with ``--no-node``): ``tissue_sim_node`` (timer mode, 100 Hz,
 markers and points every step, ``plan_workers`` 2) in its own process on a
 private ROS domain; for ``--seconds`` without requests, then for ``--seconds``
-with ``~/plan_insertion`` requests back to back (the same 64-candidate sweep,
-16 angle offsets x 4 speeds), the node's own step rate and overruns from
+with ``~/plan_insertion`` requests back to back (64 candidates: 16 angle
+offsets from the request's -30 deg to -5 deg, every entry clear of the
+tissue, x 4 speeds; the table says how many each answer rolled out), the
+node's own step rate and overruns from
 ``/diagnostics``, and each request's request-to-answer latency measured by
 the client (the first request, which starts the workers, apart). Goals: 100
 Hz and < 1% missed deadlines while planning.
@@ -158,12 +160,16 @@ def bench_node(cfg: Config, seconds: float, out: Path, domain_id: int, workers: 
     from nav_msgs.srv import GetPlan  # noqa: PLC0415
     from rclpy.context import Context  # noqa: PLC0415
     from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
+    from std_msgs.msg import Float64MultiArray  # noqa: PLC0415
 
-    from ..ros import qos  # noqa: PLC0415
+    from ..ros import messages, qos  # noqa: PLC0415
     from .node import _isolated_env, _node_command, _stop_node, _write_params, end_with_parent  # noqa: PLC0415
 
     params = cfg.replace(**{"marker_rate": 100.0, "points_rate": 100.0, "diagnostics_rate": 1.0,
-                             "plan_angle_min": -40.0, "plan_angle_max": 35.0, "plan_angle_step": 5.0,
+                             # 16 offsets from the request's -30 deg to -5 deg: every entry clear of the tissue,
+                             # so all 64 candidates are rolled out (steeper or flatter, the 0.3 m tool would lie
+                             # through the upper or the lower tissue and the planner would skip them)
+                             "plan_angle_min": 0.0, "plan_angle_max": 25.0, "plan_angle_step": 25.0 / 15.0,
                              "plan_speed_min": 0.15, "plan_speed_max": 0.3, "plan_speed_count": 4,
                              "plan_workers": workers}).flat()
     params_file = out / "plan_node.yaml"
@@ -186,6 +192,12 @@ def bench_node(cfg: Config, seconds: float, out: Path, domain_id: int, workers: 
                 diagnostics.append({kv.key: kv.value for kv in status.values})
 
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, qos.diagnostics())
+    rolled: list[int] = []  # rows of each plan/costs: the candidates each answer rolled out
+
+    def on_costs(data: bytes) -> None:
+        rolled.append(int(messages.decode_float64_multiarray(data)[0].shape[0]))
+
+    node.create_subscription(Float64MultiArray, "plan/costs", on_costs, qos.latched(), raw=True)
     client = node.create_client(GetPlan, "/tissue_sim_node/plan_insertion")
 
     def spin_until(predicate: Any, timeout: float, what: str) -> Any:
@@ -247,7 +259,12 @@ def bench_node(cfg: Config, seconds: float, out: Path, domain_id: int, workers: 
         rclpy.try_shutdown(context=context)
         _stop_node(proc)
     lat = np.array(busy["latencies"])
-    return {"candidates": 64, "plan_workers": workers, "first_request_s": first, "requests": int(lat.size),
+    from ..ros.planner_service import sweep_values  # noqa: PLC0415
+
+    n_requested = params["plan_speed_count"] * len(sweep_values(params["plan_angle_min"], params["plan_angle_max"],
+                                                                params["plan_angle_step"]))
+    return {"candidates": n_requested, "rolled_out": min(rolled) if rolled else 0, "plan_workers": workers,
+            "first_request_s": first, "requests": int(lat.size),
             "latency_s_median": float(np.median(lat)), "latency_s_min": float(lat.min()),
             "latency_s_max": float(lat.max()),
             "idle_rate_hz": idle["rate_hz"], "idle_missed_pct": idle["missed_pct"],
@@ -284,7 +301,8 @@ def _plot(rows: list[dict[str, Any]], node_row: dict[str, Any] | None, path: Pat
             ax.text(i, node_row[k] * 0.5, f"{node_row[k]:.1f} Hz\n{node_row[m]:.2f}% missed", ha="center", fontsize=8)
         ax.set_xticks([0, 1], ["idle", f"planning\n{node_row['latency_s_median']:.2f} s per request"])
         ax.set_ylabel("node step rate [Hz]")
-        ax.set_title("the node while it plans (64 candidates per request)", fontsize=10)
+        ax.set_title(f"the node while it plans ({node_row['rolled_out']} of {node_row['candidates']} candidates "
+                     "rolled out per request)", fontsize=10)
         ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -342,7 +360,7 @@ def _node_table(node_row: dict[str, Any], out: Path) -> None:
             writer = csv.DictWriter(fh, fieldnames=list(node_row))
             writer.writeheader()
             writer.writerow(node_row)
-        print(f"node (plan_workers {node_row['plan_workers']}), ~/plan_insertion with 64 candidates: first request {node_row['first_request_s']:.2f} s "
+        print(f"node (plan_workers {node_row['plan_workers']}), ~/plan_insertion with {node_row['candidates']} candidates ({node_row['rolled_out']} rolled out): first request {node_row['first_request_s']:.2f} s "
               f"(starts the workers); then {node_row['requests']} requests, latency median "
               f"{node_row['latency_s_median']:.3f} s (min {node_row['latency_s_min']:.3f}, max "
               f"{node_row['latency_s_max']:.3f})")
