@@ -188,3 +188,23 @@ def test_config_out_creates_its_directory_and_bad_paths_are_one_line(tmp_path, c
         assert err.count("\n") == 1 and message in err and "Traceback" not in err, err
     assert main(["config", "--out", str(tmp_path / "other" / "c.yaml"), "--set", "iteratons=3"]) == 2
     assert not (tmp_path / "other").exists()  # bad input creates nothing
+
+
+def test_recorded_parameters_are_strict_json_and_read_back() -> None:
+    """A bag's tissue_sim.params: unset bounds (NaN) written as null, read back as NaN; older bags' bare NaN too."""
+    import json
+
+    from tissue_sim_ros.core.config import params_from_json, params_json
+
+    cfg = resolve_config(overrides={"iterations": 12})
+    text = params_json(cfg)
+    strict = json.loads(text, parse_constant=lambda name: pytest.fail(f"non-standard constant {name}"))
+    assert strict["pin_y_top"] is None and strict["iterations"] == 12
+    back = resolve_config(overrides=params_from_json(text))
+    assert back.changed(cfg) == []
+    old = json.dumps(cfg.flat(), default=str)  # as bags recorded before: NaN
+    assert resolve_config(overrides=params_from_json(old)).changed(cfg) == []
+    with pytest.raises(InputError, match="not JSON"):
+        params_from_json("{")
+    with pytest.raises(InputError, match="expected an object"):
+        params_from_json("[1]")

@@ -308,14 +308,14 @@ def test_a_bag_with_the_nodes_outputs_replays_with_the_documented_command(tmp_pa
     np.testing.assert_array_equal(table["energy_total"], _direct_energy(small_params(tmp_path), poses))
 
 
-def _strict_json(path):
-    """replay.json parsed as a strict parser would: NaN/Infinity literals refused."""
+def _strict_json(path, text=None):
+    """replay.json (or ``text``) parsed as a strict parser would: NaN/Infinity literals refused."""
     import json
 
     def refuse(name):
         raise ValueError(f"{path}: non-standard JSON constant {name}")
 
-    return json.loads(path.read_text(), parse_constant=refuse)
+    return json.loads(path.read_text() if text is None else text, parse_constant=refuse)
 
 
 SUMMARY_KEYS = {"bag", "mode", "params", "params_file", "tool_topic", "tool_type", "child_frame", "twist_topic",
@@ -327,7 +327,6 @@ METADATA_KEYS = {"tissue_sim.source_bag", "tissue_sim.mode", "tissue_sim.tool_to
 def test_per_message_replay_writes_what_the_docs_list(tmp_path):
     """docs/bags.md: custom_data holds the source bag, mode, tool topic and every parameter; replay.json the
     topic, frame, samples, skips and mesh, as strict JSON (its "params" was null without --params)."""
-    import json
 
     from tissue_sim_ros.core.config import resolve_config
 
@@ -346,7 +345,8 @@ def test_per_message_replay_writes_what_the_docs_list(tmp_path):
     with Bag(out / "replay_bag") as bag:
         meta = bag.custom_data
     assert METADATA_KEYS <= set(meta) and meta["tissue_sim.twist_topic"] == "/tool/twist"
-    assert json.loads(meta["tissue_sim.params"])["mesh_file"] == flat["mesh_file"]
+    recorded = _strict_json("tissue_sim.params", meta["tissue_sim.params"])  # unset bounds as null, not NaN
+    assert recorded["mesh_file"] == flat["mesh_file"] and recorded["pin_y_top"] is None
 
 
 def test_applied_replay_writes_what_the_docs_list(tmp_path, capsys):

@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from .cli_config import add_config_arguments, config_from_args
-from .core.config import Config
+from .core.config import Config, params_json
 from .core.errors import InputError
 from .core.simulation import Simulation
 from .core.stamps import ns_from_seconds
@@ -163,8 +163,6 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     writer = None if args.no_bag else BagWriter(bag_out, args.storage)
     if writer is not None:
-        import json  # noqa: PLC0415
-
         # what made this bag, so it can be reproduced from the bag alone
         writer.set_custom_data("tissue_sim.source_bag", str(args.bag) if args.bag else "")
         if args.trajectory:
@@ -175,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
         if track.twist_topic:
             writer.set_custom_data("tissue_sim.twist_topic", track.twist_topic)
         # as the node writes it into its own recordings (replay --mode applied reads it back the same way)
-        writer.set_custom_data("tissue_sim.params", json.dumps(cfg.flat(), default=str))
+        writer.set_custom_data("tissue_sim.params", params_json(cfg))
     try:
         sink = ReplayBagSink(writer, sim, points_every=args.points_every) if writer is not None else None
         result = replay(sim, track, args.mode, sink=sink, snapshot_every=frame_every, progress=not args.no_progress)
@@ -196,9 +194,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_applied(args: argparse.Namespace, out: Path, bag_out: Path) -> int:
     """``--mode applied``: the node's own recording, stepped with exactly what the node stepped with."""
-    import json  # noqa: PLC0415
-
-    from .core.config import resolve_config  # noqa: PLC0415
+    from .core.config import params_from_json, resolve_config  # noqa: PLC0415
     from .ros.bags import Bag  # noqa: PLC0415
     from .ros.tool_applied import POSE_TYPE, read_applied_steps  # noqa: PLC0415
 
@@ -216,7 +212,7 @@ def _run_applied(args: argparse.Namespace, out: Path, bag_out: Path) -> int:
         if recorded is None:
             raise InputError(f"bag {str(args.bag)!r} does not hold the node's parameters (custom_data "
                              "tissue_sim.params): give the node's parameters with --params")
-        cfg = resolve_config(overrides=json.loads(recorded), source=f"the parameters recorded in {args.bag}")
+        cfg = resolve_config(overrides=params_from_json(recorded), source=f"the parameters recorded in {args.bag}")
         print("parameters: the node's own, from the bag's metadata")
     sim = Simulation.from_config(cfg)
     warm = Simulation.from_config(cfg, mesh=sim.model.mesh)
@@ -230,7 +226,7 @@ def _run_applied(args: argparse.Namespace, out: Path, bag_out: Path) -> int:
             writer.set_custom_data("tissue_sim.mode", args.mode)
             writer.set_custom_data("tissue_sim.tool_topic", steps.pose_topic)
             writer.set_custom_data("tissue_sim.twist_topic", steps.twist_topic)
-            writer.set_custom_data("tissue_sim.params", json.dumps(cfg.flat(), default=str))
+            writer.set_custom_data("tissue_sim.params", params_json(cfg))
         sink = ReplayBagSink(writer, sim, points_every=args.points_every) if writer is not None else None
         result = replay_steps(sim, steps.t_ns, steps.items(), sink=sink, snapshot_every=frame_every,
                               progress=not args.no_progress)

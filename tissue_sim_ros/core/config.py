@@ -31,6 +31,7 @@ To ask for 30 iterations per substep, use ``method: xpbd`` with ``substeps`` and
 from __future__ import annotations
 
 import difflib
+import json
 import math
 import re
 from dataclasses import dataclass, field, fields, make_dataclass
@@ -428,6 +429,25 @@ def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, 
     if not found_section:
         out.update(data)
     return out
+
+
+def params_json(cfg: "Config") -> str:
+    """Every resolved parameter as strict JSON (what a bag's ``tissue_sim.params`` holds): a non-finite number
+    (an unset bound such as ``pin_y_top``) is written as null, which every JSON parser reads."""
+    values = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in cfg.flat().items()}
+    return json.dumps(values, default=str, allow_nan=False)
+
+
+def params_from_json(text: str) -> dict[str, Any]:
+    """The parameters of :func:`params_json` (also of bags written before it, with bare NaN): null as NaN for
+    a number parameter. Not JSON, or not an object: InputError."""
+    try:
+        values = json.loads(text)
+    except ValueError as exc:
+        raise InputError(f"the recorded parameters are not JSON ({exc})") from None
+    if not isinstance(values, dict):
+        raise InputError(f"the recorded parameters are a JSON {type(values).__name__}: expected an object")
+    return {k: (math.nan if v is None and k in BY_NAME and BY_NAME[k].kind is float else v) for k, v in values.items()}
 
 
 def default_params() -> dict[str, Any]:

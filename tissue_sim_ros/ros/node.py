@@ -19,7 +19,6 @@ reports them on ``/diagnostics``.
 from __future__ import annotations
 
 import gc
-import json
 import math
 import os
 import sys
@@ -45,7 +44,15 @@ from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
-from ..core.config import FOREIGN_PREFIXES, METHOD_ALIASES, Config, closest_name, load_params_file, resolve_config
+from ..core.config import (
+    FOREIGN_PREFIXES,
+    METHOD_ALIASES,
+    Config,
+    closest_name,
+    load_params_file,
+    params_json,
+    resolve_config,
+)
 from ..core.errors import InputError
 from ..core.frames import FrameLookupError
 from ..core.phase_lock import PhaseLock
@@ -625,7 +632,7 @@ class TissueSimNode(Node):
             raise InputError(f"parameter record_path={path!r}: that path exists; expected a new bag directory")
         self.recorder = NodeRecorder(self, path, storage)
         # what `tissue-sim replay --mode applied` needs to rebuild this very Simulation from the bag alone
-        self.recorder.writer.set_custom_data("tissue_sim.params", json.dumps(self.config.flat(), default=str))
+        self.recorder.writer.set_custom_data("tissue_sim.params", params_json(self.config))
         for name in ("pub_markers", "pub_points", "pub_rest", "pub_wrench", "pub_energy", "pub_energy_bodies",
                      "pub_diagnostics", "pub_applied_pose", "pub_applied_twist"):
             setattr(self, name, self.recorder.wrap(getattr(self, name)))
