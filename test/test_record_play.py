@@ -234,6 +234,16 @@ def test_record_duration_counts_from_the_first_message(tmp_path, ros_client, sta
     assert (recv[-1] - recv[0]) * 1e-9 <= 1.0 + 0.1  # nothing after the duration (receive clock ~ wall clock)
 
 
+def test_record_duration_with_nothing_to_record_ends_after_wait(tmp_path, start_process):
+    """--duration counts from the first message; with none (no node on that topic) --wait ends it, empty."""
+    out = tmp_path / "empty"
+    rec = start_process(["tissue-sim", "record", "-o", str(out), "--topics", "/nobody/publishes/this", "--duration",
+                         "1", "--wait", "1", "--quiet"], name="record_empty")
+    assert rec.wait(timeout=60) == 0, _text(rec)
+    assert "no message in 1 s" in _text(rec) and "0 messages" in _text(rec)
+    assert (out / "metadata.yaml").exists()  # a closed, empty bag
+
+
 def test_offline_replay_equals_node_in_lock_step(tmp_path, ros_client, start_process):
     """The node stepping once per played pose publishes what the offline replay writes, to the bit.
 

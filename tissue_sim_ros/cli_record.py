@@ -12,8 +12,8 @@ recorder is picked up then).
 
 SIGINT (Ctrl-C) and SIGTERM end the recording and close the bag properly;
 ``--duration`` stops that many wall-clock seconds after the first message was
-received (the time to discover publishers is not counted; until a message
-comes it waits). The bag is flushed to disk every
+received (the time to discover publishers is not counted; it waits up to
+``--wait`` seconds, default 30, for that first message, then ends empty). The bag is flushed to disk every
 second, so even a killed recorder leaves what it wrote; ``--recover BROKEN -o NEW``
 turns that into a closed bag (sqlite3 also reads as it is).
 
@@ -40,7 +40,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="storage plugin (default mcap, as ros2 bag in Jazzy)")
     parser.add_argument("--duration", type=float, default=None,
                         help="stop this many wall-clock seconds after the first message was received (discovery not "
-                             "counted; until a message comes it waits)")
+                             "counted; it waits up to --wait seconds for that first message)")
+    parser.add_argument("--wait", type=float, default=30.0,
+                        help="with --duration: end an empty recording when no message came within this many "
+                             "seconds of the start (default 30)")
     parser.add_argument("--namespace", default="",
                         help="namespace of the node whose topics to record (a ROS namespace, e.g. /left)")
     parser.add_argument("--topics", nargs="+", default=None,
@@ -60,5 +63,5 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--duration {args.duration}: expected seconds > 0")
     record(args.output, args.storage, duration=args.duration, namespace=args.namespace, topics=args.topics,
            all_topics=args.all, flush_period=args.flush_period, quiet=args.quiet, use_sim_time=args.use_sim_time,
-           recover=args.recover)
+           recover=args.recover, wait=args.wait)
     return 0

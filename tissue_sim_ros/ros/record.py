@@ -23,6 +23,7 @@ when every publisher is (a latched rest mesh is then recorded too).
 """
 from __future__ import annotations
 
+import math
 import signal
 import threading
 import time
@@ -227,8 +228,12 @@ class Recorder:
 
 def record(output: str | Path | None = None, storage: str = "mcap", *, duration: float | None = None,
            namespace: str = "", topics: list[str] | None = None, all_topics: bool = False, flush_period: float = 1.0,
-           quiet: bool = False, use_sim_time: bool = False, recover: str | Path | None = None) -> dict[str, int]:
+           quiet: bool = False, use_sim_time: bool = False, recover: str | Path | None = None,
+           wait: float = 30.0) -> dict[str, int]:
     """Record until SIGINT/SIGTERM or ``duration`` [s]; returns the message count per topic.
+
+    With ``duration``, a recording that has received nothing ``wait`` seconds after its start ends (an empty
+    bag, and a line saying so) instead of waiting for a first message that may never come.
 
     ``output`` defaults to ``tissue_sim_YYYYmmdd_HHMMSS``; ``topics`` (relative
     names resolve in ``namespace``) or ``all_topics`` choose what to record,
@@ -237,6 +242,8 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
     """
     if duration is not None and not duration > 0:
         raise InputError(f"duration {duration}: expected seconds > 0")
+    if not (math.isfinite(wait) and wait > 0):
+        raise InputError(f"--wait {wait}: expected seconds > 0")
     output = Path(output or time.strftime("tissue_sim_%Y%m%d_%H%M%S"))
     if recover:
         counts = recover_bag(recover, output, storage)
@@ -294,6 +301,10 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
         while not stop.is_set():
             now = time.monotonic()
             if recorder.done:
+                break
+            if duration is not None and recorder.first_message is None and now - start >= wait:
+                print(f"  no message in {wait:g} s: nothing to record (is the node running, in this namespace and "
+                      "ROS domain?)", flush=True)
                 break
             if not announced and recorder.first_message is not None:
                 announced = True
