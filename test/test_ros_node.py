@@ -528,12 +528,13 @@ def test_lock_step_pairs_each_pose_with_the_twist_sent_just_before_it(
         ros_client: RosClient, start_process: Any, scene_files: dict[str, Any]) -> None:
     """Twist then pose, same stamp, back to back and in a burst: every step uses its own twist (the executor may
     hand out the pose first; the node takes the waiting twists before stepping), never a later pair's."""
-    applied = ros_client.raw_subscription(TwistStamped, "/pair/tool/applied_twist", BEST_EFFORT)
+    applied = ros_client.raw_subscription(TwistStamped, "/pair/tool/applied_twist",
+                                          QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
     proc, pair = _lock_step_node(start_process, ros_client, scene_files, "/pair", "pairing",
                                  output="tool/applied_twist")
     ros_client.wait_for_subscriber(pair.twist_pub, TIMEOUT, proc)
     t0 = ros_client.node.get_clock().now()
-    n = 40
+    n = 150  # a burst longer than the twists the pose callback takes at once: they must all stay pairable
     for k in range(n):
         stamp = (t0 + rclpy_duration(k * DT)).to_msg()
         twist = TwistStamped()

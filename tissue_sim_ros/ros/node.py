@@ -23,7 +23,6 @@ import math
 import os
 import sys
 import time
-from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -97,6 +96,10 @@ class NodeStats:
     window_start: float = field(default_factory=time.monotonic)
 
 
+#: Twists kept for lock-step's pairing by stamp: the lock-step input queue's depth (``qos.tool_input``).
+TWIST_HISTORY = 1000
+
+
 @dataclass
 class ToolInput:
     """The newest accepted tool pose and twist."""
@@ -109,16 +112,20 @@ class ToolInput:
     twist_stamp: tuple[int, int] = (0, 0)
     twist_received: float = -math.inf
     """Node-clock time the twist arrived [s]."""
-    recent_twists: deque = field(default_factory=lambda: deque(maxlen=64))
-    """The newest accepted twists as (stamp, ToolTwist): lock-step pairs a pose with the twist of its own stamp
-    among those that arrived before it, as ``tissue-sim replay`` does, however many came in between."""
+    recent_twists: dict = field(default_factory=dict)
+    """The newest accepted twists by stamp (at most ``TWIST_HISTORY``, oldest forgotten first): lock-step pairs a
+    pose with the twist of its own stamp among those that arrived before it, as ``tissue-sim replay`` does,
+    however many came in between (a burst queues up to 1000 poses and twists, and the pose's callback takes the
+    waiting twists first)."""
 
     def twist_at(self, stamp: tuple[int, int]) -> ToolTwist | None:
-        """The newest accepted twist stamped ``stamp``, or None."""
-        for s, twist in reversed(self.recent_twists):
-            if s == stamp:
-                return twist
-        return None
+        """The accepted twist stamped ``stamp``, or None."""
+        return self.recent_twists.get(stamp)
+
+    def keep_twist(self, stamp: tuple[int, int], twist: ToolTwist) -> None:
+        self.recent_twists[stamp] = twist
+        while len(self.recent_twists) > TWIST_HISTORY:
+            del self.recent_twists[next(iter(self.recent_twists))]
 
 
 def _stamp_of(t: Time) -> Stamp:
@@ -478,7 +485,7 @@ class TissueSimNode(Node):
         self.tool.twist = ToolTwist(vx, vy, wz)
         self.tool.twist_stamp = stamp
         self.tool.twist_received = self.get_clock().now().nanoseconds * 1e-9
-        self.tool.recent_twists.append((stamp, self.tool.twist))
+        self.tool.keep_twist(stamp, self.tool.twist)
 
     def _on_clock_switch(self, following: bool) -> None:
         """The node's clock changed between /clock and the system clock: forget the input stamps."""
