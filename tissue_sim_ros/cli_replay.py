@@ -49,7 +49,7 @@ import numpy as np
 
 from .cli_config import add_config_arguments, config_from_args
 from .core.config import Config, params_json
-from .core.errors import InputError
+from .core.errors import InputError, output_dir
 from .core.simulation import Simulation
 from .core.stamps import ns_from_seconds
 from .core.tool import ToolPose
@@ -117,9 +117,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--points-every {args.points_every}: expected K >= 1")
     if args.frame_every < -1:
         raise InputError(f"--frame-every {args.frame_every}: expected K >= 1, 0 (automatic) or -1 (none)")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {str(out)!r} exists and is not a directory")
+    out = output_dir(args.out, "--out")
     bag_out = out / "replay_bag"
     if bag_out.exists():
         raise InputError(f"{str(bag_out)!r} exists already: choose another --out (nothing is overwritten)")

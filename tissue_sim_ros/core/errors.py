@@ -47,6 +47,15 @@ def output_file(path: str | os.PathLike[str], option: str) -> Path:
     return p
 
 
+def output_dir(path: str | os.PathLike[str], option: str) -> Path:
+    """A directory ``option`` names to write into: InputError when the path exists and is not a directory (it is
+    created later, once the rest of the input has been checked)."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{option} {str(p)!r} exists and is not a directory: expected a directory")
+    return p
+
+
 def make_parent(path: Path, option: str) -> None:
     """Create ``path``'s parent directories (as ``mkdir -p``); an OSError becomes one line naming ``option``."""
     try:

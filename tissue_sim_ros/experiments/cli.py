@@ -2,12 +2,11 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from ..cli_config import add_config_arguments
 from ..core import trajectories as tr
 from ..core.config import parse_assignments, resolve_config
-from ..core.errors import InputError
+from ..core.errors import InputError, output_dir
 from ..core.tool import ToolShape
 from ..resources import scene_names, scene_params_file
 from . import paper
@@ -66,8 +65,7 @@ def run(args: argparse.Namespace) -> int:
                 if args.which == "b" and tool is not None else None)
     cfg = resolve_config(overrides=parse_assignments(args.set), params_file=files or None, defaults=defaults,
                          source="--set")
-    if Path(args.out).exists() and not Path(args.out).is_dir():
-        raise InputError(f"--out {args.out!r} exists and is not a directory: expected a directory")
+    output_dir(args.out, "--out")
     if args.which == "a" and args.steps is not None and args.steps < 1:
         raise InputError(f"--steps {args.steps}: expected at least 1 step")
     if args.settle < 0:

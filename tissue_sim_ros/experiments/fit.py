@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.errors import InputError, input_file
+from ..core.errors import InputError, input_file, output_dir
 from ..core.fitting import FitParameter, FitResult, fit, make_parameter
 from ..core.tracking import (
     MappedTrackSimulator,
@@ -311,9 +311,7 @@ def write_outputs(out: Path, setup: FitSetup, result: FitResult, *, truth: dict 
 
 def staging_dir(out: Path) -> Path:
     """A temporary directory beside ``out`` (same file system, so the final rename is atomic)."""
-    if out.exists():
-        if not out.is_dir():
-            raise InputError(f"--out {str(out)!r} exists and is not a directory")
+    if output_dir(out, "--out").exists():
         if any(out.iterdir()):
             raise InputError(f"--out {str(out)!r} exists and is not empty: choose another (nothing is overwritten)")
     parent = out.resolve().parent

@@ -27,7 +27,7 @@ from tqdm import tqdm
 
 from ..cli_config import add_config_arguments, config_from_args
 from ..core.config import Config
-from ..core.errors import InputError
+from ..core.errors import InputError, output_dir
 from . import trajectories as tr
 from .plan_live import add_live_arguments, run_live
 
@@ -165,9 +165,7 @@ def run(args: argparse.Namespace) -> int:
     values = config_from_args(args, defaults=B_TOOL_VALUES)
     angles = angle_grid(*args.angles)
     target = (float(args.target[0]), float(args.target[1]))
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {args.out!r} exists and is not a directory: expected a directory")
+    out = output_dir(args.out, "--out")
     t0 = time.perf_counter()
     rows = plan(values, angles, list(args.speeds), target, args.distance, args.jobs, progress=not args.no_progress,
                 backend=args.backend, address=args.address)
