@@ -40,15 +40,13 @@ No ROS graph and no rclpy: this runs anywhere the core runs.
 from __future__ import annotations
 
 import argparse
-import math
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from .cli_config import add_config_arguments, config_from_args
-from .core.config import Config, params_json
+from .core.config import Config, params_json, strict_json
 from .core.errors import InputError, output_dir
 from .core.simulation import Simulation
 from .core.stamps import ns_from_seconds
@@ -251,20 +249,6 @@ def _track_info(track: ToolTrack) -> dict:
             "twist_topic": track.twist_topic, "time_source": track.time_source,
             "samples": track.n, "samples_read": track.n_messages, "skipped": track.skipped,
             "track_duration_s": track.duration}
-
-
-def strict_json(value: Any) -> Any:
-    """``value`` with every non-finite float (NaN, inf) replaced by None, so ``json.dumps`` writes strict JSON
-    (``null``) instead of the ``NaN`` literals that strict parsers refuse."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: strict_json(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [strict_json(v) for v in value]
-    if isinstance(value, np.generic):
-        return strict_json(value.item())
-    return value
 
 
 def _write_summary(path: Path, args: argparse.Namespace, info: dict, cfg: Config, sim: Simulation,

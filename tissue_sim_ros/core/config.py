@@ -39,6 +39,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
+import numpy as np
 import yaml
 
 from .errors import InputError, input_file
@@ -431,11 +432,24 @@ def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, 
     return out
 
 
+def strict_json(value: Any) -> Any:
+    """``value`` with every non-finite float (NaN, inf) replaced by None, so ``json.dumps`` writes strict JSON
+    (``null``) instead of the ``NaN`` literals that strict parsers refuse."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict_json(v) for v in value]
+    if isinstance(value, np.generic):
+        return strict_json(value.item())
+    return value
+
+
 def params_json(cfg: "Config") -> str:
     """Every resolved parameter as strict JSON (what a bag's ``tissue_sim.params`` holds): a non-finite number
     (an unset bound such as ``pin_y_top``) is written as null, which every JSON parser reads."""
-    values = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in cfg.flat().items()}
-    return json.dumps(values, default=str, allow_nan=False)
+    return json.dumps(strict_json(cfg.flat()), default=str, allow_nan=False)
 
 
 def params_from_json(text: str) -> dict[str, Any]:
