@@ -324,13 +324,12 @@ class TissueSimNode(Node):
             return SetParametersResult(successful=False, reason=str(exc))
         old, new = self._values, cfg.flat()
         self.config, self._values = cfg, new
-        if new["frame_id"] != old["frame_id"]:
-            self.frames.set_plane(self, new["frame_id"])  # poses in the old frame are no longer the plane's
         if new["tf_tolerance"] != old["tf_tolerance"]:
             self.frames.buffer.tolerance_ns = int(new["tf_tolerance"] * 1e9)
         if any(new[k] != old[k] for k in ("strain_color_max", "wire_width", "markers_wireframe")):
             self._encoder = self._make_encoder()
         if new["frame_id"] != old["frame_id"]:
+            self.frames.set_plane(self, new["frame_id"])  # poses in the old frame are no longer the plane's
             self._publish_rest_mesh()
         if self.marker_timer is not None and new["marker_rate"] != old["marker_rate"]:
             self.destroy_timer(self.marker_timer)

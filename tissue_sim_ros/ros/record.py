@@ -12,8 +12,8 @@ recorder is picked up then).
 
 SIGINT (Ctrl-C) and SIGTERM end the recording and close the bag properly;
 ``duration`` stops that many wall-clock seconds after the first message was
-received (the time to discover publishers is not counted; until a message
-comes it waits). The bag is flushed to disk every
+received (the time to discover publishers is not counted; it waits up to
+``wait`` seconds for that first message, then ends with an empty bag). The bag is flushed to disk every
 second, so even a killed recorder leaves what it wrote; ``recover=BROKEN``
 turns that into a closed bag (sqlite3 also reads as it is).
 
