@@ -327,15 +327,12 @@ def max_displacement(x: np.ndarray, x0: np.ndarray) -> float:
 
 
 def rollout_baseline(sim: Simulation, snap: SimSnapshot, steps: int, track: BaselineTrack | None = None) -> np.ndarray:
-    """The scene energy of ``steps`` tool-free steps from ``snap``, shape (steps,) (kept in ``track`` when given)."""
-    if track is not None:
-        track.extend(steps)
-        return np.array(track.energy[:steps], dtype=np.float64)
-    sim.restore(snap)
-    out = np.empty(steps)
-    for k in range(steps):
-        out[k] = sim.step(None).energy.scene_total
-    return out
+    """The scene energy of ``steps`` tool-free steps from ``snap``, shape (steps,) (kept in ``track`` when given;
+    without one, a track that keeps no states steps them)."""
+    if track is None:
+        track = BaselineTrack(sim, snap, max_bytes=0)
+    track.extend(steps)
+    return np.array(track.energy[:steps], dtype=np.float64)
 
 
 #: Margin [m] of the paper contact's bound in :func:`_beyond_reach` over python-fcl's distance tolerance.
@@ -364,7 +361,7 @@ def _beyond_reach(sim: Simulation, state: SimSnapshot, longest: float, pose0: To
         points_sdf(state.particle_q, tool_shape_array(sim.tool, pose, 0.0), sdf, grad)
         if float(sdf.min()) - longest > max(p.contact_threshold, p.contact_margin) + BOUND_TOL:
             return True
-    c = sim.contact.detect(State(state.particle_q, state.particle_qd), pose0, pose, twist, sim.params.dt)
+    c = sim.contact.detect(State(state.particle_q, state.particle_qd), pose0, pose, twist, p.dt)
     return not (c.held_idx.size or c.candidates.size or np.size(c.surface_edges) or c.in_contact.any())
 
 
