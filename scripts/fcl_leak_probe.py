@@ -5,7 +5,7 @@ heaptrack on a 17-minute 5k soak found one allocation site that grew without bou
 ``std::__shared_count<fcl::CollisionGeometry*>`` made by ``fcl.CollisionObject(...)``. python-fcl's
 ``CollisionObject.__dealloc__`` frees its C++ object with ``free`` instead of ``delete`` (upstream
 ``src/fcl/fcl.pyx``, BerkeleyAutomation/python-fcl), so the object's ``shared_ptr`` member never releases its
-control block. The contact (``core/collision.py``, ``Contact.body_distance``) builds one BVH and one
+control block. The contact (``core/contact/collision.py``, ``Contact.body_distance``) builds one BVH and one
 CollisionObject per body within reach of the tool per step (the BVH changes with the tissue every step, and
 python-fcl 0.7 cannot rebuild a BVH in place: ``beginModel`` on a built model clears it, warns on stderr and
 returns an error). This measures the bytes per query three ways, side by side in one process:
@@ -64,9 +64,10 @@ def probe_bare(queries: int, with_object: bool) -> tuple[int, int]:
 
 
 def probe_contact(steps: int) -> tuple[int, int]:
-    from tissue_sim_ros.core import collision, trajectories  # noqa: PLC0415
-    from tissue_sim_ros.core.scene import build_simulation  # noqa: PLC0415
-    from tissue_sim_ros.core.simulation import ToolPose  # noqa: PLC0415
+    from tissue_sim_ros.core.contact import collision  # noqa: PLC0415
+    from tissue_sim_ros.core.sim.scene import build_simulation  # noqa: PLC0415
+    from tissue_sim_ros.core.sim.simulation import ToolPose  # noqa: PLC0415
+    from tissue_sim_ros.core.timing import trajectories  # noqa: PLC0415
 
     tool = trajectories.B_TOOL
     sim = build_simulation({"tool_shape": tool.kind, "tool_length": tool.length, "tool_width": tool.width})

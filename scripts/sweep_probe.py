@@ -30,8 +30,8 @@ from llvmlite import ir
 from numba import njit, types, uint32
 from numba.extending import intrinsic
 
-from tissue_sim_ros.core.kernels import EPS_LEN2, solve_edges_pbd_range
-from tissue_sim_ros.core.scene import build_simulation
+from tissue_sim_ros.core.physics.kernels import EPS_LEN2, solve_edges_pbd_range
+from tissue_sim_ros.core.sim.scene import build_simulation
 
 SWEEPS = 30
 

@@ -1,4 +1,4 @@
-"""Slow, obvious NumPy references for the numba kernels of ``tissue_sim_ros.core.kernels``.
+"""Slow, obvious NumPy references for the numba kernels of ``tissue_sim_ros.core.physics.kernels``.
 
 Written from the equations (textbook gradient form), not from the kernels:
 each projection computes C, its gradient per particle, the denominator
@@ -230,7 +230,7 @@ def greedy_colour(indices, n_particles):
 
 
 # =========================================================================== contact (helper H3)
-# References for tissue_sim_ros.core.collision's kernels. Written from the
+# References for tissue_sim_ros.core.contact.collision's kernels. Written from the
 # geometry, not from the kernels: the rounded box's signed distance by clamping
 # to the core box, path crossings by golden-section minimisation of that
 # (convex) distance along the path and bisection for the entry point, instead
@@ -575,7 +575,7 @@ def gather_surface_edges(edges, sel, inv_mass, cand):
 # function (old_posi, substep, Position_update, collision_check, star_posi, find_constraint,
 # find_area_constraint, stretch_constraint, area_constraint, apply_position_deltas,
 # updata_velosity), in float64 instead of their float32, for the twin tests of
-# tissue_sim_ros.core.violated_jacobi and the solver's walls, pins and exponential damping.
+# tissue_sim_ros.core.physics.violated_jacobi and the solver's walls, pins and exponential damping.
 
 #: Their mass of a pinned ("actuation type -1") particle [kg] (and of every other: 1e-4 kg).
 AUTHORS_PINNED_MASS = 1e8
@@ -684,7 +684,7 @@ def authors_forward(x, v, rest_length, triangles, rest_area, masses, actuation, 
     return x, v, star_x
 
 
-# ----------------------------------------------------------------------------- material (core/material.py)
+# ----------------------------------------------------------------------------- material (core/physics/material.py)
 #
 # Written from the continuum form with 2x2 matrices: F = D_s D_m^-1, a scalar phi(F) with
 # dphi/dF = P has gradient P D_m^-T per vertex (columns: vertices b, c; vertex a minus their sum).
@@ -857,7 +857,7 @@ def element_hessian(x, q0, tri, young_modulus, poisson_ratio, thickness):
 
 
 def tool_checks(x0, x1, shape0, shape1, tris, inside_tol=1e-9, samples=4001):
-    """(n_inside, deepest, deepest particle, n_tunnelled, buried) of core/tool_checks.py, by brute force.
+    """(n_inside, deepest, deepest particle, n_tunnelled, buried) of core/contact/tool_checks.py, by brute force.
 
     Tunnelling: the chord in the tool frame sampled at ``samples`` points; it tunnels when it has a point
     deeper than ``inside_tol`` and the outward normals where it enters and leaves (bisected) point apart.

@@ -13,15 +13,15 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.cli import main
-from tissue_sim_ros.core import trajectories as tr
-from tissue_sim_ros.core.collision import Contacts
+from tissue_sim_ros.core.contact.collision import Contacts
+from tissue_sim_ros.core.contact.tool import ToolShape
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import load_mesh, load_meshes, mesh_from_arrays, mesh_name, mesh_rectangle, write_triangle
-from tissue_sim_ros.core.model import Model, SimParams
-from tissue_sim_ros.core.scene import build_simulation
-from tissue_sim_ros.core.solvers import Solver
-from tissue_sim_ros.core.tool import ToolShape
-from tissue_sim_ros.core.violated_jacobi import apply_walls, violated_jacobi_pass
+from tissue_sim_ros.core.physics.model import Model, SimParams
+from tissue_sim_ros.core.physics.solvers import Solver
+from tissue_sim_ros.core.physics.violated_jacobi import apply_walls, violated_jacobi_pass
+from tissue_sim_ros.core.sim.scene import build_simulation
+from tissue_sim_ros.core.timing import trajectories as tr
 
 import naive
 
@@ -364,7 +364,7 @@ def test_experiment_a_settles_under_gravity_first(tmp_path):
 
 
 def test_replay_of_a_trajectory_equals_the_offline_rollout(tmp_path):
-    from tissue_sim_ros.core.rollout import rollout
+    from tissue_sim_ros.core.sim.rollout import rollout
     from tissue_sim_ros.ros.replay import replay, track_from_trajectory
 
     values = {"mesh_file": str(_two_files(tmp_path)[0]), "contact_model": "projection"}

@@ -12,7 +12,9 @@ import pickle
 import numpy as np
 import pytest
 
-from tissue_sim_ros.core.batch import (
+from tissue_sim_ros.core.contact.tool import StraightInsertion, ToolPose
+from tissue_sim_ros.core.errors import InputError
+from tissue_sim_ros.core.sim.batch import (
     BaselineTrack,
     BatchScene,
     RolloutPool,
@@ -21,12 +23,10 @@ from tissue_sim_ros.core.batch import (
     rollout_batch,
     rollout_candidate,
 )
-from tissue_sim_ros.core.errors import InputError
-from tissue_sim_ros.core.rollout import rollout
-from tissue_sim_ros.core.scene import build_simulation
-from tissue_sim_ros.core.snapshot import SimSnapshot
-from tissue_sim_ros.core.tool import StraightInsertion, ToolPose
-from tissue_sim_ros.experiments import trajectories as tr
+from tissue_sim_ros.core.sim.rollout import rollout
+from tissue_sim_ros.core.sim.scene import build_simulation
+from tissue_sim_ros.core.sim.snapshot import SimSnapshot
+from tissue_sim_ros.core.timing import trajectories as tr
 
 B_TOOL = {"tool_shape": "box", "tool_length": 0.3, "tool_width": 0.005}
 
@@ -121,7 +121,7 @@ def test_batch_serial_matches_plain_rollouts_one_by_one(live):
     snap = sim.snapshot()
     res = rollout_batch(sim, cands, final_state=True)
     assert sim.step_count == 25, "the source simulation is not stepped by a batch"
-    # the tool-free baseline and each candidate, with the plain rollout of core/rollout.py
+    # the tool-free baseline and each candidate, with the plain rollout of core/sim/rollout.py
     base_sim = build_simulation({**B_TOOL, "contact_model": "projection"})
     base_sim.restore(snap)
     base = rollout(base_sim, ((None, None) for _ in range(len(res.baseline_energy)))).scene_total
@@ -247,7 +247,7 @@ def test_bench_plan_writes_its_table(tmp_path, capsys):
 
 @pytest.mark.parametrize("angle,speed,hold", [(-30.0, 0.1, 0.0), (-72.5, 0.2333, 0.05), (45.0, 0.3, 0.0)])
 def test_straight_paths_sampled_with_numpy_are_the_trajectory_loop_bit_for_bit(angle, speed, hold):
-    from tissue_sim_ros.core.tool import ToolShape, Trajectory
+    from tissue_sim_ros.core.contact.tool import ToolShape, Trajectory
 
     traj = StraightInsertion.from_angle(ToolShape(kind="box", length=0.3), (0.55, 0.38), math.radians(angle), 0.2,
                                         speed, hold=hold)

@@ -15,7 +15,7 @@ from tissue_sim_ros.cli import main
 from tissue_sim_ros.core.config import resolve_config
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_rectangle
-from tissue_sim_ros.core.simulation import Simulation
+from tissue_sim_ros.core.sim.simulation import Simulation
 
 pytest.importorskip("skfem")
 
@@ -177,7 +177,7 @@ def test_tune_material_quick_writes_a_file_that_reproduces_its_setting(tmp_path,
     # the real-size scene through the same path as the full run, on a tiny candidate set: a uniform and a
     # graded 6 mm mesh against a 3 mm reference graded to 1.5 mm at the instrument
     from tissue_sim_ros.bench import tune_material as tm
-    from tissue_sim_ros.resources import scene_params_file
+    from tissue_sim_ros.core.resources import scene_params_file
 
     scene = scene_params_file("liver_probe")
     out = tmp_path / "tuned.yaml"

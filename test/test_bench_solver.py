@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.bench.numpy_baseline import NumpyJacobiSolver
-from tissue_sim_ros.core.collision import Contacts
+from tissue_sim_ros.core.contact.collision import Contacts
 from tissue_sim_ros.core.mesh import mesh_rectangle
-from tissue_sim_ros.core.model import Model, SimParams, State
-from tissue_sim_ros.core.solvers import Solver
+from tissue_sim_ros.core.physics.model import Model, SimParams, State
+from tissue_sim_ros.core.physics.solvers import Solver
 
 
 @pytest.mark.parametrize("params", [dict(method="pbd", scheme="jacobi", jacobi_averaging="all"),

@@ -11,11 +11,11 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.core import collision as C
+from tissue_sim_ros.core.contact import collision as C
+from tissue_sim_ros.core.contact.tool import ToolPose, ToolShape, ToolTwist, tool_shape_array
 from tissue_sim_ros.core.mesh import mesh_from_arrays, mesh_rectangle
-from tissue_sim_ros.core.model import Model, SimParams
-from tissue_sim_ros.core.simulation import Simulation
-from tissue_sim_ros.core.tool import ToolPose, ToolShape, ToolTwist, tool_shape_array
+from tissue_sim_ros.core.physics.model import Model, SimParams
+from tissue_sim_ros.core.sim.simulation import Simulation
 
 import naive
 

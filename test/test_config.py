@@ -18,11 +18,11 @@ from tissue_sim_ros.core.config import (
     parse_assignments,
     resolve_config,
 )
+from tissue_sim_ros.core.contact.tool import ToolPose
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_rectangle
-from tissue_sim_ros.core.scene import build_simulation
-from tissue_sim_ros.core.simulation import Simulation
-from tissue_sim_ros.core.tool import ToolPose
+from tissue_sim_ros.core.sim.scene import build_simulation
+from tissue_sim_ros.core.sim.simulation import Simulation
 
 SMALL = mesh_rectangle(0.2, 0.1, 0.05)
 
@@ -147,7 +147,7 @@ def test_retuned_run_equals_a_run_built_with_the_new_values() -> None:
 def test_solver_factory_replaces_swapping_solvers() -> None:
     from functools import partial
 
-    from tissue_sim_ros.core.solvers import Solver
+    from tissue_sim_ros.core.physics.solvers import Solver
 
     sim = Simulation.from_config(resolve_config(), mesh=SMALL, solver=partial(Solver, order="stored"))
     assert sim.solver.order == "stored"

@@ -22,7 +22,7 @@ from geometry_msgs.msg import PoseStamped  # noqa: E402
 from rclpy.context import Context  # noqa: E402
 
 from tissue_sim_ros.core.config import resolve_config  # noqa: E402
-from tissue_sim_ros.experiments.trajectories import experiment_a  # noqa: E402
+from tissue_sim_ros.core.timing.trajectories import experiment_a  # noqa: E402
 from tissue_sim_ros.ros.node import TissueSimNode  # noqa: E402
 
 STEPS = 100

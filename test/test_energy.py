@@ -4,11 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tissue_sim_ros.core.energy import energy_terms
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_from_arrays, mesh_rectangle
-from tissue_sim_ros.core.model import Model, SimParams
-from tissue_sim_ros.core.simulation import Simulation
+from tissue_sim_ros.core.physics.energy import energy_terms
+from tissue_sim_ros.core.physics.model import Model, SimParams
+from tissue_sim_ros.core.sim.simulation import Simulation
 
 import naive
 

@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tissue_sim_ros.core.timing import trajectories as tr
 from tissue_sim_ros.experiments import paper
-from tissue_sim_ros.experiments import trajectories as tr
 
 sys.path.insert(0, str(Path(__file__).parent))
 from ros_env import isolated_env, pick_domain_id  # noqa: E402
@@ -74,7 +74,7 @@ def test_experiment_a_deforms_near_the_tool_and_not_far_from_it(exp_a):
 
 
 def _model_bodies() -> np.ndarray:
-    from tissue_sim_ros.core.scene import build_simulation
+    from tissue_sim_ros.core.sim.scene import build_simulation
 
     return build_simulation().model.particle_body
 

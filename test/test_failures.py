@@ -15,9 +15,9 @@ from tissue_sim_ros.bench.failures import (
     residual_falls,
     tunnelled_particles,
 )
+from tissue_sim_ros.core.contact.tool import ToolPose, ToolShape
 from tissue_sim_ros.core.mesh import mesh_rectangle
-from tissue_sim_ros.core.model import Model, SimParams
-from tissue_sim_ros.core.tool import ToolPose, ToolShape
+from tissue_sim_ros.core.physics.model import Model, SimParams
 
 BOX = ToolShape("box", length=0.4, width=0.01)
 

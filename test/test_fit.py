@@ -16,13 +16,11 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros import cli_fit as fitcli
+from tissue_sim_ros.cli import fit as fitcli
 from tissue_sim_ros.cli import main as cli
 from tissue_sim_ros.core.errors import InputError
-from tissue_sim_ros.core.fitting import autocorrelation_time, fit, make_parameter
-from tissue_sim_ros.core.mesh import mesh_rectangle
-from tissue_sim_ros.core.scene import build_simulation, load_params_file
-from tissue_sim_ros.core.tracking import (
+from tissue_sim_ros.core.fit.fitting import autocorrelation_time, fit, make_parameter
+from tissue_sim_ros.core.fit.tracking import (
     PoolTrackSimulator,
     Recording,
     SceneFactory,
@@ -32,6 +30,8 @@ from tissue_sim_ros.core.tracking import (
     binding_from_correspondence,
     rollout_tracks,
 )
+from tissue_sim_ros.core.mesh import mesh_rectangle
+from tissue_sim_ros.core.sim.scene import build_simulation, load_params_file
 from tissue_sim_ros.experiments import fit_scene as fs
 from tissue_sim_ros.ros import messages as m
 from tissue_sim_ros.ros.bags import BagWriter
@@ -195,7 +195,7 @@ def test_start_values_far_off_fit_worse(scene_image, truth_recording):
     rec = _recording(truth_recording)
     setup = fitcli.prepare(rec, fs.scene_params(scene_image, spacing=FIT_SPACING), ["young_modulus"], holdout=0.0)
     start = SerialTrackSimulator(setup.factory, setup.binding, setup.schedule).simulate([{}], rec.n_frames)[0]
-    from tissue_sim_ros.core.tracking import rms_mm
+    from tissue_sim_ros.core.fit.tracking import rms_mm
 
     assert rms_mm(start.points[1:], rec.points[1:]) > 2 * math.sqrt(2) * 0.5  # twice the noise's RMS
 
@@ -250,7 +250,7 @@ def _two_blocks(spacing: float):
 
 
 def test_body_values_build_what_the_scene_builds(scene_image):
-    from tissue_sim_ros.core.tracking import with_body_values
+    from tissue_sim_ros.core.fit.tracking import with_body_values
 
     mesh = _two_blocks(0.01)
     base = fs.scene_params(scene_image, spacing=0.01)

@@ -1,4 +1,4 @@
-"""core/frames.py against an independent reference: rotation matrices built by hand (and SciPy's Rotation)."""
+"""core/timing/frames.py against an independent reference: rotation matrices built by hand (and SciPy's Rotation)."""
 from __future__ import annotations
 
 import math
@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
+from tissue_sim_ros.core.contact.tool import yaw_from_quaternion
 from tissue_sim_ros.core.errors import InputError
-from tissue_sim_ros.core.frames import (
+from tissue_sim_ros.core.timing.frames import (
     FrameLookupError,
     Transform,
     TransformBuffer,
@@ -18,7 +19,6 @@ from tissue_sim_ros.core.frames import (
     project_twist,
     quat_from_rpy,
 )
-from tissue_sim_ros.core.tool import yaw_from_quaternion
 
 
 def _rx(a: float) -> np.ndarray:

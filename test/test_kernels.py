@@ -12,8 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.core import kernels
-from tissue_sim_ros.core.solvers import colour_constraints
+from tissue_sim_ros.core.physics import kernels
+from tissue_sim_ros.core.physics.solvers import colour_constraints
 
 import naive
 
@@ -278,7 +278,7 @@ def test_greedy_colour(seed: int) -> None:
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_wavefront_levels_and_schedule_reproduce_mesh_order_exactly(seed: int) -> None:
-    from tissue_sim_ros.core.solvers import wavefront_order
+    from tissue_sim_ros.core.physics.solvers import wavefront_order
 
     s = random_scene(seed, n=40, n_edges=120, n_tris=50)
     for idx in (s["edges"], s["tris"]):
@@ -307,7 +307,7 @@ def test_wavefront_levels_and_schedule_reproduce_mesh_order_exactly(seed: int) -
 @pytest.mark.parametrize("seed", [0, 1])
 def test_partitioned_sweep_equals_serial_sweep_part_by_part(seed: int) -> None:
     """solve_partitioned = serial sweeps: part 0 (edges, triangles), part 1, ..., then the separator."""
-    from tissue_sim_ros.core.solvers import partition_constraints, partition_particles
+    from tissue_sim_ros.core.physics.solvers import partition_constraints, partition_particles
 
     s = random_scene(seed, n=60, n_edges=150, n_tris=60)
     part = partition_particles(s["x"], 2)

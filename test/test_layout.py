@@ -31,7 +31,7 @@ PACKAGE = CORE.parent
 def test_imports_run_down_the_layers():
     """The CLI layer calls the library, never the reverse: core, ros and bench import no CLI module.
 
-    A CLI module is ``tissue_sim_ros/cli*.py`` or ``experiments/cli.py``; bench commands build their
+    A CLI module is ``tissue_sim_ros/cli*.py`` or ``cli/experiment.py``; bench commands build their
     configuration from core.config rather than the experiments' command line.
     """
     cli = re.compile(r"^\s*(from|import)\s+(\.\.|tissue_sim_ros\.)(cli\w*|experiments\.cli|experiments import cli)\b",
@@ -50,7 +50,7 @@ def test_every_command_module_is_in_the_cli_layer():
 
 
 def test_ros_layer_imports_no_experiments():
-    # the tool driver and replay read trajectories from the core (core/trajectories.py), never the experiments
+    # the tool driver and replay read trajectories from the core (core/timing/trajectories.py), never the experiments
     ros = CORE.parent / "ros"
     pattern = re.compile(r"^\s*(import|from)\s+(tissue_sim_ros\.experiments|\.\.experiments)\b", re.MULTILINE)
     offenders = [p.name for p in ros.glob("*.py") if pattern.search(p.read_text())]

@@ -1,4 +1,4 @@
-"""The neo-Hookean membrane (core/material.py): kernels against naive.py, the continuum checks, the scene.
+"""The neo-Hookean membrane (core/physics/material.py): kernels against naive.py, the continuum checks, the scene.
 
 Kernel comparisons are to 1e-12 relative (same arithmetic, other order). The
 physics checks name their reference in a comment and tie the tolerance to the
@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.cli import main
-from tissue_sim_ros.core import material
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_from_arrays, mesh_rectangle
-from tissue_sim_ros.core.model import MATERIAL_DEFAULTS, Model, SimParams
-from tissue_sim_ros.core.scene import build_simulation
-from tissue_sim_ros.core.simulation import Simulation
-from tissue_sim_ros.core.solvers import Solver
+from tissue_sim_ros.core.physics import material
+from tissue_sim_ros.core.physics.model import MATERIAL_DEFAULTS, Model, SimParams
+from tissue_sim_ros.core.physics.solvers import Solver
+from tissue_sim_ros.core.sim.scene import build_simulation
+from tissue_sim_ros.core.sim.simulation import Simulation
 
 import naive
 
@@ -388,7 +388,7 @@ def test_energy_recomputed_from_outputs() -> None:
     sim = build_simulation({"material": "neo_hookean", "young_modulus": E, "dt": 0.002,
                             "boundary_y_top": 0.1 - 1e-9, "boundary_y_bottom": float("nan"),
                             "tool_shape": "sphere", "tool_radius": 0.004}, mesh=mesh_rectangle(0.04, 0.1, 0.01))
-    from tissue_sim_ros.core.tool import ToolPose  # noqa: PLC0415
+    from tissue_sim_ros.core.contact.tool import ToolPose  # noqa: PLC0415
 
     m = sim.model
     for k in range(20):
@@ -454,7 +454,7 @@ def test_punch_reaction_is_the_elastic_force_and_converges_to_the_fem_force() ->
     """
     fem = pytest.importorskip("tissue_sim_ros.bench.fem_reference")
     pytest.importorskip("skfem")
-    from tissue_sim_ros.core.tool import ToolPose, ToolShape  # noqa: PLC0415
+    from tissue_sim_ros.core.contact.tool import ToolPose, ToolShape  # noqa: PLC0415
 
     depth = 2e-4
     ref = fem.flat_punch(width=0.1, height=0.04, depth=depth, young_modulus=STRIP["young_modulus"],
@@ -521,7 +521,7 @@ def test_every_gauss_seidel_order_reaches_the_same_rest(options) -> None:
 
 def test_paper_contact_energy_recomputed_from_outputs() -> None:
     """Constraints with the paper's contact: x* in the report includes the held displacements."""
-    from tissue_sim_ros.core.tool import ToolPose  # noqa: PLC0415
+    from tissue_sim_ros.core.contact.tool import ToolPose  # noqa: PLC0415
 
     sim = build_simulation({"method": "xpbd", "boundary_y_top": float("nan"), "boundary_y_bottom": 1e-9,
                             "tool_shape": "sphere", "tool_radius": 0.01, "contact_radius": 0.05},

@@ -27,7 +27,7 @@ from tissue_sim_ros.core.mesh import (
     write_gmsh,
     write_triangle,
 )
-from tissue_sim_ros.resources import DEFAULT_IMAGE, config_path
+from tissue_sim_ros.core.resources import DEFAULT_IMAGE, config_path
 
 SCALE = 0.005  # m/px: a 200 px image is 1 m
 SPACING = 0.05  # m: 10 px
@@ -207,7 +207,7 @@ def test_default_image_meets_targets():
 
 
 def test_default_image_pin_lines_hold_only_the_flat_outer_rows():
-    from tissue_sim_ros.core.scene import load_params_file
+    from tissue_sim_ros.core.sim.scene import load_params_file
 
     params = load_params_file(config_path("tissue_sim.yaml"))
     mesh = mesh_from_image(config_path(DEFAULT_IMAGE), spacing=params["spacing"], scale=params["scale"])
@@ -507,7 +507,7 @@ def test_a_mesh_over_max_particles_is_refused_before_meshing() -> None:
 
 
 def test_max_particles_is_a_scene_parameter() -> None:
-    from tissue_sim_ros.core.scene import build_simulation
+    from tissue_sim_ros.core.sim.scene import build_simulation
 
     with pytest.raises(InputError, match="over the limit max_particles=300000"):
         build_simulation({"spacing": 1e-4})

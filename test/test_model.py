@@ -6,8 +6,8 @@ import pytest
 
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_rectangle
-from tissue_sim_ros.core.model import Model, SimParams
-from tissue_sim_ros.core.simulation import Simulation
+from tissue_sim_ros.core.physics.model import Model, SimParams
+from tissue_sim_ros.core.sim.simulation import Simulation
 
 
 def test_paper_mass_is_per_particle():

@@ -26,7 +26,7 @@ def _copy_source(dst: Path) -> Path:
 
 
 def test_source_checkout_finds_config():
-    from tissue_sim_ros.resources import DEFAULT_PARAMS_FILE, config_path
+    from tissue_sim_ros.core.resources import DEFAULT_PARAMS_FILE, config_path
 
     path = config_path(DEFAULT_PARAMS_FILE)
     assert path.is_file()
@@ -58,7 +58,7 @@ def test_wheel_carries_config_and_entry_points(tmp_path):
     with zipfile.ZipFile(wheel) as zf:
         zf.extractall(site)
     env = {**os.environ, "PYTHONPATH": str(site)}
-    out = subprocess.run([sys.executable, "-c", "import tissue_sim_ros.resources as r; print(r.config_path('tissue.png'))"],
+    out = subprocess.run([sys.executable, "-c", "import tissue_sim_ros.core.resources as r; print(r.config_path('tissue.png'))"],
                          cwd=tmp_path, env=env, capture_output=True, text=True, check=True)
     assert out.stdout.strip().startswith(str(site))
 
@@ -83,7 +83,7 @@ def test_colcon_build_installs_ament_layout(tmp_path):
     # the colcon-installed package finds its config through the ament share directory as well
     site = next(prefix.glob("lib/python3*/site-packages"))
     env = {**os.environ, "PYTHONPATH": str(site), "AMENT_PREFIX_PATH": str(prefix)}
-    out = subprocess.run([sys.executable, "-c", "import tissue_sim_ros.resources as r; print(r.config_path('tissue_sim.yaml'))"],
+    out = subprocess.run([sys.executable, "-c", "import tissue_sim_ros.core.resources as r; print(r.config_path('tissue_sim.yaml'))"],
                          cwd=tmp_path, env=env, capture_output=True, text=True, check=True)
     assert str(prefix) in out.stdout
 

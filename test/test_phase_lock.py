@@ -1,4 +1,4 @@
-"""core/phase_lock.py on synthetic arrival times (no clock, no ROS: deterministic).
+"""core/timing/phase_lock.py on synthetic arrival times (no clock, no ROS: deterministic).
 
 A model of the rcl timer the node uses: ticks at a fixed period; a shift
 decided at a tick stretches the interval after the next tick (the node sets the
@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tissue_sim_ros.core.phase_lock import PhaseLock
+from tissue_sim_ros.core.timing.phase_lock import PhaseLock
 
 P = 10_000_000  # 100 Hz [ns]
 T0 = 1_800_000_000 * 10**9  # an epoch-like start, as the node's clock reads

@@ -20,9 +20,9 @@ from sensor_msgs.msg import PointCloud2
 from std_msgs.msg import Float64MultiArray
 from visualization_msgs.msg import MarkerArray
 
-from tissue_sim_ros.core.batch import BatchScene
-from tissue_sim_ros.core.planning import InsertionRequest, plan_insertion
-from tissue_sim_ros.core.scene import build_simulation
+from tissue_sim_ros.core.plan.insertion import InsertionRequest, plan_insertion
+from tissue_sim_ros.core.sim.batch import BatchScene
+from tissue_sim_ros.core.sim.scene import build_simulation
 from tissue_sim_ros.ros import messages as M
 from tissue_sim_ros.ros import qos
 from tissue_sim_ros.ros.planner_service import COST_FIELDS, sweep_values

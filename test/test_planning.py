@@ -1,4 +1,4 @@
-"""core/planning.py without ROS: locating the target, the request's checks, the sweep's candidates."""
+"""core/plan/insertion.py without ROS: locating the target, the request's checks, the sweep's candidates."""
 from __future__ import annotations
 
 import math
@@ -6,11 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.core.batch import BatchScene
-from tissue_sim_ros.core.collision import ContactModel, points_sdf
-from tissue_sim_ros.core.planning import InsertionRequest, candidates_for, locate, plan_insertion, tool_overlaps
-from tissue_sim_ros.core.scene import build_simulation
-from tissue_sim_ros.core.tool import StraightInsertion, tool_shape_array
+from tissue_sim_ros.core.contact.collision import ContactModel, points_sdf
+from tissue_sim_ros.core.contact.tool import StraightInsertion, tool_shape_array
+from tissue_sim_ros.core.plan.insertion import InsertionRequest, candidates_for, locate, plan_insertion, tool_overlaps
+from tissue_sim_ros.core.sim.batch import BatchScene
+from tissue_sim_ros.core.sim.scene import build_simulation
 
 TARGET = (0.55, 0.38)
 A = math.radians(-30.0)

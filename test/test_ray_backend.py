@@ -10,16 +10,16 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.core.batch import rollout_batch
-from tissue_sim_ros.core.scene import build_simulation
-from tissue_sim_ros.experiments import trajectories as tr
+from tissue_sim_ros.core.sim.batch import rollout_batch
+from tissue_sim_ros.core.sim.scene import build_simulation
+from tissue_sim_ros.core.timing import trajectories as tr
 
 ray = pytest.importorskip("ray", reason="the test extra installs ray (pip install '.[test]')")
 
 
 @pytest.fixture(scope="module")
 def cluster():
-    from tissue_sim_ros.core.backends import init_ray
+    from tissue_sim_ros.core.sim.backends import init_ray
 
     assert not ray.is_initialized()
     init_ray("local", num_cpus=2)
@@ -32,7 +32,7 @@ def _same(a, b) -> bool:
 
 
 def test_ray_actors_roll_out_bit_identical_to_serial(cluster):
-    from tissue_sim_ros.core.backends import RayRolloutPool, rollout_pool
+    from tissue_sim_ros.core.sim.backends import RayRolloutPool, rollout_pool
 
     sim = build_simulation({"tool_length": 0.3, "contact_model": "projection"})
     traj = tr.experiment_b(sim.tool, sim.params.dt, -25.0, speed=0.004, distance=0.12)
@@ -67,7 +67,7 @@ def test_plan_on_ray_equals_the_local_backend(cluster, tmp_path, capsys):
 
 def test_stability_runs_on_ray_as_locally(cluster):
     from tissue_sim_ros.bench.stability import RunConfig, make_mesh, run_one
-    from tissue_sim_ros.core.backends import map_calls
+    from tissue_sim_ros.core.sim.backends import map_calls
 
     mesh = make_mesh("regular")
     configs = [RunConfig("xpbd", "projection", 0.01, 1.0, 0.01, "regular", n_steps=6),
@@ -80,8 +80,8 @@ def test_stability_runs_on_ray_as_locally(cluster):
 
 def test_a_bad_backend_is_refused():
     from tissue_sim_ros.cli import main
-    from tissue_sim_ros.core.backends import check_backend
     from tissue_sim_ros.core.errors import InputError
+    from tissue_sim_ros.core.sim.backends import check_backend
 
     with pytest.raises(SystemExit) as exc:  # argparse: one usage line, exit 2
         main(["plan", "--backend", "spark", "--out", "/tmp/x"])
@@ -139,7 +139,7 @@ def test_fit_on_ray_equals_the_local_backend(cluster, tmp_path):
     image = fs.write_scene_image(tmp_path / "scene.png")
     syn = fs.synthesize(fs.scene_params(image, spacing=0.008, **fs.TRUTH), n_points=8, noise=5e-4, seed=2,
                         duration=0.4)
-    from tissue_sim_ros.core.tracking import Recording
+    from tissue_sim_ros.core.fit.tracking import Recording
 
     rec = Recording(syn.t_ns, syn.points, syn.tool_t_ns, syn.tool_pose, source="test")
     setup = fitcli.prepare(rec, fs.scene_params(image, spacing=0.01), ["young_modulus", "poisson_ratio"],

@@ -15,7 +15,7 @@ pytest.importorskip("rclpy")
 
 
 
-from tissue_sim_ros.core.scene import build_simulation  # noqa: E402
+from tissue_sim_ros.core.sim.scene import build_simulation  # noqa: E402
 from tissue_sim_ros.ros import messages as m  # noqa: E402
 from tissue_sim_ros.ros.bags import Bag, read_tool_track, recover_bag  # noqa: E402
 from tissue_sim_ros.ros.replay import replay  # noqa: E402

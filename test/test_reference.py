@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.bench.reference import ImplicitEulerEnergy, predict, reference_step, relative_error
-from tissue_sim_ros.core.collision import Contacts
+from tissue_sim_ros.core.contact.collision import Contacts
 from tissue_sim_ros.core.mesh import TissueMesh, mesh_rectangle
-from tissue_sim_ros.core.model import Model, SimParams, State
+from tissue_sim_ros.core.physics.model import Model, SimParams, State
 
 
 def _strip_model(area_mode: str = "signed", spacing: float = 0.05, **kw) -> Model:

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.cli import main as cli
-from tissue_sim_ros.core.scene import build_simulation
-from tissue_sim_ros.core.tool import ToolPose, ToolTwist
+from tissue_sim_ros.core.contact.tool import ToolPose, ToolTwist
+from tissue_sim_ros.core.sim.scene import build_simulation
 from tissue_sim_ros.ros import messages as m
 from tissue_sim_ros.ros.bags import Bag, read_tool_track
 from tissue_sim_ros.ros.replay import OUTPUT_TOPICS, replay, schedule
@@ -260,7 +260,7 @@ def test_twist_received_after_its_pose_is_not_used_per_message(tmp_path):
 
 def test_replay_points_carry_signed_strain(tmp_path):
     """tissue/points' strain field is signed in replay as in the node (msg_docs/topics.md): compression < 0."""
-    from tissue_sim_ros.core.strain import vertex_strain
+    from tissue_sim_ros.core.physics.strain import vertex_strain
     from tissue_sim_ros.ros.bags import BagWriter
     from tissue_sim_ros.ros.replay import ReplayBagSink
 

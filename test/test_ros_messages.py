@@ -26,8 +26,8 @@ from visualization_msgs.msg import Marker, MarkerArray  # noqa: E402
 from tissue_sim_ros.core.config import resolve_config  # noqa: E402
 from tissue_sim_ros.core.errors import InputError  # noqa: E402
 from tissue_sim_ros.core.mesh import mesh_rectangle  # noqa: E402
-from tissue_sim_ros.core.model import SimParams  # noqa: E402
-from tissue_sim_ros.core.scene import SceneConfig, default_params  # noqa: E402
+from tissue_sim_ros.core.physics.model import SimParams  # noqa: E402
+from tissue_sim_ros.core.sim.scene import SceneConfig, default_params  # noqa: E402
 from tissue_sim_ros.ros import messages as M  # noqa: E402
 from tissue_sim_ros.ros.parameters import BY_NAME, PARAMETERS, coerce, markdown_table  # noqa: E402
 
@@ -164,7 +164,7 @@ def test_reader_rejects_non_cdr_bytes() -> None:
 
 def test_scene_encoder_rest_and_stretch() -> None:
     mesh = mesh_rectangle(0.4, 0.2, 0.05)
-    from tissue_sim_ros.core.model import Model  # noqa: PLC0415
+    from tissue_sim_ros.core.physics.model import Model  # noqa: PLC0415
 
     model = Model.from_mesh(mesh, SimParams())
     enc = M.SceneEncoder(model.tri_indices, model.edge_indices, model.edge_rest_length, model.particle_body,
@@ -260,7 +260,7 @@ def test_validate_checks_physics_through_simparams() -> None:
 
 def test_vertex_strain_matches_a_plain_loop() -> None:
     """Strain of a particle = mean over its edges of |x_a - x_b| / l0 - 1, on a randomly perturbed mesh."""
-    from tissue_sim_ros.core.model import Model  # noqa: PLC0415
+    from tissue_sim_ros.core.physics.model import Model  # noqa: PLC0415
 
     model = Model.from_mesh(mesh_rectangle(0.3, 0.2, 0.05), SimParams())
     enc = M.SceneEncoder(model.tri_indices, model.edge_indices, model.edge_rest_length, model.particle_body)
@@ -281,7 +281,7 @@ def test_scene_encoder_markers_from_two_threads_match_one_thread() -> None:
     # each MarkerArray must be that of its own positions, whatever the other thread does meanwhile
     import threading  # noqa: PLC0415
 
-    from tissue_sim_ros.core.model import Model  # noqa: PLC0415
+    from tissue_sim_ros.core.physics.model import Model  # noqa: PLC0415
 
     model = Model.from_mesh(mesh_rectangle(0.4, 0.2, 0.01), SimParams())
     enc = M.SceneEncoder(model.tri_indices, model.edge_indices, model.edge_rest_length, model.particle_body)

@@ -849,7 +849,7 @@ def test_poses_in_other_frames_are_projected_onto_the_placed_plane(ros_client: R
     against hand-built matrices), with its yaw about the plane's normal; a pose in an unknown frame is dropped.
     Where tf2_msgs is importable, the plane's transform is on /tf_static and the tool is also taken from /tf.
     """
-    from tissue_sim_ros.core.frames import Transform, project_pose  # noqa: PLC0415
+    from tissue_sim_ros.core.timing.frames import Transform, project_pose  # noqa: PLC0415
     from tissue_sim_ros.ros import tf_input  # noqa: PLC0415
 
     plane_args = {"world_frame": "map", "plane_x": 1.0, "plane_y": -0.5, "plane_z": 0.2, "plane_roll": 0.0,
@@ -882,7 +882,7 @@ def test_poses_in_other_frames_are_projected_onto_the_placed_plane(ros_client: R
     _, frame, p, o = M.decode_pose_stamped(applied.messages[-1])
     assert frame == "world"
     np.testing.assert_allclose(p[:2], (x, y), atol=1e-12)
-    from tissue_sim_ros.core.tool import yaw_from_quaternion  # noqa: PLC0415
+    from tissue_sim_ros.core.contact.tool import yaw_from_quaternion  # noqa: PLC0415
 
     assert yaw_from_quaternion(*o) == pytest.approx(yaw_from_quaternion(*q_plane), abs=1e-12)
     # unknown frame: dropped, counted, no step

@@ -5,7 +5,7 @@ import pytest
 
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_rectangle
-from tissue_sim_ros.core.scene import build_simulation, load_params_file
+from tissue_sim_ros.core.sim.scene import build_simulation, load_params_file
 
 SMALL = mesh_rectangle(0.2, 0.1, 0.05)
 

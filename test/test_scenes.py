@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.cli import main
-from tissue_sim_ros.core.scene import build_simulation, load_params_file
+from tissue_sim_ros.core.resources import find_data_file, scene_names, scene_params_file
+from tissue_sim_ros.core.sim.scene import build_simulation, load_params_file
+from tissue_sim_ros.core.timing import trajectories as tr
 from tissue_sim_ros.experiments import paper
-from tissue_sim_ros.experiments import trajectories as tr
-from tissue_sim_ros.resources import find_data_file, scene_names, scene_params_file
 
 
 def test_scene_names_and_files():

@@ -1,4 +1,4 @@
-"""Static settle (``settle: static``, core/statics.py): the element Hessian kernel against its NumPy twin, the
+"""Static settle (``settle: static``, core/physics/statics.py): the element Hessian kernel against its NumPy twin, the
 settled strip against the scikit-fem reference and against a long dynamic run to rest, and the parameter."""
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ from test_material import random_elements
 from tissue_sim_ros.bench import fem_reference as fem
 from tissue_sim_ros.bench import refinement as rf
 from tissue_sim_ros.cli import main
-from tissue_sim_ros.core import material
 from tissue_sim_ros.core.config import resolve_config
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_rectangle
-from tissue_sim_ros.core.simulation import Simulation
+from tissue_sim_ros.core.physics import material
+from tissue_sim_ros.core.sim.simulation import Simulation
 
 import naive
 

@@ -1,15 +1,15 @@
-"""Sleeping far, quiet particles (core/sleeping.py): exact when nothing sleeps, frozen when all do, wakes for contact."""
+"""Sleeping far, quiet particles (core/physics/sleeping.py): exact when nothing sleeps, frozen when all do, wakes for contact."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from tissue_sim_ros.core.collision import Contacts
+from tissue_sim_ros.core.contact.collision import Contacts
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_rectangle
-from tissue_sim_ros.core.model import Model, SimParams
-from tissue_sim_ros.core.sleeping import SleepingSolver
-from tissue_sim_ros.core.solvers import Solver
+from tissue_sim_ros.core.physics.model import Model, SimParams
+from tissue_sim_ros.core.physics.sleeping import SleepingSolver
+from tissue_sim_ros.core.physics.solvers import Solver
 
 
 def _model(gravity: float = -9.8) -> Model:
@@ -64,7 +64,7 @@ def test_bad_settings() -> None:
 
 def test_a_scene_asks_for_sleeping_by_parameter() -> None:
     """sleep_speed > 0 (YAML, node parameter) puts the SleepingSolver in the Simulation; 0 keeps the Solver."""
-    from tissue_sim_ros.core.scene import build_simulation
+    from tissue_sim_ros.core.sim.scene import build_simulation
 
     mesh = mesh_rectangle(1.0, 0.5, 0.1)
     plain = build_simulation({"boundary_y_bottom": 0.01, "boundary_y_top": 0.49}, mesh=mesh)
@@ -80,7 +80,7 @@ def test_a_scene_asks_for_sleeping_by_parameter() -> None:
 
 def test_the_reduced_model_keeps_the_lumped_masses() -> None:
     """With lumped masses (material or mass_per_area) a particle at the sleeping border keeps its full mass."""
-    from tissue_sim_ros.core.model import MATERIAL_DEFAULTS  # noqa: PLC0415
+    from tissue_sim_ros.core.physics.model import MATERIAL_DEFAULTS  # noqa: PLC0415
 
     for params in (SimParams(method="xpbd", mass_per_area=0.05),
                    SimParams(**MATERIAL_DEFAULTS["neo_hookean"], material="neo_hookean")):

@@ -10,13 +10,13 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.core.collision import Contacts, _rounded_box_sdf
+from tissue_sim_ros.core.contact.collision import Contacts, _rounded_box_sdf
+from tissue_sim_ros.core.contact.tool import ToolPose, ToolShape, tool_shape_array
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_from_arrays, mesh_rectangle
-from tissue_sim_ros.core.model import Model, SimParams, State
-from tissue_sim_ros.core.simulation import Simulation
-from tissue_sim_ros.core.solvers import Solver
-from tissue_sim_ros.core.tool import ToolPose, ToolShape, tool_shape_array
+from tissue_sim_ros.core.physics.model import Model, SimParams, State
+from tissue_sim_ros.core.physics.solvers import Solver
+from tissue_sim_ros.core.sim.simulation import Simulation
 
 DT = 0.01
 #: (params, solver options) of every method the solver offers
@@ -454,7 +454,7 @@ def test_invalid_params_raise_value_error_naming_the_parameter(name: str, value)
 
 def test_serial_by_default_at_every_size() -> None:
     """The two-thread path is an explicit option: measured 0.71-1.30x serial idle, 5-30x slower at load."""
-    from tissue_sim_ros.core.solvers import PARALLEL_MIN_PARTICLES
+    from tissue_sim_ros.core.physics.solvers import PARALLEL_MIN_PARTICLES
 
     model = Model.from_mesh(mesh_rectangle(1.0, 0.5, 0.0099), SimParams(method="xpbd"))
     assert model.n_particles >= PARALLEL_MIN_PARTICLES

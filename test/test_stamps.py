@@ -1,9 +1,9 @@
-"""The one set of stamp conversions (core/stamps.py) the node, replay, bags and benchmarks share."""
+"""The one set of stamp conversions (core/timing/stamps.py) the node, replay, bags and benchmarks share."""
 from __future__ import annotations
 
 import numpy as np
 
-from tissue_sim_ros.core import stamps
+from tissue_sim_ros.core.timing import stamps
 
 
 def test_seconds_and_stamps() -> None:

@@ -1,7 +1,7 @@
-"""One compiled call per step (core/step_kernels.py) against the Python loop around the kernels, bit for bit.
+"""One compiled call per step (core/physics/step_kernels.py) against the Python loop around the kernels, bit for bit.
 
-``Solver.step`` runs :func:`~tissue_sim_ros.core.step_kernels.solve_step` for the constraint methods and
-``Simulation.step`` :func:`~tissue_sim_ros.core.step_kernels.finish_step`; ``Solver.step_reference`` and
+``Solver.step`` runs :func:`~tissue_sim_ros.core.physics.step_kernels.solve_step` for the constraint methods and
+``Simulation.step`` :func:`~tissue_sim_ros.core.physics.step_kernels.finish_step`; ``Solver.step_reference`` and
 ``Simulation.step_reference`` are the loops they replace. Each variant runs the same tool trajectory (experiment a's
 insertion, into the tissue and out) twice, once with ``Solver.step`` swapped for ``step_reference``, and every step's
 positions, velocities, prediction, energy, residual, reaction and contact set must be equal exactly.
@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.core.config import resolve_config
-from tissue_sim_ros.core.simulation import Simulation
-from tissue_sim_ros.core.solvers import Solver
-from tissue_sim_ros.core.trajectories import experiment_a
+from tissue_sim_ros.core.physics.solvers import Solver
+from tissue_sim_ros.core.sim.simulation import Simulation
+from tissue_sim_ros.core.timing.trajectories import experiment_a
 
 #: experiment a's poses from here (just before the paper contact's first touch at step 158, the projection
 #: contact's at 204) to STOP, then back out the same way

@@ -1,4 +1,4 @@
-"""Vertex strain (core/strain.py), the one definition points, markers, replay and pictures share."""
+"""Vertex strain (core/physics/strain.py), the one definition points, markers, replay and pictures share."""
 from __future__ import annotations
 
 import math
@@ -6,8 +6,8 @@ import math
 import numpy as np
 
 from tissue_sim_ros.core.mesh import mesh_rectangle
-from tissue_sim_ros.core.model import Model, SimParams
-from tissue_sim_ros.core.strain import VertexStrain, edge_strain, vertex_strain
+from tissue_sim_ros.core.physics.model import Model, SimParams
+from tissue_sim_ros.core.physics.strain import VertexStrain, edge_strain, vertex_strain
 
 
 def _loop(edges, l0, q, n, absolute=False):
@@ -50,7 +50,7 @@ def test_degenerate_edges() -> None:
 
 def test_compiled_strain_kernels_match_their_numpy_twins_bit_for_bit() -> None:
     """vertex_strain_kernel and strain_mesh_arrays (nogil, for the node's two threads) against test/naive.py."""
-    from tissue_sim_ros.core.strain import strain_mesh_arrays, vertex_strain_kernel
+    from tissue_sim_ros.core.physics.strain import strain_mesh_arrays, vertex_strain_kernel
     from tissue_sim_ros.ros.messages import strain_colormap
 
     import naive

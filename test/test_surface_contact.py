@@ -13,12 +13,12 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.core import collision as C
+from tissue_sim_ros.core.contact import collision as C
+from tissue_sim_ros.core.contact.tool import ToolPose, ToolShape, tool_shape_array
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_rectangle
-from tissue_sim_ros.core.model import Model, SimParams
-from tissue_sim_ros.core.simulation import Simulation
-from tissue_sim_ros.core.tool import ToolPose, ToolShape, tool_shape_array
+from tissue_sim_ros.core.physics.model import Model, SimParams
+from tissue_sim_ros.core.sim.simulation import Simulation
 
 import naive
 
@@ -306,8 +306,8 @@ def test_tool_already_deep_inside_is_not_snapped_out():
 
 def test_experiment_a_projection_pushes_the_lower_tissue():
     """The paper's experiment a with projection contact: the tip indents the lower tissue and never enters it."""
-    from tissue_sim_ros.core.scene import build_simulation
-    from tissue_sim_ros.core.trajectories import experiment_a
+    from tissue_sim_ros.core.sim.scene import build_simulation
+    from tissue_sim_ros.core.timing.trajectories import experiment_a
 
     sim = build_simulation({"contact_model": "projection"})
     assert sim.params.contact_surface == "edges"

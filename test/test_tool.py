@@ -6,8 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.core.errors import InputError
-from tissue_sim_ros.core.tool import (
+from tissue_sim_ros.core.contact.tool import (
     StraightInsertion,
     ToolPose,
     ToolShape,
@@ -17,6 +16,7 @@ from tissue_sim_ros.core.tool import (
     twist_from_poses,
     wrap_angle,
 )
+from tissue_sim_ros.core.errors import InputError
 
 BOX = ToolShape()
 
@@ -147,7 +147,7 @@ def test_yaw_from_quaternion_is_shared_and_normalises():
     """One formula for the node, bag replay and demo: yaw of q = (0, 0, sin(a/2), cos(a/2)) is a, also scaled."""
     import math
 
-    from tissue_sim_ros.core.tool import yaw_from_quaternion
+    from tissue_sim_ros.core.contact.tool import yaw_from_quaternion
 
     for a in (-3.0, -0.5, 0.0, 0.7, 3.1):
         q = (0.0, 0.0, math.sin(a / 2), math.cos(a / 2))
@@ -176,8 +176,8 @@ def test_twist_from_poses_wraps_the_yaw():
 def test_the_simulation_derives_the_twist_with_the_shared_function():
     """A step without a twist uses twist_from_poses of the previous and the new pose (yaw wrapped)."""
     from tissue_sim_ros.core.mesh import mesh_rectangle
-    from tissue_sim_ros.core.model import Model, SimParams
-    from tissue_sim_ros.core.simulation import Simulation
+    from tissue_sim_ros.core.physics.model import Model, SimParams
+    from tissue_sim_ros.core.sim.simulation import Simulation
 
     dt = 0.01
     sim = Simulation(Model.from_mesh(mesh_rectangle(0.1, 0.1, 0.05), SimParams(dt=dt)), tool=ToolShape())

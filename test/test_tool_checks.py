@@ -1,4 +1,4 @@
-"""Run-time tool checks (core/tool_checks.py): the kernel against its brute-force twin, and in a Simulation."""
+"""Run-time tool checks (core/contact/tool_checks.py): the kernel against its brute-force twin, and in a Simulation."""
 from __future__ import annotations
 
 import math
@@ -6,11 +6,11 @@ import math
 import numpy as np
 import pytest
 
+from tissue_sim_ros.core.contact.tool import ToolPose, ToolShape, tool_shape_array
+from tissue_sim_ros.core.contact.tool_checks import INSIDE_TOL, tool_checks
 from tissue_sim_ros.core.mesh import mesh_rectangle
-from tissue_sim_ros.core.model import Model, SimParams
-from tissue_sim_ros.core.simulation import Simulation
-from tissue_sim_ros.core.tool import ToolPose, ToolShape, tool_shape_array
-from tissue_sim_ros.core.tool_checks import INSIDE_TOL, tool_checks
+from tissue_sim_ros.core.physics.model import Model, SimParams
+from tissue_sim_ros.core.sim.simulation import Simulation
 
 import naive
 

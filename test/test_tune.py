@@ -6,7 +6,7 @@ import math
 from pathlib import Path
 
 from tissue_sim_ros.cli import main
-from tissue_sim_ros.core.scene import build_simulation, load_params_file
+from tissue_sim_ros.core.sim.scene import build_simulation, load_params_file
 
 
 def test_tune_quick_writes_loadable_parameters(tmp_path: Path) -> None:

@@ -36,12 +36,12 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..core.collision import ContactModel, Contacts
 from ..core.config import parse_assignments, resolve_config
+from ..core.contact.collision import ContactModel, Contacts
+from ..core.contact.tool import ToolPose, ToolShape, twist_from_poses
 from ..core.errors import InputError
 from ..core.mesh import TissueMesh, mesh_rectangle
-from ..core.model import Model, SimParams, State
-from ..core.tool import ToolPose, ToolShape, twist_from_poses
+from ..core.physics.model import Model, SimParams, State
 from .reference import reference_step, relative_error
 
 HELP = "error against an exact Newton solve versus time per step, Pareto front"
@@ -142,13 +142,13 @@ EXPERIMENT_A_FIRST_STEP = 175
 
 def experiment_a_poses(tool: ToolShape, dt: float, n_steps: int, first_step: int = EXPERIMENT_A_FIRST_STEP,
                        dt_ref: float = 0.01) -> tuple[list[ToolPose], tuple[float, float]]:
-    """Experiment a's tool poses (:func:`~tissue_sim_ros.core.trajectories.experiment_a`) over a window.
+    """Experiment a's tool poses (:func:`~tissue_sim_ros.core.timing.trajectories.experiment_a`) over a window.
 
     The trajectory is defined at ``dt_ref`` (0.001 m per step); at another dt the same motion in time
     is used (speed per step and step indices scaled by dt / dt_ref). Returns n_steps + 1 poses (the pose
     before the window's first step, then one per step) and the tool tip at the end [m].
     """
-    from ..core.trajectories import A_SPEED, A_STEPS, experiment_a  # noqa: PLC0415
+    from ..core.timing.trajectories import A_SPEED, A_STEPS, experiment_a  # noqa: PLC0415
 
     scale = dt / dt_ref
     traj = experiment_a(tool, dt, speed=A_SPEED * scale, steps=int(round(A_STEPS / scale)))
@@ -183,7 +183,7 @@ def default_scene(spacing: float = 0.05, dt: float = 0.01, n_steps: int = 40, sp
         mesh = cfg.build_mesh()
     else:
         from ..core.mesh import mesh_from_image  # noqa: PLC0415
-        from ..resources import DEFAULT_IMAGE, config_path  # noqa: PLC0415
+        from ..core.resources import DEFAULT_IMAGE, config_path  # noqa: PLC0415
 
         mesh = mesh_from_image(cfg.image or str(config_path(DEFAULT_IMAGE)), spacing=spacing, scale=cfg.scale,
                                origin=(cfg.origin_x, cfg.origin_y),
@@ -217,7 +217,7 @@ class Stepper:
     """One method on one scene: contact detection and a step, with the solve timed."""
 
     def __init__(self, scene: Scene, setting: Setting, solver_options: dict[str, Any] | None = None) -> None:
-        from ..core.solvers import Solver  # noqa: PLC0415
+        from ..core.physics.solvers import Solver  # noqa: PLC0415
 
         self.scene = scene
         self.setting = setting
@@ -354,11 +354,11 @@ def measure_sleeping(scene: Scene, setting: Setting, sleep_settings: Sequence[di
     """The cost of sleeping far, quiet particles: time saved and error against the same method awake.
 
     Runs ``setting`` on the scene awake and with each sleeping setting
-    (:class:`~tissue_sim_ros.core.sleeping.SleepingSolver`), one solver thread.
+    (:class:`~tissue_sim_ros.core.physics.sleeping.SleepingSolver`), one solver thread.
     Error = ||x_sleeping - x_awake|| / ||x_awake - x(0)|| at the end of the run;
     times are medians over the whole run and over its second half (once regions have gone to sleep).
     """
-    from ..core.sleeping import SleepingSolver  # noqa: PLC0415
+    from ..core.physics.sleeping import SleepingSolver  # noqa: PLC0415
 
     runs = []
     for cfg in (None, *sleep_settings):

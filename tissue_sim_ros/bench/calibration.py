@@ -20,8 +20,8 @@ import sys
 import numpy as np
 
 from ..core.mesh import mesh_rectangle
-from ..core.model import Model, SimParams
-from ..core.simulation import Simulation
+from ..core.physics.model import Model, SimParams
+from ..core.sim.simulation import Simulation
 
 #: stiffness_area [N/m^3] per stiffness_spring [N/m] kept during calibration (the issue's 1e5 / 1e2).
 AREA_TO_SPRING = 1.0e3

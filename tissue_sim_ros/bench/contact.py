@@ -31,12 +31,12 @@ from typing import Any
 
 import numpy as np
 
-from ..core.collision import ContactModel
+from ..core.contact.collision import ContactModel
+from ..core.contact.tool import StraightInsertion, ToolShape
 from ..core.errors import InputError
 from ..core.mesh import mesh_rectangle
-from ..core.model import Model, SimParams
-from ..core.simulation import Simulation
-from ..core.tool import StraightInsertion, ToolShape
+from ..core.physics.model import Model, SimParams
+from ..core.sim.simulation import Simulation
 
 HELP = "contact detection cost per step: culled vs full per-step python-fcl BVH rebuild"
 DESCRIPTION = __doc__
@@ -49,8 +49,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _scenes(kind: str, quick: bool = False) -> list[tuple[str, Simulation, StraightInsertion]]:
-    from ..core.scene import build_simulation  # noqa: PLC0415
-    from ..core.trajectories import experiment_a  # noqa: PLC0415
+    from ..core.sim.scene import build_simulation  # noqa: PLC0415
+    from ..core.timing.trajectories import experiment_a  # noqa: PLC0415
 
     sim = build_simulation({"contact_model": kind})
     scenes = [("paper scene", sim, experiment_a(sim.tool, sim.params.dt))]

@@ -27,11 +27,11 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from ..core.tool import ToolPose, ToolShape
+from ..core.contact.tool import ToolPose, ToolShape
 
 if TYPE_CHECKING:
-    from ..core.collision import Contacts
-    from ..core.model import Model, State
+    from ..core.contact.collision import Contacts
+    from ..core.physics.model import Model, State
 
 FAILURE_KINDS = ("nonfinite", "energy_growth", "inverted", "tunnelling", "no_convergence")
 
@@ -187,7 +187,7 @@ def iteration_residuals(model: "Model", state: "State", contacts: "Contacts", dt
     (``iterations`` changed, everything else as in ``model.params``;
     ``solver_options`` are passed to the Solver). A non-finite result counts as inf.
     """
-    from ..core.solvers import Solver  # noqa: PLC0415  (the checks above need no solver)
+    from ..core.physics.solvers import Solver  # noqa: PLC0415  (the checks above need no solver)
 
     out = []
     for n in counts:

@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="out/bench_fit", help="output directory (default: out/bench_fit)")
     parser.add_argument("--points", default="10,20,30", help="tracked point counts, one recording each (default 10,20,30)")
     parser.add_argument("--seeds", type=int, default=2, help="recordings per point count, each its own noise and points")
-    from ..core.backends import add_backend_arguments  # noqa: PLC0415
+    from ..core.sim.backends import add_backend_arguments  # noqa: PLC0415
 
     add_backend_arguments(parser, jobs_default=min(2, os.cpu_count() or 1), jobs_help="worker processes per fit")
     parser.add_argument("--record-spacing", type=float, default=None, help="mesh spacing of the recordings [m]")
@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
         counts = [int(v) for v in args.points.split(",") if v.strip()]
     except ValueError:
         raise InputError(f"--points {args.points!r}: expected comma-separated integers") from None
-    from ..core.backends import check_backend_arguments  # noqa: PLC0415
+    from ..core.sim.backends import check_backend_arguments  # noqa: PLC0415
 
     jobs, backend, address = check_backend_arguments(args)
     if not counts or min(counts) < 1 or args.seeds < 1:

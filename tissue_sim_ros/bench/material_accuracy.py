@@ -39,8 +39,8 @@ import numpy as np
 from ..core.config import Config, parse_assignments, resolve_config
 from ..core.errors import InputError
 from ..core.mesh import mesh_rectangle
-from ..core.model import State
-from ..core.simulation import Simulation
+from ..core.physics.model import State
+from ..core.sim.simulation import Simulation
 from .material_reference import MembraneEnergy
 from .reference import minimize_step
 
@@ -62,7 +62,7 @@ def scene_config(scene: str, overrides: dict[str, Any]) -> tuple[Config, Any]:
                   "contact_model": "none", "damping": 0.0, **overrides}
         return resolve_config(values, source="--set"), mesh_rectangle(0.10, 0.04, 0.005)
     if scene == "liver":
-        from ..resources import scene_params_file  # noqa: PLC0415
+        from ..core.resources import scene_params_file  # noqa: PLC0415
 
         values = {"contact_model": "none", **overrides}
         return resolve_config(values, params_file=scene_params_file("liver_probe"), source="--set"), None

@@ -10,7 +10,7 @@ with F = D_s D_m^-1 per triangle (D = [x_1 - x_0, x_2 - x_0] in current and rest
 positions), V0 = |A0| thickness, the plane-stress Lame parameters lambda =
 E nu / (1 - nu^2), mu = E / (2 (1 + nu)) and the shifted lambda' = lambda + mu
 (the form's small-strain Lame parameter is lambda' - mu). This module writes
-that energy again, from the formula and not from ``core/material.py`` (it
+that energy again, from the formula and not from ``core/physics/material.py`` (it
 imports nothing from the kernels), so :func:`~tissue_sim_ros.bench.reference.minimize_step`
 (damped Newton) can give the exact minimiser the XPBD solve approaches.
 
@@ -35,7 +35,7 @@ import numpy as np
 import scipy.sparse as sp
 
 if TYPE_CHECKING:  # types only
-    from ..core.model import Model
+    from ..core.physics.model import Model
 
 _K = np.zeros((4, 4))
 _K[0, 3] = _K[3, 0] = 1.0

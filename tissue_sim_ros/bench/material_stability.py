@@ -30,8 +30,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..core.config import resolve_config
-from ..core.simulation import Simulation
-from ..core.tool import ToolPose, ToolShape
+from ..core.contact.tool import ToolPose, ToolShape
+from ..core.sim.simulation import Simulation
 from .failures import FailureMonitor
 from .stability import sliver_mesh
 

@@ -73,7 +73,7 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.stamps import stamp_from_ns, stamp_to_seconds
+from ..core.timing.stamps import stamp_from_ns, stamp_to_seconds
 from ..ros.domain import free_domain_id
 
 HELP = "sustained rate, overruns and pose-to-mesh latency of the ROS node"

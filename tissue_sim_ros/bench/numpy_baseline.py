@@ -1,6 +1,6 @@
 """The vectorised NumPy Jacobi solver: the baseline the numba kernels are measured against.
 
-The same step as :class:`~tissue_sim_ros.core.solvers.Solver` with
+The same step as :class:`~tissue_sim_ros.core.physics.solvers.Solver` with
 ``scheme="jacobi"`` (prediction, paper contact's held particles, Jacobi sweeps,
 velocity update, boundary lines), written the way one would in plain NumPy:
 every sweep gathers all constraints' particles, computes all corrections at
@@ -18,16 +18,16 @@ import math
 
 import numpy as np
 
-from ..core.collision import Contacts
+from ..core.contact.collision import Contacts
 from ..core.errors import InputError
-from ..core.model import Model, State
-from ..core.solvers import SolveInfo
+from ..core.physics.model import Model, State
+from ..core.physics.solvers import SolveInfo
 
 EPS_LEN2 = 1e-30  # as the kernels: squared length below which a gradient is undefined
 
 
 class NumpyJacobiSolver:
-    """Vectorised NumPy XPBD/PBD Jacobi; ``step`` mirrors :meth:`Solver.step <tissue_sim_ros.core.solvers.Solver.step>`.
+    """Vectorised NumPy XPBD/PBD Jacobi; ``step`` mirrors :meth:`Solver.step <tissue_sim_ros.core.physics.solvers.Solver.step>`.
 
     Parameters
     ----------

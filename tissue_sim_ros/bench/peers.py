@@ -4,7 +4,7 @@ Same strip meshes (about 500, 2k, 8k and 20k particles), pinned along the bottom
 row, falling under gravity from rest, 30 iterations, XPBD stiffnesses of
 ``config/tissue_sim.yaml``:
 
-* **ours**: :class:`~tissue_sim_ros.core.solvers.Solver`, XPBD Gauss-Seidel
+* **ours**: :class:`~tissue_sim_ros.core.physics.solvers.Solver`, XPBD Gauss-Seidel
   as it runs by default (serial), and with ``parallel=True`` (partitioned on
   all threads: an explicit option, see ``PARALLEL_MIN_PARTICLES``);
 * **NumPy**: the vectorised Jacobi baseline (:mod:`~tissue_sim_ros.bench.numpy_baseline`);
@@ -36,9 +36,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..core.collision import Contacts
+from ..core.contact.collision import Contacts
 from ..core.mesh import TissueMesh, mesh_rectangle
-from ..core.model import Model, SimParams
+from ..core.physics.model import Model, SimParams
 from .accuracy import format_table, write_csv
 
 HELP = "time per step against Taichi, MuJoCo flex and the NumPy baseline on the same meshes"
@@ -71,7 +71,7 @@ def _median_ms(step: Callable[[], None], n_steps: int, warmup: int = 2) -> float
 
 def time_ours(model: Model, n_steps: int, parallel: bool | None) -> tuple[float, np.ndarray]:
     """Median ms per step of our XPBD Gauss-Seidel, and the positions after the first step."""
-    from ..core.solvers import Solver  # noqa: PLC0415
+    from ..core.physics.solvers import Solver  # noqa: PLC0415
 
     solver = Solver(model, parallel=parallel)
     states = [model.state(), model.state()]

@@ -12,7 +12,7 @@ largest sag per second, which float32 peers reach; the oscillation left is about
 * **ours, dynamic**: ``material: neo_hookean`` with its defaults (dt 2 ms, 10 substeps of 10
   Gauss-Seidel iterations), damping swept;
 * **ours, static**: ``settle: static`` -- :meth:`Simulation.settle` solves the equilibrium by Newton's
-  method (core/statics.py); its wall time is the whole solve, setup included (median of 5);
+  method (core/physics/statics.py); its wall time is the whole solve, setup included (median of 5);
 * **MuJoCo** (optional, ``pip install mujoco``, measured with 4.0): a ``flexcomp`` with ``dim="2"``
   ``dof="2d"`` and ``<elasticity young poisson thickness elastic2d="stretch">`` (MuJoCo's membrane).
   Pitfalls handled here: ``elastic2d`` defaults to ``none`` (no membrane stiffness at all); flexcomp's
@@ -138,7 +138,7 @@ def _ours_config(damping: float, settle: str = "none"):
 
 
 def ours_to_rest(mesh: TissueMesh, damping: float, scale: float, wall_cap: float = math.inf) -> dict[str, Any]:
-    from ..core.simulation import Simulation  # noqa: PLC0415
+    from ..core.sim.simulation import Simulation  # noqa: PLC0415
 
     sim = Simulation.from_config(_ours_config(damping), mesh=mesh)
     run = _loop(lambda: sim.step(None), lambda: sim.state.particle_q, sim.model.particle_q0, sim.params.dt, scale,
@@ -148,7 +148,7 @@ def ours_to_rest(mesh: TissueMesh, damping: float, scale: float, wall_cap: float
 
 def ours_static(mesh: TissueMesh, repeats: int = 5) -> dict[str, Any]:
     """``Simulation.settle()`` (Newton on the potential energy): its wall time, median of ``repeats``."""
-    from ..core.simulation import Simulation  # noqa: PLC0415
+    from ..core.sim.simulation import Simulation  # noqa: PLC0415
 
     sim = Simulation.from_config(_ours_config(30.0), mesh=mesh)
     walls = []
@@ -221,7 +221,7 @@ def newton_model(mesh: TissueMesh, mass: np.ndarray, solver: str):
     import newton  # noqa: PLC0415
     import warp as wp  # noqa: PLC0415
 
-    from ..core.material import lame_plane_stress  # noqa: PLC0415
+    from ..core.physics.material import lame_plane_stress  # noqa: PLC0415
 
     m = rf.MATERIAL
     mu, lam = lame_plane_stress(m["young_modulus"], m["poisson_ratio"])

@@ -7,12 +7,12 @@ the paper scene (the shipped configuration with experiment b's 0.3 m box;
 ``--set`` overrides), from a snapshot 20 steps in. Each backend runs the same
 batch ``--repeats`` times (median wall time):
 
-* ``solve all``: :func:`~tissue_sim_ros.core.batch.rollout_batch` in this
+* ``solve all``: :func:`~tissue_sim_ros.core.sim.batch.rollout_batch` in this
   process solving every step (``reuse_baseline=False``), alternating with
 * ``serial``: the same, the shipped way: each candidate's steps with the tool
   still beyond reach taken from the tool-free baseline
-  (:class:`~tissue_sim_ros.core.batch.BaselineTrack`);
-* ``pool 1``, ``pool 2``: a :class:`~tissue_sim_ros.core.batch.RolloutPool`
+  (:class:`~tissue_sim_ros.core.sim.batch.BaselineTrack`);
+* ``pool 1``, ``pool 2``: a :class:`~tissue_sim_ros.core.sim.batch.RolloutPool`
   of that many warm workers (their start-up is reported apart, not timed in).
 
 Reported: wall time, candidates/s, steps/s (steps rolled out, solved or
@@ -48,9 +48,9 @@ from typing import Any
 
 import numpy as np
 
-from ..core import trajectories as tr
 from ..core.config import Config, parse_assignments, resolve_config
 from ..core.errors import InputError
+from ..core.timing import trajectories as tr
 from ..ros.domain import free_domain_id
 
 HELP = "batch rollouts per second (serial, 1 and 2 workers) and the planner service's latency and node rate"
@@ -80,7 +80,7 @@ def _load() -> str:
 
 def batch_candidates(sim: Any, n: int, steps: int) -> list:
     """``n`` insertions toward experiment b's target, each exactly ``steps`` steps (angles x 4 speeds)."""
-    from ..core.batch import ToolPath  # noqa: PLC0415
+    from ..core.sim.batch import ToolPath  # noqa: PLC0415
 
     n_speeds = 4 if n >= 4 else 1
     n_angles = math.ceil(n / n_speeds)
@@ -99,8 +99,8 @@ def batch_candidates(sim: Any, n: int, steps: int) -> list:
 
 def bench_library(cfg: Config, n: int, steps: int, repeats: int, workers: list[int]) -> list[dict[str, Any]]:
     """One row per backend: serial, then a pool of each size."""
-    from ..core.batch import BatchScene, RolloutPool, rollout_batch  # noqa: PLC0415
-    from ..core.simulation import Simulation  # noqa: PLC0415
+    from ..core.sim.batch import BatchScene, RolloutPool, rollout_batch  # noqa: PLC0415
+    from ..core.sim.simulation import Simulation  # noqa: PLC0415
 
     sim = Simulation.from_config(cfg)
     for _ in range(20):

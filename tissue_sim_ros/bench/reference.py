@@ -32,11 +32,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 import scipy.sparse as sp
 
-from ..core.minimize import newton_minimize
+from ..core.physics.minimize import newton_minimize
 
 if TYPE_CHECKING:  # types only: at run time this module needs nothing but NumPy and SciPy
-    from ..core.collision import Contacts
-    from ..core.model import Model, State
+    from ..core.contact.collision import Contacts
+    from ..core.physics.model import Model, State
 
 #: The constant Hessian of the 2D cross product u x v = ux vy - uy vx with respect to (u, v):
 #: d2/dux dvy = 1, d2/duy dvx = -1.
@@ -244,7 +244,7 @@ def predict(model: Model, state: State, contacts: Contacts | None, dt: float) ->
 
 def minimize_step(energy: ImplicitEulerEnergy, fixed: np.ndarray, x0: np.ndarray | None = None,
                   rtol: float = 1e-10, max_iterations: int = 200) -> tuple[np.ndarray, dict]:
-    """Minimise ``energy`` over the free particles by damped Newton (:func:`~tissue_sim_ros.core.minimize.newton_minimize`,
+    """Minimise ``energy`` over the free particles by damped Newton (:func:`~tissue_sim_ros.core.physics.minimize.newton_minimize`,
     shared with the core's static settle); fixed particles stay at x*.
 
     Parameters

@@ -46,10 +46,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..core.config import parse_assignments, resolve_config
+from ..core.contact.tool import ToolPose
 from ..core.errors import InputError
 from ..core.mesh import mesh_rectangle
-from ..core.simulation import Simulation
-from ..core.tool import ToolPose
+from ..core.sim.simulation import Simulation
 from . import fem_reference as fem
 
 HELP = "the material model run to rest against the scikit-fem reference: errors vs mesh spacing and dt"

@@ -43,13 +43,13 @@ from typing import Any
 import numba
 import numpy as np
 
-from ..core.collision import Contacts
 from ..core.config import resolve_config
+from ..core.contact.collision import Contacts
 from ..core.errors import InputError
 from ..core.mesh import TissueMesh, mesh_rectangle
-from ..core.model import Model, SimParams
-from ..core.simulation import Simulation
-from ..core.solvers import Solver
+from ..core.physics.model import Model, SimParams
+from ..core.physics.solvers import Solver
+from ..core.sim.simulation import Simulation
 from .numpy_baseline import NumpyJacobiSolver
 
 HELP = "ms per step, ns per projection and ratio to NumPy, per method and mesh size"
@@ -148,7 +148,7 @@ def _threads(solver: Any) -> int:
 
 def paper_scene_rows(methods: list[Method], iterations: int, steps: int, progress) -> list[dict[str, Any]]:
     """Experiment a on the default scene: solve and contact cost over the steps in contact."""
-    from ..core.trajectories import experiment_a  # noqa: PLC0415
+    from ..core.timing.trajectories import experiment_a  # noqa: PLC0415
 
     rows = []
     for method in methods:
@@ -200,12 +200,12 @@ def paper_step_rows(iterations: int, steps: int, progress: Any = None) -> list[d
     """One compiled call per step against the step before it, side by side on the paper scene.
 
     Two simulations of each method step experiment a together, one with ``Simulation.step`` (compiled:
-    ``core/step_kernels.py``), one with ``Simulation.step_reference`` (the Python loop around the kernels),
+    ``core/physics/step_kernels.py``), one with ``Simulation.step_reference`` (the Python loop around the kernels),
     alternating step by step so both see the same load; the wall time of the whole call (report included) is
     timed, tool-free (the steps before the tool touches) and in contact, ``steps`` of each. ``identical``: the
     two states were equal bit for bit after every step.
     """
-    from ..core.trajectories import experiment_a  # noqa: PLC0415
+    from ..core.timing.trajectories import experiment_a  # noqa: PLC0415
 
     rows = []
     for name, _, values in STEP_METHODS:

@@ -3,7 +3,7 @@
 A strip of ``--width`` x ``--height`` (``mesh_rectangle``: right triangles of
 area h^2 / 2, alternating diagonals) at each spacing h, the XPBD stiffnesses
 of ``config/tissue_sim.yaml``. Measured from the implementation's own energy
-(:func:`~tissue_sim_ros.core.energy.energy_terms`) and exact static solves
+(:func:`~tissue_sim_ros.core.physics.energy.energy_terms`) and exact static solves
 (:func:`~tissue_sim_ros.bench.reference.reference_step`):
 
 * ``spring_modulus`` [N/m]: spring energy per area of a uniaxial stretch eps in
@@ -38,10 +38,10 @@ from typing import Any
 import numpy as np
 
 from ..core.config import resolve_config
-from ..core.energy import energy_terms
 from ..core.errors import InputError
 from ..core.mesh import mesh_rectangle
-from ..core.model import Model, SimParams
+from ..core.physics.energy import energy_terms
+from ..core.physics.model import Model, SimParams
 from .accuracy import format_table, write_csv
 from .reference import reference_step
 

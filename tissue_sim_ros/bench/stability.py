@@ -34,12 +34,12 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..core.contact.tool import ToolPose, ToolShape, twist_from_poses
 from ..core.errors import InputError
 from ..core.mesh import TissueMesh, mesh_from_arrays, mesh_rectangle
-from ..core.model import Model, SimParams
-from ..core.simulation import Simulation
-from ..core.solvers import Solver
-from ..core.tool import ToolPose, ToolShape, twist_from_poses
+from ..core.physics.model import Model, SimParams
+from ..core.physics.solvers import Solver
+from ..core.sim.simulation import Simulation
 from .accuracy import format_table, push_poses, write_csv
 from .failures import FAILURE_KINDS, Failure, FailureMonitor, iteration_residuals, residual_falls
 
@@ -231,7 +231,7 @@ def _residual_check(model: Model, sim: Simulation, state, pose0: ToolPose, pose1
     twist = twist_from_poses(pose0, pose1, dt)
     contacts = sim.contact.detect(state, pose0, pose1, twist, dt)
     if model.params.substeps > 1:
-        from ..core.solvers import Solver  # noqa: PLC0415
+        from ..core.physics.solvers import Solver  # noqa: PLC0415
 
         out = []
         for n in (1, 4, 16, 64):
@@ -328,7 +328,7 @@ def inversion_rows(n_steps: int) -> list[dict[str, Any]]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..core.backends import add_backend_arguments  # noqa: PLC0415
+    from ..core.sim.backends import add_backend_arguments  # noqa: PLC0415
     parser.add_argument("--out", default="bench_out/stability", help="output directory (CSV, PNG)")
     parser.add_argument("--quick", action="store_true", help="a few runs (smoke test)")
     parser.add_argument("--material", action="store_true",
@@ -351,7 +351,7 @@ def run(args: argparse.Namespace) -> int:
     configs = [RunConfig(m, c, dt, s, v, q, n_steps=sweep.n_steps)
                for m in sweep.methods for c in sweep.contact_models for dt in sweep.dts
                for s in sweep.stiffness_scales for v in sweep.tool_speeds for q in sweep.mesh_qualities]
-    from ..core.backends import check_backend_arguments, map_calls  # noqa: PLC0415
+    from ..core.sim.backends import check_backend_arguments, map_calls  # noqa: PLC0415
 
     jobs, backend, address = check_backend_arguments(args)
     with tqdm(total=len(configs), desc="stability", unit="run", dynamic_ncols=True) as bar:

@@ -38,7 +38,7 @@ import yaml
 
 from ..core.config import resolve_config
 from ..core.errors import InputError
-from ..core.model import SimParams
+from ..core.physics.model import SimParams
 from .accuracy import (
     Setting,
     default_scene,
@@ -83,7 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "--material-spacings/--grade-spacings (exit 1 when an error exceeds --tolerance)")
     parser.add_argument("--depth", type=float, default=0.003,
                         help="material neo_hookean: how far the instrument presses into the tissue [m]")
-    from ..core.backends import add_backend_arguments  # noqa: PLC0415
+    from ..core.sim.backends import add_backend_arguments  # noqa: PLC0415
 
     add_backend_arguments(parser, jobs_default=1,
                           jobs_help="worker processes for independent runs (default 1: in this process; the errors "
@@ -130,10 +130,10 @@ def tune(values: dict[str, Any], tolerance: float, budget_ms: float, spacings: l
     Counts grow per method and spacing until the method meets the tolerance
     (more iterations then only cost more) or its time exceeds the budget.
     ``jobs`` > 1 or ``backend="ray"``: the exact reference runs, then the (spacing, method) chains, run as
-    independent calls (:func:`~tissue_sim_ros.core.backends.map_calls`); the errors are those of ``jobs=1``
+    independent calls (:func:`~tissue_sim_ros.core.sim.backends.map_calls`); the errors are those of ``jobs=1``
     exactly, the times are measured with the other workers running beside (``progress`` then counts calls).
     """
-    from ..core.backends import map_calls  # noqa: PLC0415
+    from ..core.sim.backends import map_calls  # noqa: PLC0415
 
     base = default_scene(spacings[0], float(values.get("dt", 0.01)), n_steps, overrides=values)
     finest = default_scene(spacings[-1] / 2, base.params.dt, n_steps, overrides=values, like=base)
@@ -178,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--budget-ms={args.budget_ms}: expected a time > 0 ms")
     if args.steps < 1:
         raise InputError(f"--steps={args.steps}: expected at least 1 step")
-    from ..core.backends import check_backend_arguments  # noqa: PLC0415
+    from ..core.sim.backends import check_backend_arguments  # noqa: PLC0415
 
     jobs, backend, address = check_backend_arguments(args)
     cfg = resolve_config(params_file=args.params or None)

@@ -44,8 +44,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..core.config import Config
-from ..core.simulation import Simulation
-from ..core.tool import ToolPose
+from ..core.contact.tool import ToolPose
+from ..core.sim.simulation import Simulation
 
 SETTINGS = ((1, 10), (2, 5), (5, 5), (10, 2), (10, 5), (10, 10), (20, 3), (20, 5), (20, 10), (30, 3), (30, 5),
             (30, 10), (40, 3), (40, 5), (50, 5))
@@ -136,8 +136,8 @@ def press_to_rest(cfg: Config, press: Press, max_steps: int = 3000) -> dict[str,
 def rest_runs(runs: Sequence[tuple[Config, Press]], jobs: int = 1, backend: str = "local",
               address: str | None = None) -> list[dict[str, Any]]:
     """:func:`press_to_rest` of each ``(cfg, press)``, independent calls: in this process (``jobs`` 1, local), on
-    worker processes or on Ray (:func:`~tissue_sim_ros.core.backends.map_calls`); the same numbers."""
-    from ..core.backends import map_calls  # noqa: PLC0415
+    worker processes or on Ray (:func:`~tissue_sim_ros.core.sim.backends.map_calls`); the same numbers."""
+    from ..core.sim.backends import map_calls  # noqa: PLC0415
 
     return map_calls(press_to_rest, list(runs), backend=backend, workers=jobs, address=address)
 

@@ -18,19 +18,19 @@ import importlib
 import sys
 from typing import Sequence
 
-from .core.errors import InputError
+from ..core.errors import InputError
 
 #: subcommand -> (module, one-line help). Nested groups ("bench") hold their own table.
 COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
-    "config": ("tissue_sim_ros.cli_config", "print the resolved configuration (shipped YAML + --params + --set) as a parameter YAML"),
-    "mesh": ("tissue_sim_ros.cli_mesh", "mesh a tissue image (or load a mesh file), report quality, write .npz and a picture"),
-    "experiment": ("tissue_sim_ros.experiments.cli", "run the paper's experiment a or b offline and write its figures"),
+    "config": ("tissue_sim_ros.cli.config", "print the resolved configuration (shipped YAML + --params + --set) as a parameter YAML"),
+    "mesh": ("tissue_sim_ros.cli.mesh", "mesh a tissue image (or load a mesh file), report quality, write .npz and a picture"),
+    "experiment": ("tissue_sim_ros.cli.experiment", "run the paper's experiment a or b offline and write its figures"),
     "plan": ("tissue_sim_ros.experiments.plan", "rank insertion angles/speeds toward a target by implicit Euler energy"),
     "demo": ("tissue_sim_ros.experiments.demo", "the main job: node + tool driver on a private ROS domain, experiment a, recorded to a bag"),
-    "record": ("tissue_sim_ros.cli_record", "record the node's topics to a rosbag2 bag (MCAP or sqlite3)"),
-    "replay": ("tissue_sim_ros.cli_replay", "run the simulation offline on a bag's tool trajectory; write a bag, CSV, plots, frames"),
-    "play": ("tissue_sim_ros.cli_play", "publish a bag's tool topics into a live ROS graph with the recorded timing"),
-    "fit": ("tissue_sim_ros.cli_fit", "identify the tissue's material from a recording (tracked points + tool poses)"),
+    "record": ("tissue_sim_ros.cli.record", "record the node's topics to a rosbag2 bag (MCAP or sqlite3)"),
+    "replay": ("tissue_sim_ros.cli.replay", "run the simulation offline on a bag's tool trajectory; write a bag, CSV, plots, frames"),
+    "play": ("tissue_sim_ros.cli.play", "publish a bag's tool topics into a live ROS graph with the recorded timing"),
+    "fit": ("tissue_sim_ros.cli.fit", "identify the tissue's material from a recording (tracked points + tool poses)"),
     "tune": ("tissue_sim_ros.bench.tune", "pick the cheapest mesh spacing/method/iterations meeting an error tolerance"),
     "bench": {
         "solver": ("tissue_sim_ros.bench.solver", "ms per step, ns per projection and ratio to NumPy, per method and mesh size"),

@@ -14,8 +14,8 @@ from __future__ import annotations
 import argparse
 from typing import Any, Mapping
 
-from .core.config import Config, parse_assignments, resolve_config
-from .core.errors import make_parent, output_file
+from ..core.config import Config, parse_assignments, resolve_config
+from ..core.errors import make_parent, output_file
 
 HELP = "print the resolved configuration (shipped YAML + --params + --set) as a parameter YAML"
 DESCRIPTION = """Resolve the configuration once, as every command and the node do, and print it.

@@ -3,13 +3,13 @@ from __future__ import annotations
 
 import argparse
 
-from ..cli_config import add_config_arguments
-from ..core import trajectories as tr
 from ..core.config import parse_assignments, resolve_config
+from ..core.contact.tool import ToolShape
 from ..core.errors import InputError, output_dir
-from ..core.tool import ToolShape
-from ..resources import scene_names, scene_params_file
-from . import paper
+from ..core.resources import scene_names, scene_params_file
+from ..core.timing import trajectories as tr
+from ..experiments import paper
+from .config import add_config_arguments
 
 HELP = "run the paper's experiment a or b offline and write its figures"
 DESCRIPTION = """Run one of the paper's experiments offline, on the paper's scene (Table I parameters) or

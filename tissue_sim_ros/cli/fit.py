@@ -42,12 +42,11 @@ import os
 import time
 from pathlib import Path
 
-from .cli_config import add_config_arguments
-from .core.errors import InputError
-from .core.tracking import (
+from ..core.errors import InputError
+from ..core.fit.tracking import (
     split_body_name,
 )
-from .experiments.fit import (
+from ..experiments.fit import (
     DEFAULT_FIT,
     POINTS_TOPIC,
     TOOL_TOPIC,
@@ -63,6 +62,7 @@ from .experiments.fit import (
     summary_lines,
     write_outputs,
 )
+from .config import add_config_arguments
 
 HELP = "identify the tissue's material (Young's modulus, Poisson's ratio, damping...) from a recorded bag"
 DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP
@@ -97,7 +97,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "one, 0.04 of Poisson's ratio; contact makes rollouts rough at the micrometre level)")
     parser.add_argument("--no-mesh-check", action="store_true",
                         help="skip the rollout on half the mesh spacing whose shift of the estimate joins its error bar")
-    from .core.backends import add_backend_arguments  # noqa: PLC0415
+    from ..core.sim.backends import add_backend_arguments  # noqa: PLC0415
 
     add_backend_arguments(parser, jobs_default=min(2, os.cpu_count() or 1),
                           jobs_help="worker processes for the rollouts (default: 2 or the cores; 1: in this process)")
@@ -135,7 +135,7 @@ def parse_bounds(items: list[str]) -> dict[str, tuple[float, float]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .ros.recording import read_recording  # noqa: PLC0415
+    from ..ros.recording import read_recording  # noqa: PLC0415
 
     out = Path(args.out)
     created = missing_parents(out)
@@ -159,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
         names = parse_fit_names(args.fit)
         if args.max_evals < 2:
             raise InputError(f"--max-evals {args.max_evals}: expected at least 2")
-        from .core.backends import check_backend_arguments  # noqa: PLC0415
+        from ..core.sim.backends import check_backend_arguments  # noqa: PLC0415
 
         jobs, backend, address = check_backend_arguments(args)
         recording = read_recording(bag, points_topic, tool_topic, frame=args.frame)

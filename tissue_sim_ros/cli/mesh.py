@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .core.errors import InputError
-from .core.mesh import (
+from ..core.errors import InputError
+from ..core.mesh import (
     MAX_PARTICLES,
     MESH_SUFFIXES,
     Grading,
@@ -88,7 +88,7 @@ def _parse_color(text: str | None) -> tuple[int, int, int] | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .resources import DEFAULT_IMAGE, config_path  # noqa: PLC0415
+    from ..core.resources import DEFAULT_IMAGE, config_path  # noqa: PLC0415
 
     sources = [Path(p) for p in args.image] if args.image else [config_path(DEFAULT_IMAGE)]
     source = sources[0]

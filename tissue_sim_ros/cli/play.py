@@ -4,9 +4,9 @@ from __future__ import annotations
 import argparse
 import math
 
-from .core.errors import InputError
-from .ros import play as _play_module
-from .ros.play import play
+from ..core.errors import InputError
+from ..ros import play as _play_module
+from ..ros.play import play
 
 HELP = "publish a bag's tool topics into a live ROS graph with the recorded timing"
 DESCRIPTION = _play_module.__doc__.split("\n\n", 1)[1] if _play_module.__doc__ else HELP

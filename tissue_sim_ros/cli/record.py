@@ -25,9 +25,9 @@ from __future__ import annotations
 
 import argparse
 
-from .core.errors import InputError
-from .ros.bags import STORAGES
-from .ros.record import record
+from ..core.errors import InputError
+from ..ros.bags import STORAGES
+from ..ros.record import record
 
 HELP = "record the node's topics to a rosbag2 bag (MCAP or sqlite3)"
 DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP

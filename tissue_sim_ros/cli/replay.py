@@ -1,7 +1,7 @@
 """``tissue-sim replay``: run the simulation offline on a bag's tool trajectory (or a trajectory as data).
 
 Reads the tool trajectory from a bag (:func:`~tissue_sim_ros.ros.bags.read_tool_track`),
-steps :class:`~tissue_sim_ros.core.simulation.Simulation` as fast as the
+steps :class:`~tissue_sim_ros.core.sim.simulation.Simulation` as fast as the
 machine allows, and writes into ``--out``:
 
 * ``replay_bag/``: a rosbag2 bag (MCAP) with what the node would publish
@@ -29,7 +29,7 @@ Three modes, chosen with ``--mode``:
     what the node stepped with, so a timer-mode run is reproduced bit for bit.
 
 Instead of a bag, ``--trajectory PRESET|FILE`` replays a trajectory given as
-data (:mod:`tissue_sim_ros.core.trajectories`: a preset such as ``authors``, or
+data (:mod:`tissue_sim_ros.core.timing.trajectories`: a preset such as ``authors``, or
 a CSV of time,x,y,yaw or a YAML file): its per-step poses and twists are the
 samples, one step each, at t = k dt.
 
@@ -45,15 +45,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli_config import add_config_arguments, config_from_args
-from .core.config import Config, params_json, strict_json
-from .core.errors import InputError, output_dir
-from .core.simulation import Simulation
-from .core.stamps import ns_from_seconds
-from .core.tool import ToolPose
-from .core.trajectories import resolve_trajectory
-from .ros.bags import SKIP_REASONS, BadSampleError, BagWriter, ToolTrack, read_tool_track
-from .ros.replay import (
+from ..core.config import Config, params_json, strict_json
+from ..core.contact.tool import ToolPose
+from ..core.errors import InputError, output_dir
+from ..core.sim.simulation import Simulation
+from ..core.timing.stamps import ns_from_seconds
+from ..core.timing.trajectories import resolve_trajectory
+from ..ros.bags import SKIP_REASONS, BadSampleError, BagWriter, ToolTrack, read_tool_track
+from ..ros.replay import (
     MODES,
     ReplayBagSink,
     ReplayResult,
@@ -62,6 +61,7 @@ from .ros.replay import (
     track_from_trajectory,
     write_outputs,
 )
+from .config import add_config_arguments, config_from_args
 
 HELP = "run the simulation offline on a bag's tool trajectory; write a bag, CSV, plots, frames"
 DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP
@@ -190,9 +190,9 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_applied(args: argparse.Namespace, out: Path, bag_out: Path) -> int:
     """``--mode applied``: the node's own recording, stepped with exactly what the node stepped with."""
-    from .core.config import params_from_json, resolve_config  # noqa: PLC0415
-    from .ros.bags import Bag  # noqa: PLC0415
-    from .ros.tool_applied import POSE_TYPE, read_applied_steps  # noqa: PLC0415
+    from ..core.config import params_from_json, resolve_config  # noqa: PLC0415
+    from ..ros.bags import Bag  # noqa: PLC0415
+    from ..ros.tool_applied import POSE_TYPE, read_applied_steps  # noqa: PLC0415
 
     steps = read_applied_steps(args.bag)
     print(f"{steps.n} steps from {steps.twist_topic} ({sum(p is not None for p in steps.poses)} with a tool), "

@@ -14,7 +14,7 @@ simulation's configuration::
         -> every value checked (SimParams, SceneConfig, ToolShape, the node's checks)
         -> Config (frozen): .sim (SimParams, the Model's record), .scene, .tool, .node
 
-:meth:`Simulation.from_config <tissue_sim_ros.core.simulation.Simulation.from_config>`
+:meth:`Simulation.from_config <tissue_sim_ros.core.sim.simulation.Simulation.from_config>`
 builds a scene from a Config; ``tissue-sim config`` prints one as a parameter YAML
 that the node and every command load identically.
 
@@ -42,9 +42,10 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import numpy as np
 import yaml
 
+from .contact.tool import TOOL_SHAPES, ToolShape
 from .errors import InputError, input_file
 from .mesh import MAX_PARTICLES, OUTLINE_CORNERS, TissueMesh, load_meshes
-from .model import (
+from .physics.model import (
     AREA_MODES,
     CONTACT_MODELS,
     CONTACT_SURFACES,
@@ -57,7 +58,6 @@ from .model import (
     SETTLE_MODES,
     SimParams,
 )
-from .tool import TOOL_SHAPES, ToolShape
 
 #: The section of a ROS 2 parameter file that holds the node's parameters.
 NODE_NAME = "tissue_sim_node"
@@ -127,7 +127,7 @@ def _frame_or_empty(v: Any) -> str | None:
 
 
 def _static_transforms(v: Any) -> str | None:
-    from .frames import parse_static_transforms  # noqa: PLC0415  (frames imports errors only)
+    from .timing.frames import parse_static_transforms  # noqa: PLC0415  (frames imports errors only)
 
     try:
         parse_static_transforms(v)
@@ -208,7 +208,7 @@ class SceneConfig:
         A relative path that is not a file from the working directory is looked up among the shipped
         config files (``scenes/liver_probe.png``), so a shipped scene's parameter file works from anywhere.
         """
-        from ..resources import DEFAULT_IMAGE, config_path, find_data_file  # noqa: PLC0415
+        from .resources import DEFAULT_IMAGE, config_path, find_data_file  # noqa: PLC0415
 
         if self.mesh_file:
             files = [self.mesh_file] if isinstance(self.mesh_file, str) else list(self.mesh_file)
@@ -466,7 +466,7 @@ def params_from_json(text: str) -> dict[str, Any]:
 
 def default_params() -> dict[str, Any]:
     """The shipped ``config/tissue_sim.yaml`` as flat parameters."""
-    from ..resources import DEFAULT_PARAMS_FILE, config_path  # noqa: PLC0415
+    from .resources import DEFAULT_PARAMS_FILE, config_path  # noqa: PLC0415
 
     return load_params_file(config_path(DEFAULT_PARAMS_FILE))
 
@@ -546,7 +546,7 @@ def resolve_method_alias(values: dict[str, Any], shipped: Mapping[str, Any]) -> 
 
 
 def resolve_material_defaults(values: dict[str, Any], shipped: Mapping[str, Any], chosen: Iterable[str]) -> None:
-    """A material's own solver settings (:data:`~tissue_sim_ros.core.model.MATERIAL_DEFAULTS`), in place.
+    """A material's own solver settings (:data:`~tissue_sim_ros.core.physics.model.MATERIAL_DEFAULTS`), in place.
 
     The shipped file is the paper's scene (``method: pbd``, one step of 30 iterations, the paper's
     contact); ``material: neo_hookean`` sets ``method: xpbd``, 10 substeps of 10 iterations and

@@ -14,7 +14,7 @@ import os
 import sys
 from pathlib import Path
 
-from .core.errors import InputError
+from .errors import InputError
 
 DEFAULT_PARAMS_FILE = "tissue_sim.yaml"
 DEFAULT_IMAGE = "tissue.png"
@@ -35,7 +35,7 @@ def config_dirs() -> list[Path]:
             dirs.append(Path(p))
     except ImportError:
         pass
-    dirs.append(Path(__file__).resolve().parent.parent / "config")
+    dirs.append(Path(__file__).resolve().parents[2] / "config")  # tissue_sim_ros/core/resources.py -> the checkout
     prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p] + [sys.prefix]
     dirs += [Path(p) / "share" / "tissue_sim_ros" / "config" for p in prefixes]
     seen: list[Path] = []

@@ -25,12 +25,12 @@ from typing import IO, Any
 import numpy as np
 from tqdm import tqdm
 
+from ..core.contact.tool import yaw_from_quaternion
 from ..core.errors import InputError
-from ..core.stamps import stamp_to_ns
-from ..core.tool import yaw_from_quaternion
-from ..resources import scene_names, scene_params_file
+from ..core.resources import scene_names, scene_params_file
+from ..core.timing import trajectories as tr
+from ..core.timing.stamps import stamp_to_ns
 from ..ros.domain import free_domain_id
-from . import trajectories as tr
 
 HELP = "the main job: node + tool driver on a private ROS domain, experiment a, recorded to a bag"
 DESCRIPTION = __doc__
@@ -250,8 +250,8 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
 
 def run(args: argparse.Namespace) -> int:
     from ..core.config import resolve_config  # noqa: PLC0415
-    from ..core.model import Model  # noqa: PLC0415
-    from ..core.tool import ToolPose  # noqa: PLC0415
+    from ..core.contact.tool import ToolPose  # noqa: PLC0415
+    from ..core.physics.model import Model  # noqa: PLC0415
     from ..render import plot_energy, save_snapshots  # noqa: PLC0415
 
     out = Path(args.out)

@@ -1,6 +1,6 @@
 """Fitting a tissue to a recording, the library behind ``tissue-sim fit`` (no argparse here).
 
-See :mod:`tissue_sim_ros.cli_fit` for the command and what it writes.
+See :mod:`tissue_sim_ros.cli.fit` for the command and what it writes.
 """
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 from ..core.errors import InputError, input_file, output_dir
-from ..core.fitting import FitParameter, FitResult, fit, make_parameter
-from ..core.tracking import (
+from ..core.fit.fitting import FitParameter, FitResult, fit, make_parameter
+from ..core.fit.tracking import (
     MappedTrackSimulator,
     PointBinding,
     PoolTrackSimulator,
@@ -55,7 +55,7 @@ class FitSetup:
 
     def refined(self) -> SerialTrackSimulator | None:
         """The scene on half the mesh spacing, the points bound to it at rest (None for a mesh from a file)."""
-        from ..core.scene import build_simulation  # noqa: PLC0415
+        from ..core.sim.scene import build_simulation  # noqa: PLC0415
 
         if self.values.get("mesh_file"):
             return None
@@ -86,8 +86,8 @@ def prepare(recording: Recording, values: dict[str, Any], names: list[str], *, h
             bind_tolerance: float | None = None) -> FitSetup:
     """Check everything and build the scene, the binding and the schedule (nothing is simulated yet)."""
     from ..core.config import default_params  # noqa: PLC0415
-    from ..core.model import SimParams  # noqa: PLC0415
-    from ..core.scene import build_simulation  # noqa: PLC0415
+    from ..core.physics.model import SimParams  # noqa: PLC0415
+    from ..core.sim.scene import build_simulation  # noqa: PLC0415
 
     if not (isinstance(holdout, (int, float)) and 0.0 <= holdout < 1.0):
         raise InputError(f"--holdout {holdout!r}: expected a fraction in [0, 1)")
@@ -284,7 +284,7 @@ def write_outputs(out: Path, setup: FitSetup, result: FitResult, *, truth: dict 
 
     Returns the file names.
     """
-    from ..render_fit import plot_cost_slices, plot_point_errors, plot_tracks  # noqa: PLC0415
+    from ..render.fit import plot_cost_slices, plot_point_errors, plot_tracks  # noqa: PLC0415
 
     rec = setup.recording
     sim_points = result.simulated

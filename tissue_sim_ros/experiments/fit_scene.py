@@ -28,8 +28,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from ..core.contact.tool import WaypointTrajectory
 from ..core.errors import InputError
-from ..core.tool import WaypointTrajectory
 
 #: The block [m] as (x0, y0, x1, y1).
 BLOCK = (-0.05, 0.0, 0.05, 0.04)
@@ -141,8 +141,8 @@ def synthesize(values: Mapping[str, Any], *, n_points: int = 20, noise: float = 
     (first frame at the rest state, later ones ``camera_offset`` s off the steps), with Gaussian noise of
     ``noise`` m per coordinate from frame 1 on (frame 0 is where the points were picked).
     """
-    from ..core.scene import build_simulation  # noqa: PLC0415
-    from ..core.tracking import Recording, Schedule, bind_points, rollout_tracks  # noqa: PLC0415
+    from ..core.fit.tracking import Recording, Schedule, bind_points, rollout_tracks  # noqa: PLC0415
+    from ..core.sim.scene import build_simulation  # noqa: PLC0415
 
     rng = np.random.default_rng(seed)
     sim = build_simulation(dict(values))

@@ -19,13 +19,13 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from ..core import trajectories as tr
 from ..core.config import Config, resolve_config
+from ..core.contact.tool import ToolPose, Trajectory
 from ..core.errors import InputError
-from ..core.rollout import Rollout, rollout
-from ..core.scene import build_simulation
-from ..core.simulation import Simulation
-from ..core.tool import ToolPose, Trajectory
+from ..core.sim.rollout import Rollout, rollout
+from ..core.sim.scene import build_simulation
+from ..core.sim.simulation import Simulation
+from ..core.timing import trajectories as tr
 
 
 @dataclass
@@ -116,10 +116,10 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None =
                  settle: int = 0, scene: tr.SceneExperiments = tr.PAPER) -> ExperimentResult:
     """Run experiment a and write ``{prefix}_snapshots.png``, ``{prefix}_energy.png``, ``{prefix}_energy.csv``.
 
-    ``scene`` places the tool of experiment a (:data:`~tissue_sim_ros.core.trajectories.SCENE_EXPERIMENTS`);
+    ``scene`` places the tool of experiment a (:data:`~tissue_sim_ros.core.timing.trajectories.SCENE_EXPERIMENTS`);
     ``params`` must describe the same scene (e.g. its parameter file); ``snapshot_steps`` default to the scene's.
     ``trajectory``: ``experiment_a`` (the scene's insertion), another preset or a trajectory file
-    (:func:`~tissue_sim_ros.core.trajectories.resolve_trajectory`);
+    (:func:`~tissue_sim_ros.core.timing.trajectories.resolve_trajectory`);
     ``steps``: experiment a's insertion of that many steps (default: the scene's), or the first ``steps`` of
     another trajectory (default: all of it). ``{prefix}_trajectory.csv`` records the poses run.
     ``settle``: steps under gravity alone (no tool) before the run, not recorded: the run starts from the
@@ -199,7 +199,7 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None =
                  scene: tr.SceneExperiments = tr.PAPER) -> ExperimentResult:
     """Run experiment b: the same target from each angle; figure of final states and energy curves.
 
-    Unset arguments come from ``scene`` (:data:`~tissue_sim_ros.core.trajectories.SCENE_EXPERIMENTS`), whose
+    Unset arguments come from ``scene`` (:data:`~tissue_sim_ros.core.timing.trajectories.SCENE_EXPERIMENTS`), whose
     tool (if it names one) is the command's default tool, under a parameter file's, as the paper's 0.3 m box is.
     ``trajectories`` (presets or trajectory files) replace the angles: one run each, labelled by its name,
     compared by the same cost.

@@ -25,10 +25,10 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from ..cli_config import add_config_arguments, config_from_args
+from ..cli.config import add_config_arguments, config_from_args
 from ..core.config import Config
 from ..core.errors import InputError, output_dir
-from . import trajectories as tr
+from ..core.timing import trajectories as tr
 from .plan_live import add_live_arguments, run_live
 
 HELP = "rank insertion angles/speeds toward a target by implicit Euler energy"
@@ -36,7 +36,7 @@ DESCRIPTION = __doc__
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..core.backends import add_backend_arguments  # noqa: PLC0415
+    from ..core.sim.backends import add_backend_arguments  # noqa: PLC0415
     parser.add_argument("--target", type=float, nargs=2, default=list(tr.B_TARGET), metavar=("X", "Y"),
                         help="target of the tool tip [m], a point inside the tissue (default: experiment b's, %(default)s)")
     parser.add_argument("--angles", type=float, nargs=3, default=[-5.0, -40.0, 5.0], metavar=("FROM", "TO", "STEP"),
@@ -64,8 +64,8 @@ def angle_grid(start: float, stop: float, step: float) -> list[float]:
 def evaluate(values: Config, angle_deg: float, speed: float, target: tuple[float, float],
              distance: float) -> dict[str, Any]:
     """One insertion from rest; the numbers a planner ranks by (runs in a worker process)."""
-    from ..core.rollout import rollout  # noqa: PLC0415
-    from ..core.scene import build_simulation  # noqa: PLC0415
+    from ..core.sim.rollout import rollout  # noqa: PLC0415
+    from ..core.sim.scene import build_simulation  # noqa: PLC0415
     from .paper import baseline_rollout, insertion_cost  # noqa: PLC0415
 
     sim = build_simulation(values)
@@ -92,11 +92,11 @@ def plan(values: Config, angles: list[float], speeds: list[float], target: tuple
 
     ``jobs`` warm worker processes (local; 1: serially here) or Ray actors
     (``backend="ray"``, ``address`` of the cluster); the numbers are the same
-    bit for bit (:mod:`~tissue_sim_ros.core.batch`), and equal to :func:`evaluate`'s.
+    bit for bit (:mod:`~tissue_sim_ros.core.sim.batch`), and equal to :func:`evaluate`'s.
     """
-    from ..core.backends import check_backend, rollout_pool  # noqa: PLC0415
-    from ..core.batch import BatchScene, rollout_batch  # noqa: PLC0415
-    from ..core.scene import build_simulation  # noqa: PLC0415
+    from ..core.sim.backends import check_backend, rollout_pool  # noqa: PLC0415
+    from ..core.sim.batch import BatchScene, rollout_batch  # noqa: PLC0415
+    from ..core.sim.scene import build_simulation  # noqa: PLC0415
 
     for s in speeds:
         if not (math.isfinite(s) and s > 0):
@@ -108,7 +108,7 @@ def plan(values: Config, angles: list[float], speeds: list[float], target: tuple
     check_backend(backend)
     tasks = [(a, s) for s in speeds for a in angles]
     sim = build_simulation(values)
-    from ..core.planning import locate  # noqa: PLC0415
+    from ..core.plan.insertion import locate  # noqa: PLC0415
 
     if locate(sim.state.particle_q, sim.model.tri_indices, target) is None:
         # as the node's planner service (~/plan_insertion) refuses it: no insertion can reach such a target

@@ -38,7 +38,7 @@ from ..core.errors import InputError
 
 
 def add_live_arguments(parser: argparse.ArgumentParser) -> None:
-    from . import trajectories as tr  # noqa: PLC0415
+    from ..core.timing import trajectories as tr  # noqa: PLC0415
 
     a = math.radians(-30.0)
     entry = [tr.B_TARGET[0] - 0.2 * math.cos(a), tr.B_TARGET[1] - 0.2 * math.sin(a)]

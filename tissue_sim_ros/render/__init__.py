@@ -18,9 +18,9 @@ import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
 from matplotlib.patches import Circle, Polygon  # noqa: E402
 
-from .core.model import Model  # noqa: E402
-from .core.strain import vertex_strain  # noqa: E402
-from .core.tool import ToolPose, ToolShape, rounded_box_outline  # noqa: E402
+from ..core.contact.tool import ToolPose, ToolShape, rounded_box_outline  # noqa: E402
+from ..core.physics.model import Model  # noqa: E402
+from ..core.physics.strain import vertex_strain  # noqa: E402
 
 BODY_COLOURS = ["#e58fa0", "#d9667d", "#f2b8c6", "#c94f6d"]
 TERM_STYLES = {"inertial": ("#1f77b4", "--"), "spring": ("#2ca02c", "-."), "area": ("#9467bd", ":")}
@@ -144,7 +144,7 @@ def plot_energy(path: str | Path, steps: np.ndarray, terms: Mapping[str, np.ndar
 
 def write_video(path: str | Path, frames: Sequence[str | Path], fps: float = 20.0) -> Path:
     """Assemble PNG frames into an mp4 (or .gif); needs the ``video`` extra (imageio)."""
-    from .core.errors import InputError  # noqa: PLC0415
+    from ..core.errors import InputError  # noqa: PLC0415
 
     try:
         import imageio.v2 as imageio  # noqa: PLC0415

@@ -7,7 +7,7 @@ from typing import Sequence
 import numpy as np
 from matplotlib.ticker import MaxNLocator
 
-from .render import _save, plt
+from . import _save, plt
 
 OBS_COLOUR = "#1f77b4"
 SIM_COLOUR = "#d62728"

@@ -52,9 +52,9 @@ from typing import TYPE_CHECKING, Any, Iterator
 
 import numpy as np
 
+from ..core.contact.tool import interpolate_poses, yaw_from_quaternion
 from ..core.errors import InputError
-from ..core.stamps import stamp_to_ns
-from ..core.tool import interpolate_poses, yaw_from_quaternion
+from ..core.timing.stamps import stamp_to_ns
 
 if TYPE_CHECKING:
     from rosbags.interfaces import Connection

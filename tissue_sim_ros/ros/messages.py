@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from ..core.stamps import Stamp
-from ..core.strain import VertexStrain, strain_mesh_arrays
-from ..core.tool import rounded_box_outline as tool_outline  # the outline the pictures draw too
+from ..core.contact.tool import rounded_box_outline as tool_outline  # the outline the pictures draw too
+from ..core.physics.strain import VertexStrain, strain_mesh_arrays
+from ..core.timing.stamps import Stamp
 
 #: CDR little-endian encapsulation header (representation id 0x0001, options 0).
 CDR_LE_HEADER = b"\x00\x01\x00\x00"
@@ -568,7 +568,7 @@ class SceneEncoder:
         self.tool_outline = tool_outline(*tool_rounded_box) if tool_rounded_box is not None else None
 
     def vertex_strain(self, q: np.ndarray) -> np.ndarray:
-        """Signed strain per particle (:class:`~tissue_sim_ros.core.strain.VertexStrain`), shape (N,), float64."""
+        """Signed strain per particle (:class:`~tissue_sim_ros.core.physics.strain.VertexStrain`), shape (N,), float64."""
         return self.strain(q)
 
     def point_cloud(self, stamp: Stamp, frame_id: str, q: np.ndarray, strain: np.ndarray) -> bytes:
@@ -618,7 +618,7 @@ class SceneEncoder:
                  tool_pose: tuple[float, float, float] | None, tool_stamp: Stamp | None,
                  contact_particles: np.ndarray | None) -> bytes:
         tri = self.tri_points
-        # one compiled, GIL-free gather (core/strain.py): the step thread runs while the marker thread fills these
+        # one compiled, GIL-free gather (core/physics/strain.py): the step thread runs while the marker thread fills these
         strain_mesh_arrays(np.ascontiguousarray(q, dtype=np.float64), self.tri_flat, self.edge_flat,
                            np.ascontiguousarray(strain, dtype=np.float64), float(self.strain_color_max), self._lut16,
                            tri, self._tri_rgba, self.wire_points, bool(self.wireframe))
@@ -693,7 +693,7 @@ class StepMessages:
 class StepEncoder:
     """A step's outputs as CDR bytes, the one encoding the node publishes and ``tissue-sim replay`` writes.
 
-    From a :class:`~tissue_sim_ros.core.simulation.StepReport` and the state
+    From a :class:`~tissue_sim_ros.core.sim.simulation.StepReport` and the state
     after the step: the scene energy and its terms (total and per body), the
     reaction wrench, the points with their signed strain, and the markers. So a
     replayed bag means what a live one means, message for message.

@@ -6,7 +6,7 @@ Run it::
 
 Every topic, frame, unit, QoS, parameter and service is described in
 ``msg_docs/``. The node converts messages and calls the library
-(:class:`~tissue_sim_ros.core.simulation.Simulation`); all physics lives there.
+(:class:`~tissue_sim_ros.core.sim.simulation.Simulation`); all physics lives there.
 
 Timing: a timer at 1/dt of the node's clock (``use_sim_time`` honoured) steps
 the simulation with the newest valid tool pose; in lock-step mode
@@ -52,12 +52,12 @@ from ..core.config import (
     params_json,
     resolve_config,
 )
+from ..core.contact.tool import ToolPose, ToolTwist, twist_from_poses, yaw_from_quaternion
 from ..core.errors import InputError
-from ..core.frames import FrameLookupError
-from ..core.phase_lock import PhaseLock
-from ..core.simulation import Simulation, StepReport
-from ..core.stamps import Stamp, stamp_from_ns, stamp_to_seconds
-from ..core.tool import ToolPose, ToolTwist, twist_from_poses, yaw_from_quaternion
+from ..core.sim.simulation import Simulation, StepReport
+from ..core.timing.frames import FrameLookupError
+from ..core.timing.phase_lock import PhaseLock
+from ..core.timing.stamps import Stamp, stamp_from_ns, stamp_to_seconds
 from . import messages, qos, tool_applied
 from .clock_follow import ClockFollower
 from .marker_publisher import MarkerPublisher, MarkerSnapshot
@@ -547,7 +547,7 @@ class TissueSimNode(Node):
         self._step(_stamp_of(now), None, from_timer=True)
 
     def _steer_phase(self, next_call: int) -> None:
-        """Phase lock: move the timer's ticks to just after the poses' arrivals (core/phase_lock.py).
+        """Phase lock: move the timer's ticks to just after the poses' arrivals (core/timing/phase_lock.py).
 
         A shift s stretches one interval: the period is set to dt + s now, rcl
         computes the call after the next one from it, and the next tick puts dt

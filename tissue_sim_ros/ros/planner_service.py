@@ -7,9 +7,9 @@ helpers do) and serves, for it:
   tip enters, ``goal`` the target for the tip, ``tolerance`` [m] (0: the
   node's ``plan_tolerance``); orientations are ignored (the approach angle is
   swept). The planner snapshots the node's current tissue
-  (:meth:`~tissue_sim_ros.core.simulation.Simulation.snapshot`), rolls out
+  (:meth:`~tissue_sim_ros.core.sim.simulation.Simulation.snapshot`), rolls out
   every approach angle and speed of the ``plan_*`` parameters
-  (:func:`~tissue_sim_ros.core.planning.plan_insertion`) and answers with the
+  (:func:`~tissue_sim_ros.core.plan.insertion.plan_insertion`) and answers with the
   cheapest path as nav_msgs/Path: the tool's pose (as ``tool/pose`` takes it:
   the tool's centre, yaw along the insertion) at the end of each step, stamped
   dt apart from the answer's time, in ``frame_id``. A request it cannot
@@ -24,7 +24,7 @@ Threading: the service and publishers belong to a second node,
 ``<node name>_planner`` in the same namespace and process, spun by its own
 executor in its own thread, so the simulation node's executor (the step
 timer, the tool subscriptions) never waits for a plan. The rollouts run in
-worker processes (:class:`~tissue_sim_ros.core.batch.RolloutPool`,
+worker processes (:class:`~tissue_sim_ros.core.sim.batch.RolloutPool`,
 ``plan_workers``, started at the first request, niced by ``plan_nice`` so the
 step thread is scheduled first); the planner thread only waits for them.
 """
@@ -46,8 +46,8 @@ from rclpy.node import Node
 from std_msgs.msg import ColorRGBA, Float64MultiArray
 from visualization_msgs.msg import Marker, MarkerArray
 
-from ..core.batch import BatchScene, RolloutPool
-from ..core.planning import InsertionPlan, InsertionRequest, plan_insertion
+from ..core.plan.insertion import InsertionPlan, InsertionRequest, plan_insertion
+from ..core.sim.batch import BatchScene, RolloutPool
 from . import messages, qos
 
 #: Columns of ``plan/costs``, one row per rolled-out candidate.

@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.errors import InputError
-from ..core.stamps import ns_from_seconds, stamp_from_ns
+from ..core.timing.stamps import ns_from_seconds, stamp_from_ns
 from .bags import POSE_TYPES, TWIST_TYPES, Bag, is_node_tool_output
 from .record import check_topic_name, message_class
 

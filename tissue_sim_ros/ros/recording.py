@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.tracking import Recording
+from ..core.fit.tracking import Recording
 from . import messages as msgs
 from .bags import Bag, BagWriter, read_tool_track
 
@@ -65,7 +65,7 @@ def read_point_track(bag: Bag, topic: str) -> tuple[np.ndarray, np.ndarray, set[
 
 def read_recording(path: str | Path, points_topic: str, tool_topic: str | None = None, *,
                    frame: str | None = None) -> Recording:
-    """The tracked points and the tool trajectory of a bag, as a :class:`~tissue_sim_ros.core.tracking.Recording`.
+    """The tracked points and the tool trajectory of a bag, as a :class:`~tissue_sim_ros.core.fit.tracking.Recording`.
 
     The tool's poses with repeated or out-of-order stamps are an error, as are points and tool in
     different frames (no transform is applied).

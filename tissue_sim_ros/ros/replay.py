@@ -1,14 +1,14 @@
 """Offline replay: step the simulation on a bag's tool trajectory (the library behind ``tissue-sim replay``).
 
-:func:`replay` steps :class:`~tissue_sim_ros.core.simulation.Simulation` along a
+:func:`replay` steps :class:`~tissue_sim_ros.core.sim.simulation.Simulation` along a
 :class:`~tissue_sim_ros.ros.bags.ToolTrack` (see :func:`schedule` for the two
 modes); :class:`ReplayBagSink` writes each step's outputs into a bag with the
 node's own :class:`~tissue_sim_ros.ros.messages.StepEncoder`; :func:`write_outputs`
 writes the CSV, plot, frames and video. The command line is in
-:mod:`tissue_sim_ros.cli_replay`. Three modes (:func:`schedule`): ``per-message``, ``fixed-rate``, and ``applied``: a bag the node recorded
+:mod:`tissue_sim_ros.cli.replay`. Three modes (:func:`schedule`): ``per-message``, ``fixed-rate``, and ``applied``: a bag the node recorded
 itself, stepped with the pose and twist the node used at each step (``tool/applied_pose``,
 ``tool/applied_twist``), so a timer-mode run is reproduced bit for bit. Instead of a bag, :func:`track_from_trajectory` turns a trajectory given as
-data (:mod:`tissue_sim_ros.core.trajectories`) into the samples, one step each.
+data (:mod:`tissue_sim_ros.core.timing.trajectories`) into the samples, one step each.
 No ROS graph and no rclpy: this runs anywhere
 the core runs.
 """
@@ -23,11 +23,11 @@ from typing import Any
 
 import numpy as np
 
+from ..core.contact.tool import ToolPose, ToolTwist, Trajectory
 from ..core.errors import InputError
-from ..core.rollout import Rollout, rollout
-from ..core.simulation import Simulation, StepReport
-from ..core.stamps import ns_from_seconds, stamp_from_ns
-from ..core.tool import ToolPose, ToolTwist, Trajectory
+from ..core.sim.rollout import Rollout, rollout
+from ..core.sim.simulation import Simulation, StepReport
+from ..core.timing.stamps import ns_from_seconds, stamp_from_ns
 from . import messages as msgs
 from .bags import BagWriter, ToolTrack
 

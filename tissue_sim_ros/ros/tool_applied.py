@@ -15,7 +15,7 @@ tissue/points and tool/wrench):
 (pose or None, twist) per step; ``tissue-sim replay --mode applied`` steps
 the library with exactly those values, which reproduces a timer-mode run bit
 for bit (the node passes the same values to the same
-:meth:`Simulation.step <tissue_sim_ros.core.simulation.Simulation.step>`).
+:meth:`Simulation.step <tissue_sim_ros.core.sim.simulation.Simulation.step>`).
 """
 from __future__ import annotations
 
@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.contact.tool import ToolPose, ToolTwist, yaw_from_quaternion
 from ..core.errors import InputError
-from ..core.tool import ToolPose, ToolTwist, yaw_from_quaternion
 from .messages import CdrReader, CdrWriter, Stamp
 
 POSE_TOPIC = "/tool/applied_pose"

@@ -8,11 +8,11 @@ So a newcomer sees the simulation work without a robot::
     tool_driver --ros-args -p trajectory:=authors          # or a .csv/.yaml trajectory file
 
 The trajectory is ``trajectory`` when set: a preset name or a trajectory file
-(:func:`tissue_sim_ros.core.trajectories.resolve_trajectory`: CSV of
+(:func:`tissue_sim_ros.core.timing.trajectories.resolve_trajectory`: CSV of
 time,x,y,yaw or YAML); else a named preset (``preset``, default the paper's
-experiment a; :data:`tissue_sim_ros.core.trajectories.PRESETS`)
+experiment a; :data:`tissue_sim_ros.core.timing.trajectories.PRESETS`)
 or, with ``preset:=straight``, a straight insertion
-(:class:`~tissue_sim_ros.core.tool.StraightInsertion`) toward ``target_x,
+(:class:`~tissue_sim_ros.core.contact.tool.StraightInsertion`) toward ``target_x,
 target_y`` at ``angle`` [deg] over ``distance`` [m]. Messages go out at 1/dt
 of the node's clock, stamped with that clock. Step k's message is the pose at
 the end of step k and the pose change over it divided by dt, exactly the
@@ -38,18 +38,18 @@ from rclpy.time import Time
 from std_msgs.msg import Float64
 
 from ..core.config import resolve_config
+from ..core.contact.tool import StraightInsertion, Trajectory
 from ..core.errors import InputError
-from ..core.scene import tool_from_mapping
-from ..core.stamps import ns_from_seconds, stamp_from_ns
-from ..core.tool import StraightInsertion, Trajectory
-from ..core.trajectories import preset, resolve_trajectory
+from ..core.sim.scene import tool_from_mapping
+from ..core.timing.stamps import ns_from_seconds, stamp_from_ns
+from ..core.timing.trajectories import preset, resolve_trajectory
 from . import messages, qos
 
 #: name -> (default, description); defaults of the tool and dt come from config/tissue_sim.yaml.
 DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
-    "scene": ("paper", "Shipped scene (tissue_sim_ros.core.trajectories.SCENE_EXPERIMENTS: paper, liver_probe) whose experiments the presets play; its parameter file (config/scenes/NAME.yaml) gives the defaults of dt and the tool."),
+    "scene": ("paper", "Shipped scene (tissue_sim_ros.core.timing.trajectories.SCENE_EXPERIMENTS: paper, liver_probe) whose experiments the presets play; its parameter file (config/scenes/NAME.yaml) gives the defaults of dt and the tool."),
     "trajectory": ("", "A trajectory preset (experiment_a, experiment_b_shallow, experiment_b_steep, authors) or a trajectory file (.csv of time,x,y,yaw; .yaml waypoints or a straight motion); set, it replaces preset."),
-    "preset": ("experiment_a", "A trajectory preset (tissue_sim_ros.core.trajectories.PRESETS: experiment_a, experiment_b_shallow, experiment_b_steep, authors), or 'straight' for the straight insertion the parameters below describe."),
+    "preset": ("experiment_a", "A trajectory preset (tissue_sim_ros.core.timing.trajectories.PRESETS: experiment_a, experiment_b_shallow, experiment_b_steep, authors), or 'straight' for the straight insertion the parameters below describe."),
     "target_x": (0.5, "Tip position at the end of the insertion, x [m]."),
     "target_y": (0.5, "Tip position at the end of the insertion, y [m]."),
     "angle": (0.0, "Insertion direction (the tool's yaw) [deg]; 0 = moving toward +x."),
@@ -99,7 +99,7 @@ class ToolDriver(Node):
         self.values: dict[str, Any] = {}
         for name, (default, description) in DRIVER_PARAMETERS.items():
             if name == "trajectory" and self.values["scene"] != "paper":  # "scene" is declared first
-                from ..resources import scene_params_file  # noqa: PLC0415
+                from ..core.resources import scene_params_file  # noqa: PLC0415
 
                 shipped = resolve_config(params_file=scene_params_file(self.values["scene"])).flat()
             default = shipped.get(name, default) if name == "dt" or name.startswith("tool_") else default

@@ -96,7 +96,7 @@ import fcl
 import numpy as np
 from numba import njit
 
-from .model import Model, State
+from ..physics.model import Model, State
 from .tool import ToolPose, ToolShape, ToolTwist, tool_shape_array
 
 #: A start position this far inside the tool [m] counts as inside (below it, as
@@ -126,7 +126,7 @@ class Contacts:
     candidates: np.ndarray
     """Projection model: particles that may touch the swept tool, shape (M,), int32 (empty: no projection)."""
     tool_shape0: np.ndarray
-    """Tool at the start of the step, packed by :func:`~tissue_sim_ros.core.tool.tool_shape_array`, shape (7,)."""
+    """Tool at the start of the step, packed by :func:`~tissue_sim_ros.core.contact.tool.tool_shape_array`, shape (7,)."""
     tool_shape1: np.ndarray
     """Tool at the end of the step, shape (7,)."""
     in_contact: np.ndarray

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 TOOL_SHAPES = ("box", "capsule", "sphere")
 
@@ -177,7 +177,7 @@ class Trajectory:
 
     Subclasses define :meth:`pose_at`, :meth:`twist_at`, :attr:`start_time` and
     :attr:`duration`. :meth:`steps` turns it into the per-step commands of
-    :meth:`~tissue_sim_ros.core.simulation.Simulation.step`.
+    :meth:`~tissue_sim_ros.core.sim.simulation.Simulation.step`.
     """
 
     start_time: float = 0.0

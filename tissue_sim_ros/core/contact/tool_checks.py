@@ -1,7 +1,7 @@
 """Run-time checks of the tool against the tissue after a step: penetration, tunnelling, a buried tool.
 
 All against the tool's own shape (no contact margin), posed at the step's start
-(``shape0``) and end (``shape1``), packed by :func:`~tissue_sim_ros.core.tool.tool_shape_array`:
+(``shape0``) and end (``shape1``), packed by :func:`~tissue_sim_ros.core.contact.tool.tool_shape_array`:
 
 - penetration: particles inside the tool at the end of the step (signed distance
   < -:data:`INSIDE_TOL`), their count and the deepest one's depth [m];

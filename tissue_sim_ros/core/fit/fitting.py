@@ -7,7 +7,7 @@ a damping rate that may be 0). The residuals are simulated minus observed
 tracked-point coordinates in mm over the fitted frames. The optimiser's
 Jacobian is forward differences in z, the final one (error bars,
 identifiability) central differences; each is one batch of candidates handed to
-the :class:`~tissue_sim_ros.core.tracking.TrackSimulator`.
+the :class:`~tissue_sim_ros.core.fit.tracking.TrackSimulator`.
 
 Uncertainty (Gauss-Newton at the optimum): ``cov_z = tau s^2 (J^T J)^-1`` with
 ``s^2 = |r|^2 / (m - n)``; ``tau = 1 + 2 sum_k rho_k`` is the integrated
@@ -51,7 +51,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 from .tracking import SimulatedTracks, TrackSimulator
 
 #: Parameters a fit knows how to scale: name -> (kind, scale or None, default bounds or None).

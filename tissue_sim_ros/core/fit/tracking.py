@@ -22,9 +22,9 @@ from typing import Any, Callable, Mapping, Protocol, Sequence
 
 import numpy as np
 
-from .errors import InputError
-from .mesh import TissueMesh
-from .tool import ToolPose, interpolate_poses
+from ..contact.tool import ToolPose, interpolate_poses
+from ..errors import InputError
+from ..mesh import TissueMesh
 
 #: Fewest observation frames a fit accepts (the first one only binds the points).
 MIN_FRAMES = 3
@@ -340,13 +340,13 @@ def with_body_values(model: Any, body_values: Mapping[int, Mapping[str, float]])
     """A Model whose bodies' elements and masses use their own material values (``material: neo_hookean``).
 
     ``body_values``: body -> {young_modulus, poisson_ratio, thickness, density} (missing ones: the scene's).
-    Each body's triangles get their rest data from :func:`~tissue_sim_ros.core.material.elastic_table` with
+    Each body's triangles get their rest data from :func:`~tissue_sim_ros.core.physics.material.elastic_table` with
     the body's values, and its particles their masses from its density x thickness (particles belong to one
     body), exactly as the Model builds them for the whole scene.
     """
     from dataclasses import replace  # noqa: PLC0415
 
-    from .material import elastic_table, lumped_mass  # noqa: PLC0415
+    from ..physics.material import elastic_table, lumped_mass  # noqa: PLC0415
 
     if not body_values:
         return model
@@ -384,8 +384,8 @@ class SceneFactory:
     mesh: TissueMesh
 
     def __call__(self, candidate: Mapping[str, float]) -> Any:
-        from .config import resolve_config  # noqa: PLC0415  (the solvers load numba; tracking stays light)
-        from .simulation import Simulation  # noqa: PLC0415
+        from ..config import resolve_config  # noqa: PLC0415  (the solvers load numba; tracking stays light)
+        from ..sim.simulation import Simulation  # noqa: PLC0415
 
         scene: dict[str, Any] = {}
         bodies: dict[int, dict[str, float]] = {}
@@ -404,8 +404,8 @@ class SceneFactory:
 
 def _serial_solver(model: Any) -> Any:
     """The scene's solver on one thread: a candidate per core, the same numbers in a worker and in this process."""
-    from .simulation import default_solver  # noqa: PLC0415
-    from .solvers import Solver  # noqa: PLC0415
+    from ..physics.solvers import Solver  # noqa: PLC0415
+    from ..sim.simulation import default_solver  # noqa: PLC0415
 
     return default_solver(model) if model.params.sleep_speed > 0 else Solver(model, parallel=False)
 
@@ -476,7 +476,7 @@ def simulate_candidate(factory: SceneFactory, binding: PointBinding, schedule: S
 
 
 class MappedTrackSimulator:
-    """Candidates rolled out as independent calls on a backend (:func:`~tissue_sim_ros.core.backends.map_calls`):
+    """Candidates rolled out as independent calls on a backend (:func:`~tissue_sim_ros.core.sim.backends.map_calls`):
     Ray tasks on a cluster (``backend="ray"``), each worker warmed once, one core per candidate. The numbers are
     those of :class:`SerialTrackSimulator` bit for bit (the same rollout on the same serial solver;
     ``test/test_ray_backend.py`` compares them). Same interface as :class:`PoolTrackSimulator`.
@@ -498,7 +498,7 @@ class MappedTrackSimulator:
             self.on_rollout()
 
     def simulate(self, candidates: Sequence[Mapping[str, float]], n_frames: int) -> list[SimulatedTracks]:
-        from .backends import map_calls  # noqa: PLC0415  (loads the solvers; tracking stays light)
+        from ..sim.backends import map_calls  # noqa: PLC0415  (loads the solvers; tracking stays light)
 
         calls = [(self.factory, self.binding, self.schedule, dict(c), n_frames) for c in candidates]
         return map_calls(simulate_candidate, calls, backend=self.backend, workers=self.workers,

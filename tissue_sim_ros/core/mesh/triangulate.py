@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, input_file
+from ..errors import InputError, input_file
 
 #: Meshes estimated to have more vertices than this are refused before meshing (the ``max_particles``
 #: parameter): meshing takes ~1 min per 100k vertices and a step ~10 ms per 20k particles, so a spacing

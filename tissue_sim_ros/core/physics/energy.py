@@ -12,7 +12,7 @@ kg m^2 = J s^2). See docs/calibration.md. C_t uses the model's area mode. The sp
 lengths only, never rest edge vectors, so a rigid rotation leaves it unchanged.
 
 ``material: neo_hookean``: E = 1/2 sum_i m_i |x_i - x*_i|^2 + dt^2 E_strain, with E_strain the membrane's
-strain energy sum_t V0_t Psi(F_t) in joules (:mod:`~tissue_sim_ros.core.material`); the spring and area
+strain energy sum_t V0_t Psi(F_t) in joules (:mod:`~tissue_sim_ros.core.physics.material`); the spring and area
 terms are zero. Either way :attr:`EnergyTerms.potential` is the unscaled potential energy
 (E_spring + E_area + E_strain; joules for xpbd and the material).
 """
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 from .kernels import energy_terms_kernel
 from .material import strain_energy_kernel
 from .model import Model

@@ -62,7 +62,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .collision import project_edges, project_tool
+from ..contact.collision import project_edges, project_tool
 
 #: Rest areas [m^2] at or below this (relative to the mean) make a degenerate element (skipped).
 EPS_AREA_REL = 1e-12
@@ -231,7 +231,7 @@ def solve_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elasti
 @njit(cache=True, parallel=True)
 def solve_elements_partitioned(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elastic: np.ndarray,
                                inv_h2: float, lam: np.ndarray, offsets: np.ndarray) -> None:
-    """One sweep, domain-decomposed (as :func:`~tissue_sim_ros.core.kernels.solve_partitioned`): parts, then separator."""
+    """One sweep, domain-decomposed (as :func:`~tissue_sim_ros.core.physics.kernels.solve_partitioned`): parts, then separator."""
     n_parts = offsets.shape[0] - 2
     for part in prange(n_parts):
         solve_elements_range(x, inv_mass, tris, elastic, inv_h2, lam, offsets[part], offsets[part + 1])

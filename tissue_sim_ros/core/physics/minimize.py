@@ -2,7 +2,7 @@
 
 One minimiser for the exact one-step references of the benchmarks
 (:mod:`~tissue_sim_ros.bench.reference`, :mod:`~tissue_sim_ros.bench.material_reference`) and the static
-settle of the core (:mod:`~tissue_sim_ros.core.statics`). Plain NumPy/SciPy: it imports no kernel.
+settle of the core (:mod:`~tissue_sim_ros.core.physics.statics`). Plain NumPy/SciPy: it imports no kernel.
 
 An energy is any object with ``value(x) -> float``, ``gradient(x) -> (N, 2)``, ``hessian(x, project)
 -> sparse (2N, 2N)`` (dofs x0, y0, x1, y1, ...; ``project=True`` returns a positive semi-definite

@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InputError
-from .mesh import TissueMesh
+from ..errors import InputError
+from ..mesh import TissueMesh
 
 METHODS = ("pbd", "xpbd")
 SCHEMES = ("gauss_seidel", "jacobi")
@@ -24,10 +24,10 @@ CONTACT_SURFACES = ("edges", "particles")
 DAMPING_MODES = ("linear", "exponential")
 JACOBI_AVERAGINGS = ("violated", "all")
 #: ``constraints``: the paper's springs and areas (per-constraint stiffnesses); ``neo_hookean``: a
-#: plane-stress membrane with Young's modulus, Poisson's ratio, thickness and density (core/material.py).
+#: plane-stress membrane with Young's modulus, Poisson's ratio, thickness and density (core/physics/material.py).
 MATERIALS = ("constraints", "neo_hookean")
 #: How a simulation starts (and resets): ``none`` at the rest shape, ``static`` at the static equilibrium under
-#: gravity and the pins (core/statics.py; neo_hookean only).
+#: gravity and the pins (core/physics/statics.py; neo_hookean only).
 SETTLE_MODES = ("none", "static")
 #: Parameters only ``material: neo_hookean`` reads (ignored with ``constraints``).
 MATERIAL_PARAMETERS = ("young_modulus", "poisson_ratio", "thickness", "density")
@@ -91,7 +91,7 @@ class SimParams:
     jacobi_averaging: str = "violated"
     """PBD Jacobi: ``violated`` (the authors' forward()): each particle's spring corrections are averaged over
     its violated springs and its area corrections over its violated triangles, the two averages added
-    (core/violated_jacobi.py); ``all``: the summed corrections divided by all constraints at the particle."""
+    (core/physics/violated_jacobi.py); ``all``: the summed corrections divided by all constraints at the particle."""
     jacobi_spring_tolerance: float = 1e-4
     """PBD Jacobi ``violated``: a spring counts (and is corrected) when |C| = ||x_i - x_j| - d0| >= this [m]
     (the authors' 1e-4 m)."""
@@ -116,7 +116,7 @@ class SimParams:
     """``signed`` area constraint (resists inversion) or the paper's ``abs`` |area| form."""
     sleep_speed: float = 0.0
     """Sleeping: particles slower than this [m/s] and farther than ``sleep_wake_radius`` from any contact for
-    10 steps are skipped by the solver (``core/sleeping.py``); 0 = off (every particle is solved every step)."""
+    10 steps are skipped by the solver (``core/physics/sleeping.py``); 0 = off (every particle is solved every step)."""
     sleep_wake_radius: float = 0.15
     """Sleeping: particles within this rest distance [m] of a contact particle stay awake."""
     # boundary (the paper's horizontal lines; NaN = no line)
@@ -150,7 +150,7 @@ class SimParams:
     # material (issue 16): constraints (the paper) or a plane-stress neo-Hookean membrane
     material: str = "constraints"
     """``constraints`` (the paper's springs and areas; the default, so the paper reproduces) or
-    ``neo_hookean`` (plane-stress membrane in SI units, core/material.py; XPBD, so ``method`` must be xpbd)."""
+    ``neo_hookean`` (plane-stress membrane in SI units, core/physics/material.py; XPBD, so ``method`` must be xpbd)."""
     young_modulus: float = 10e3
     """Neo-Hookean: Young's modulus E [Pa] (ignored by ``constraints``). Soft tissue: 1-100 kPa."""
     poisson_ratio: float = 0.45
@@ -162,7 +162,7 @@ class SimParams:
     density x thickness (lumped), replacing ``mass`` and ``mass_per_area`` (ignored by ``constraints``)."""
     settle: str = "none"
     """How the simulation starts and resets: ``none`` at the rest shape, ``static`` at the static equilibrium
-    under gravity and the pins, at rest (Newton on the potential energy, core/statics.py; neo_hookean only)."""
+    under gravity and the pins, at rest (Newton on the potential energy, core/physics/statics.py; neo_hookean only)."""
 
     def __post_init__(self) -> None:
         self.validate()
@@ -323,7 +323,7 @@ class Model:
     """The mesh the model was built from (for rendering and collision)."""
     tri_elastic: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)), repr=False)
     """``material: neo_hookean``: packed rest data of each triangle's element, shape (T, 6), float64
-    (:func:`~tissue_sim_ros.core.material.elastic_table`: D_m^-1 and the compliances 1/(mu V0), 1/(lambda' V0)
+    (:func:`~tissue_sim_ros.core.physics.material.elastic_table`: D_m^-1 and the compliances 1/(mu V0), 1/(lambda' V0)
     [1/J]); shape (0, 6) for ``constraints``."""
 
     @property

@@ -1,6 +1,6 @@
 """Sleeping: skip particles far from any contact whose motion has died down.
 
-A separate code path around :class:`~tissue_sim_ros.core.solvers.Solver`
+A separate code path around :class:`~tissue_sim_ros.core.physics.solvers.Solver`
 (the kernels are untouched): a particle sleeps once it has been slower than
 ``sleep_speed`` and farther than ``wake_radius`` (at rest) from every
 particle the contact model touches for ``quiet_steps`` consecutive steps; a
@@ -23,9 +23,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from .collision import Contacts
-from .errors import InputError
-from .mesh import TissueMesh, edges_from_triangles
+from ..contact.collision import Contacts
+from ..errors import InputError
+from ..mesh import TissueMesh, edges_from_triangles
 from .model import Model, State
 from .solvers import SolveInfo, Solver
 

@@ -3,7 +3,7 @@
 A Solver is made once per Model (it holds workspaces: multipliers, scratch
 arrays, constraint colouring) and steps ``(state_in, state_out, contacts, dt)``.
 Nothing in a step creates a Python object per particle: every loop is a numba
-kernel of :mod:`~tissue_sim_ros.core.kernels` on arrays allocated here.
+kernel of :mod:`~tissue_sim_ros.core.physics.kernels` on arrays allocated here.
 
 One step (the paper's Algorithm 1, with Macklin's multipliers for XPBD)::
 
@@ -12,16 +12,16 @@ One step (the paper's Algorithm 1, with Macklin's multipliers for XPBD)::
         predict from the substep's start (h), reset multipliers
         (held particles: the fraction (s+1)/substeps of their way from x_t to x*)
         `iterations` sweeps: edges, triangles, tool (projection contact), walls
-            (material: neo_hookean: the triangles' elements instead of edges and areas, core/material.py)
+            (material: neo_hookean: the triangles' elements instead of edges and areas, core/physics/material.py)
         v = (x - x_start) / h; boundary lines clamp and stop particles
     residual = RMS(C / rest size)
 
 damp = max(0, 1 - c h) (``damping_mode: linear``) or exp(-c h) (``exponential``,
 the authors' v *= exp(-8 dt)), c = ``damping``. Walls (``wall_y_bottom/top``)
-put every particle that crossed them back on them (:func:`~tissue_sim_ros.core.violated_jacobi.apply_walls`).
+put every particle that crossed them back on them (:func:`~tissue_sim_ros.core.physics.violated_jacobi.apply_walls`).
 PBD Jacobi averages each particle's corrections over its violated constraints
 per type (``jacobi_averaging: violated``, the authors' code,
-:mod:`~tissue_sim_ros.core.violated_jacobi`) or over all of them (``all``).
+:mod:`~tissue_sim_ros.core.physics.violated_jacobi`) or over all of them (``all``).
 
 Orders. Serial Gauss-Seidel gives the result of sweeping the constraints in
 mesh order, as the paper does (executed in a wavefront schedule that changes
@@ -44,9 +44,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from ..contact.collision import Contacts
+from ..errors import InputError
 from . import kernels, material
-from .collision import Contacts
-from .errors import InputError
 from .model import Model, State
 from .violated_jacobi import apply_walls, violated_jacobi_iterations
 
@@ -144,7 +144,7 @@ def partition_constraints(indices: np.ndarray, particle_part: np.ndarray, n_part
     """Group constraints by part (all particles in one part) with a separator group last.
 
     Within a group the constraints keep their mesh-order result and are
-    wavefront-scheduled (sorted by :func:`~tissue_sim_ros.core.kernels.wavefront_levels`).
+    wavefront-scheduled (sorted by :func:`~tissue_sim_ros.core.physics.kernels.wavefront_levels`).
 
     Returns
     -------
@@ -172,7 +172,7 @@ def partition_constraints(indices: np.ndarray, particle_part: np.ndarray, n_part
 def wavefront_order(indices: np.ndarray, n_particles: int, block: int | None = None) -> np.ndarray:
     """A permutation of the constraints that sweeps to the same result as mesh order, bit for bit.
 
-    Stable sort by block, then by :func:`~tissue_sim_ros.core.kernels.wavefront_levels`
+    Stable sort by block, then by :func:`~tissue_sim_ros.core.physics.kernels.wavefront_levels`
     within the block: the constraints at each particle keep their mesh order,
     while neighbours in the new order share no particle and overlap in the
     CPU's pipeline. ``block`` defaults to :data:`WAVEFRONT_BLOCK`.
@@ -217,7 +217,7 @@ class Solver:
     jacobi_relaxation : {"stiffness", "uniform"}
         XPBD Jacobi relaxation: per-constraint omega_c = 2 relaxation / r_c from
         a Gershgorin bound r_c (default; stable at any stiffness, see
-        :func:`~tissue_sim_ros.core.kernels.jacobi_relaxation`), or the same
+        :func:`~tissue_sim_ros.core.physics.kernels.jacobi_relaxation`), or the same
         omega = ``params.relaxation`` for every constraint (diverges for stiff
         constraints; kept to show that).
     jacobi_average : bool
@@ -279,7 +279,7 @@ class Solver:
             edges, rest = np.ascontiguousarray(edges[perm_e]), np.ascontiguousarray(rest[perm_e])
             tris, area0 = np.ascontiguousarray(tris[perm_t]), np.ascontiguousarray(area0[perm_t])
         self.edges, self.rest, self.tris, self.area0 = edges, rest, tris, area0
-        # material: one element per triangle, in the triangles' solve order (core/material.py)
+        # material: one element per triangle, in the triangles' solve order (core/physics/material.py)
         self.is_material = model.is_material
         elastic = np.ascontiguousarray(model.tri_elastic, dtype=np.float64)
         self.elastic = np.ascontiguousarray(elastic[perm_t]) if (self.is_material and perm_t is not None) else elastic
@@ -309,7 +309,7 @@ class Solver:
         self.omega_e = np.ones(edges.shape[0])
         self.omega_t = np.ones(tris.shape[0])
         self.particle_scale = np.ones(n)
-        # the authors' averaging over violated constraints (core/violated_jacobi.py)
+        # the authors' averaging over violated constraints (core/physics/violated_jacobi.py)
         self.violated = self.jacobi and p.method == "pbd" and jacobi_average and p.jacobi_averaging == "violated"
         self.walls = not (math.isnan(p.wall_y_bottom) and math.isnan(p.wall_y_top))
         if self.violated:
@@ -386,7 +386,7 @@ class Solver:
 
     @property
     def compiled(self) -> bool:
-        """True when :meth:`step` is one compiled call (:func:`~tissue_sim_ros.core.step_kernels.solve_step`):
+        """True when :meth:`step` is one compiled call (:func:`~tissue_sim_ros.core.physics.step_kernels.solve_step`):
         the constraint methods, serial Gauss-Seidel or Jacobi; the material, the violated-constraint Jacobi
         and the parallel Gauss-Seidel run :meth:`step_reference`."""
         return not (self.is_material or self.violated or self.parallel)

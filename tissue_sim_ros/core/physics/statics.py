@@ -5,11 +5,11 @@ from the minimiser of the total potential energy
 
     Pi(x) = sum_t V0_t Psi(F_t) - sum_i m_i g y_i                                  [J]
 
-(the strain energy of :mod:`~tissue_sim_ros.core.material` plus gravity's potential, g = ``gravity``
+(the strain energy of :mod:`~tissue_sim_ros.core.physics.material` plus gravity's potential, g = ``gravity``
 along y) over the free particles, pinned ones (inverse mass 0) at rest: at the minimiser the elastic
 forces balance the weights, grad Pi = 0, the static problem a run to rest approaches. Newton's method
-(:func:`~tissue_sim_ros.core.minimize.newton_minimize`) with the element Hessians of
-:func:`~tissue_sim_ros.core.material.element_hessians` assembled sparse (SciPy); where the exact
+(:func:`~tissue_sim_ros.core.physics.minimize.newton_minimize`) with the element Hessians of
+:func:`~tissue_sim_ros.core.physics.material.element_hessians` assembled sparse (SciPy); where the exact
 Hessian is indefinite (strong compression) each element's is projected onto the positive semi-definite
 cone. The state is at rest: velocities zero. The paper's boundary lines and walls are not in the energy:
 a free particle past one after the solve is put on it (as every step does).

@@ -2,16 +2,16 @@
 residual) as one numba function, and the step's post-solve numbers (finite check, energy sums, inverted triangles)
 as another.
 
-:meth:`~tissue_sim_ros.core.solvers.Solver.step` calls :func:`solve_step` for the constraint methods (PBD and
+:meth:`~tissue_sim_ros.core.physics.solvers.Solver.step` calls :func:`solve_step` for the constraint methods (PBD and
 XPBD, Gauss-Seidel serial or Jacobi, either contact model, walls, damping modes); the material, the authors'
 violated-constraint Jacobi and the parallel Gauss-Seidel keep the Python loop around the kernels
-(:meth:`~tissue_sim_ros.core.solvers.Solver.step_reference`, which is also the reference the tests compare
+(:meth:`~tissue_sim_ros.core.physics.solvers.Solver.step_reference`, which is also the reference the tests compare
 with, bit for bit: ``test/test_step_kernels.py``). The body is the reference's loop, line for line, calling the
 same kernels in the same order with the same scalars, so no floating-point operation changes; what goes is the
 interpreter between the kernels. One change inside: the paper's PBD sweeps skip the multipliers
-(``skip_multipliers``, :func:`~tissue_sim_ros.core.kernels.solve_edges_pbd_range`), which its projections
+(``skip_multipliers``, :func:`~tissue_sim_ros.core.physics.kernels.solve_edges_pbd_range`), which its projections
 never read (alpha = 0), so the positions are the same bit for bit. The tool's shape per substep
-(:meth:`~tissue_sim_ros.core.solvers.Solver._interpolate_shape`, Python's ``math.hypot``) is computed by the
+(:meth:`~tissue_sim_ros.core.physics.solvers.Solver._interpolate_shape`, Python's ``math.hypot``) is computed by the
 caller, ``substeps + 1`` rows, so its rounding is the reference's.
 
 Every kernel a Python caller enters is compiled ``nogil=True``: while a step runs its compiled calls the node's
@@ -19,7 +19,7 @@ marker thread can encode on the other core instead of waiting for the GIL (``doc
 Loop indices are unsigned where they only count (``numba.uint32``): no sign checks in the wrapped indexing.
 The NumPy twin of :func:`solve_step` is the reference step itself (``Solver.step_reference``: the same kernels,
 each with its twin in ``test/naive.py``), and :func:`finish_step`'s is ``Simulation.step_reference``'s
-NumPy finite check with :func:`~tissue_sim_ros.core.energy.energy_terms` and ``count_inverted``.
+NumPy finite check with :func:`~tissue_sim_ros.core.physics.energy.energy_terms` and ``count_inverted``.
 """
 from __future__ import annotations
 
@@ -139,8 +139,8 @@ def finish_step(x: np.ndarray, v: np.ndarray, x_pred: np.ndarray, mass: np.ndarr
                 tri_body: np.ndarray, k_spring: float, k_area: float, dt: float, signed: bool, energy: bool,
                 inertial: np.ndarray, spring: np.ndarray, area: np.ndarray) -> tuple[bool, int]:
     """After a solve: (all of ``x`` and ``v`` finite, triangles with signed area <= 0 in ``x``); when finite and
-    ``energy``, the constraint energy terms (:func:`~tissue_sim_ros.core.kernels.energy_terms_kernel`, as
-    :func:`~tissue_sim_ros.core.energy.energy_terms` calls it) into ``inertial``, ``spring``, ``area``."""
+    ``energy``, the constraint energy terms (:func:`~tissue_sim_ros.core.physics.kernels.energy_terms_kernel`, as
+    :func:`~tissue_sim_ros.core.physics.energy.energy_terms` calls it) into ``inertial``, ``spring``, ``area``."""
     finite = all_finite(x, v)
     if finite and energy:
         energy_terms_kernel(x, x_pred, mass, particle_body, edges, rest, edge_body, tris, area0, tri_body,

@@ -27,7 +27,7 @@ moved, as the authors' ``actuation_type == 2`` particles). After the
 corrections are applied every particle, pinned ones too, is clamped into
 the walls (their ``collision_check``): y < y_bottom -> y_bottom, y > y_top -> y_top.
 
-:func:`~tissue_sim_ros.core.kernels.jacobi_iterations` with per-particle scale
+:func:`~tissue_sim_ros.core.physics.kernels.jacobi_iterations` with per-particle scale
 1 / (all constraints at i) is the other averaging (``jacobi_averaging: all``).
 Twins: ``test/naive.py`` (``authors_forward``, written from the authors' code
 line by line, and ``apply_walls``).
@@ -39,7 +39,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .collision import project_edges, project_tool
+from ..contact.collision import project_edges, project_tool
 
 #: Squared length [m^2] below which an edge (or a triangle's gradient) counts as degenerate.
 EPS_LEN2 = 1e-30
@@ -176,7 +176,7 @@ def violated_jacobi_iterations(x: np.ndarray, w: np.ndarray, w_move: np.ndarray,
                                x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
                                dx_accum: np.ndarray, surface_edges: np.ndarray, edge_side_tol: float) -> None:
     """``iterations`` of :func:`violated_jacobi_pass`, each followed by the tool projection (projection
-    contact, as :func:`~tissue_sim_ros.core.kernels.jacobi_iterations`) and the walls (:func:`apply_walls`)."""
+    contact, as :func:`~tissue_sim_ros.core.physics.kernels.jacobi_iterations`) and the walls (:func:`apply_walls`)."""
     for _ in range(iterations):
         violated_jacobi_pass(x, w, w_move, edges, rest, k_e, tol_e, tris, area0, k_t, tol_a, signed,
                              dxs, dxa, ns, na)

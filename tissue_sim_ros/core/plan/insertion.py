@@ -27,7 +27,7 @@ node's ``~/plan_insertion`` service converts messages and calls it):
   tracked plans need a tolerance of that size.) Without it the tip reaches the
   commanded target by construction and a candidate is feasible when it was
   rolled out and stayed finite;
-* of the feasible candidates, the cheapest by :mod:`~tissue_sim_ros.core.batch`'s
+* of the feasible candidates, the cheapest by :mod:`~tissue_sim_ros.core.sim.batch`'s
   cost (energy added over the tool-free baseline) is the plan.
 
 A request that cannot be answered returns an :class:`InsertionPlan` with no
@@ -41,10 +41,10 @@ from typing import Sequence
 
 import numpy as np
 
-from .batch import BatchResult, BatchScene, CandidateResult, RolloutPool, ToolPath, rollout_batch
-from .collision import ContactModel
-from .snapshot import SimSnapshot
-from .tool import StraightInsertion, ToolPose
+from ..contact.collision import ContactModel
+from ..contact.tool import StraightInsertion, ToolPose
+from ..sim.batch import BatchResult, BatchScene, CandidateResult, RolloutPool, ToolPath, rollout_batch
+from ..sim.snapshot import SimSnapshot
 
 
 @dataclass(frozen=True)
@@ -130,7 +130,7 @@ def locate(x: np.ndarray, tris: np.ndarray, point: tuple[float, float]) -> tuple
 def tool_overlaps(contact: ContactModel, x: np.ndarray, pose: ToolPose) -> bool:
     """True when the tool at ``pose`` overlaps the tissue at positions ``x`` (N, 2) [m].
 
-    The contact model's own query (:meth:`~tissue_sim_ros.core.collision.ContactModel.distances` with reach 0):
+    The contact model's own query (:meth:`~tissue_sim_ros.core.contact.collision.ContactModel.distances` with reach 0):
     a particle inside the tool's shape, or python-fcl finding the tool's shape through a triangle (a tool 5 mm
     wide lying across the tissue can cross triangles without holding any of their particles).
     """

@@ -2,12 +2,12 @@
 
 Two shapes of work:
 
-* batch rollouts from a snapshot (:mod:`~tissue_sim_ros.core.batch`):
-  :func:`rollout_pool` gives a :class:`~tissue_sim_ros.core.batch.RolloutPool`
+* batch rollouts from a snapshot (:mod:`~tissue_sim_ros.core.sim.batch`):
+  :func:`rollout_pool` gives a :class:`~tissue_sim_ros.core.sim.batch.RolloutPool`
   (local worker processes) or a :class:`RayRolloutPool` (one Ray actor per
   worker); both keep a scene's numba kernels warm in each worker, receive the
   scene once per worker and a snapshot once per batch, hand candidates to
-  whichever worker is free, and return the same :class:`~tissue_sim_ros.core.batch.BatchResult`,
+  whichever worker is free, and return the same :class:`~tissue_sim_ros.core.sim.batch.BatchResult`,
   bit for bit;
 * independent calls of one picklable function (``tissue-sim bench stability``'s
   runs, ``tissue-sim plan``'s insertions): :func:`map_calls`, over spawned
@@ -30,6 +30,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from ..contact.tool import Trajectory
+from ..errors import InputError
 from .batch import (
     BaselineTrack,
     BatchResult,
@@ -43,10 +45,8 @@ from .batch import (
     rollout_candidate,
     warm_up,
 )
-from .errors import InputError
 from .simulation import Simulation
 from .snapshot import SimSnapshot
-from .tool import Trajectory
 
 BACKENDS = ("local", "ray")
 
@@ -147,7 +147,7 @@ class _RolloutActor:
 
 
 class RayRolloutPool:
-    """:class:`~tissue_sim_ros.core.batch.RolloutPool`'s interface on Ray actors (one CPU each).
+    """:class:`~tissue_sim_ros.core.sim.batch.RolloutPool`'s interface on Ray actors (one CPU each).
 
     Parameters
     ----------
@@ -257,9 +257,9 @@ def rollout_pool(scene: BatchScene | Simulation, workers: int | None = None, bac
 
 def warm_kernels() -> None:
     """Load (or compile) the solver and contact kernels once in this process: a tiny scene stepped with a tool."""
-    from .mesh import mesh_rectangle  # noqa: PLC0415
-    from .model import Model, SimParams  # noqa: PLC0415
-    from .tool import ToolShape  # noqa: PLC0415
+    from ..contact.tool import ToolShape  # noqa: PLC0415
+    from ..mesh import mesh_rectangle  # noqa: PLC0415
+    from ..physics.model import Model, SimParams  # noqa: PLC0415
 
     for contact in ("paper", "projection"):
         params = SimParams(contact_model=contact, boundary_y_bottom=0.001)

@@ -2,7 +2,7 @@
 
 A planner asks the running simulation which of K motions costs least from the
 tissue as it is now. :func:`rollout_batch` restores a
-:class:`~tissue_sim_ros.core.snapshot.SimSnapshot` into a scratch simulation
+:class:`~tissue_sim_ros.core.sim.snapshot.SimSnapshot` into a scratch simulation
 of the same scene for each candidate and for one tool-free baseline, and
 returns per candidate:
 
@@ -61,13 +61,8 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from .collision import points_sdf
-from .errors import InputError
-from .model import Model, State
-from .simulation import Simulation
-from .snapshot import SimSnapshot, scene_key
-from .solvers import Solver
-from .tool import (
+from ..contact.collision import points_sdf
+from ..contact.tool import (
     StraightInsertion,
     ToolPose,
     ToolShape,
@@ -77,6 +72,11 @@ from .tool import (
     twist_from_poses,
     wrap_angle,
 )
+from ..errors import InputError
+from ..physics.model import Model, State
+from ..physics.solvers import Solver
+from .simulation import Simulation
+from .snapshot import SimSnapshot, scene_key
 
 TRACK_BYTES = 256 * 2**20
 """Baseline states a :class:`BaselineTrack` keeps at most [bytes]: ~1,500 steps of a 5k-triangle scene, ~25,000 of
@@ -149,7 +149,7 @@ class ToolPath:
     def from_trajectory(cls, traj: Trajectory, dt: float, *, start: bool = True) -> "ToolPath":
         """The per-step poses and twists of ``traj`` (:meth:`Trajectory.steps`); placed at its start pose if ``start``.
 
-        A :class:`~tissue_sim_ros.core.tool.StraightInsertion` is sampled with NumPy in the same floating-point
+        A :class:`~tissue_sim_ros.core.contact.tool.StraightInsertion` is sampled with NumPy in the same floating-point
         operations as its ``pose_at`` (the same bits, ``test/test_batch.py``), 10x faster than the loop.
         """
         if isinstance(traj, StraightInsertion):
@@ -186,7 +186,7 @@ class BatchScene:
 
     @property
     def key(self) -> str:
-        """:func:`~tissue_sim_ros.core.snapshot.scene_key` of the model."""
+        """:func:`~tissue_sim_ros.core.sim.snapshot.scene_key` of the model."""
         return scene_key(self.model)
 
     def build(self) -> Simulation:
@@ -343,7 +343,7 @@ def _beyond_reach(sim: Simulation, state: SimSnapshot, longest: float, pose0: To
                   twist: ToolTwist, sdf: np.ndarray, grad: np.ndarray) -> bool:
     """True when the step from ``state`` with the tool moving to ``pose`` hands the solver no contact.
 
-    The step's own detection (:meth:`~tissue_sim_ros.core.collision.ContactModel.detect`, with the pose it
+    The step's own detection (:meth:`~tissue_sim_ros.core.contact.collision.ContactModel.detect`, with the pose it
     would use for the start of the step) finds no body in contact, nothing held, no projection candidate and
     no surface edge: the solver then runs exactly the tool-free step (``Solver.step``: no projection, no held
     particles; the reaction is zero).

@@ -11,8 +11,8 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from ..contact.tool import ToolPose, ToolTwist
 from .simulation import Simulation, StepReport
-from .tool import ToolPose, ToolTwist
 
 
 @dataclass

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from .config import Config, SceneConfig, default_params, load_params_file, resolve_config
-from .mesh import TissueMesh
+from ..config import Config, SceneConfig, default_params, load_params_file, resolve_config
+from ..contact.tool import ToolShape
+from ..mesh import TissueMesh
 from .simulation import Simulation
-from .tool import ToolShape
 
 __all__ = ["SceneConfig", "build_simulation", "default_params", "load_params_file", "tool_from_mapping"]
 

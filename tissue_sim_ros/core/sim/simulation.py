@@ -16,29 +16,29 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from .collision import ContactModel, Contacts
-from .config import BY_NAME, Config
-from .energy import EnergyTerms, energy_terms
-from .errors import InputError
-from .kernels import count_inverted
-from .model import Model, State
+from ..config import BY_NAME, Config
+from ..contact.collision import ContactModel, Contacts
+from ..contact.tool import ToolPose, ToolShape, ToolTwist, tool_shape_array, twist_from_poses
+from ..contact.tool_checks import INSIDE_TOL, tool_checks
+from ..errors import InputError
+from ..physics.energy import EnergyTerms, energy_terms
+from ..physics.kernels import count_inverted
+from ..physics.model import Model, State
+from ..physics.solvers import Solver
+from ..physics.step_kernels import finish_step
 from .snapshot import SimSnapshot, carry_state, restore_carry, scene_key
-from .solvers import Solver
-from .step_kernels import finish_step
-from .tool import ToolPose, ToolShape, ToolTwist, tool_shape_array, twist_from_poses
-from .tool_checks import INSIDE_TOL, tool_checks
 
 if TYPE_CHECKING:
-    from .mesh import TissueMesh
+    from ..mesh import TissueMesh
 
 SolverFactory = Callable[[Model], Any]
-"""Makes the solver of a Model (a :class:`~tissue_sim_ros.core.solvers.Solver` or one with its step())."""
+"""Makes the solver of a Model (a :class:`~tissue_sim_ros.core.physics.solvers.Solver` or one with its step())."""
 
 
 def default_solver(model: Model) -> Any:
     """The solver a Model's parameters ask for: sleeping when ``sleep_speed`` > 0, else :class:`Solver`."""
     if model.params.sleep_speed > 0:
-        from .sleeping import SleepingSolver  # noqa: PLC0415  (a scene that asks for it)
+        from ..physics.sleeping import SleepingSolver  # noqa: PLC0415  (a scene that asks for it)
 
         return SleepingSolver(model, wake_radius=model.params.sleep_wake_radius, sleep_speed=model.params.sleep_speed)
     return Solver(model)
@@ -89,7 +89,7 @@ class StepReport:
     deepest_particle: int = -1
     """Index of that particle (-1 when none)."""
     n_tunnelled: int = 0
-    """Particles whose path relative to the tool ran through it within the step (``core/tool_checks.py``)."""
+    """Particles whose path relative to the tool ran through it within the step (``core/contact/tool_checks.py``)."""
     tool_buried: bool = False
     """True when a point of the tool's axis lies inside a triangle of the deformed tissue (the tool is buried in it)."""
 
@@ -133,16 +133,16 @@ class Simulation:
         self._scene_key: str | None = None
         self._settled: State | None = None
         self.report_tool_checks = True
-        """Fill the report's penetration, tunnelling and buried-tool fields each step (``core/tool_checks.py``, ~15 us
+        """Fill the report's penetration, tunnelling and buried-tool fields each step (``core/contact/tool_checks.py``, ~15 us
         of a paper-scene step); batch rollouts' scratch simulations turn it off (they measure what they report)."""
         self.settle_info = None
-        """:class:`~tissue_sim_ros.core.statics.SettleInfo` of the last :meth:`settle` (None before)."""
+        """:class:`~tissue_sim_ros.core.physics.statics.SettleInfo` of the last :meth:`settle` (None before)."""
         if self.params.settle == "static":
             self.settle()
 
     @property
     def scene_key(self) -> str:
-        """Fingerprint of the model's topology and rest shape (:func:`~tissue_sim_ros.core.snapshot.scene_key`)."""
+        """Fingerprint of the model's topology and rest shape (:func:`~tissue_sim_ros.core.sim.snapshot.scene_key`)."""
         if self._scene_key is None:
             self._scene_key = scene_key(self.model)
         return self._scene_key
@@ -217,11 +217,11 @@ class Simulation:
     def settle(self):
         """Put the tissue at its static equilibrium under gravity and the pins, at rest; returns its SettleInfo.
 
-        Newton's method on strain energy + gravity's potential (:func:`~tissue_sim_ros.core.statics.settle_static`;
+        Newton's method on strain energy + gravity's potential (:func:`~tissue_sim_ros.core.physics.statics.settle_static`;
         ``material: neo_hookean`` only, else InputError). Time and step count are unchanged. With ``settle:
         static`` the simulation starts here and :meth:`reset` comes back here (solved once, kept).
         """
-        from .statics import settle_static  # noqa: PLC0415  (SciPy: only a scene that settles needs it)
+        from ..physics.statics import settle_static  # noqa: PLC0415  (SciPy: only a scene that settles needs it)
 
         if not self.model.is_material:
             raise InputError(f"settle with material={self.params.material!r}: expected material neo_hookean "
@@ -265,7 +265,7 @@ class Simulation:
             return self._step(tool_pose, tool_twist)
 
     def step_reference(self, tool_pose: ToolPose | None = None, tool_twist: ToolTwist | None = None) -> StepReport:
-        """:meth:`step` as it was before the compiled calls: the solver's :meth:`~tissue_sim_ros.core.solvers.Solver.step_reference`
+        """:meth:`step` as it was before the compiled calls: the solver's :meth:`~tissue_sim_ros.core.physics.solvers.Solver.step_reference`
         (when it has one), then the finite check, energy terms and inverted triangles each on its own. The same
         numbers bit for bit (``test/test_step_kernels.py``); kept for that test and ``tissue-sim bench solver``'s
         ref columns."""
@@ -349,7 +349,7 @@ class Simulation:
 
     def _tool_checks(self, x0: np.ndarray, x1: np.ndarray, pose0: ToolPose | None,
                      pose1: ToolPose | None) -> tuple[int, float, int, int, bool]:
-        """Penetration, tunnelling and a buried tool after a step (``core/tool_checks.py``); zeros without a tool."""
+        """Penetration, tunnelling and a buried tool after a step (``core/contact/tool_checks.py``); zeros without a tool."""
         if self.tool is None or pose1 is None:
             return 0, 0.0, -1, 0, False
         n_in, depth, arg, n_tunnel, buried = tool_checks(

@@ -12,12 +12,12 @@ What carries over between steps, and so is in a snapshot:
   solve diverges);
 * time, step count and the tool pose of the last step (the next step's twist
   is derived from it and projection contact sweeps the tool from it);
-* solver state that outlives a step: none for :class:`~tissue_sim_ros.core.solvers.Solver`
+* solver state that outlives a step: none for :class:`~tissue_sim_ros.core.physics.solvers.Solver`
   (its multipliers are reset every substep, its other workspaces are written
   before they are read); the sleeping set and quiet counters of
-  :class:`~tissue_sim_ros.core.sleeping.SleepingSolver`. A solver exposes such
+  :class:`~tissue_sim_ros.core.physics.sleeping.SleepingSolver`. A solver exposes such
   state through ``carry_state() -> dict`` and ``restore_carry(dict)``;
-* contact-model state that outlives a step: none (:class:`~tissue_sim_ros.core.collision.ContactModel`
+* contact-model state that outlives a step: none (:class:`~tissue_sim_ros.core.contact.collision.ContactModel`
   rebuilds its BVHs and poses its tool every step); the same two hooks apply.
 
 A snapshot is a plain dataclass of NumPy arrays and numbers: picklable, so
@@ -31,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from .model import Model
-from .tool import ToolPose
+from ..contact.tool import ToolPose
+from ..physics.model import Model
 
 
 def scene_key(model: Model) -> str:

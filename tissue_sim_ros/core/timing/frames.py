@@ -14,7 +14,7 @@ A robot publishes its tool in frames of its own (``base_link``, ``world``,
   taken into the plane frame; the tool's position is its point's x, y there
   (its height above the plane is returned, not used), its yaw the heading of
   the tool's local +x axis about the plane's normal (``atan2(R[1,0], R[0,0])``,
-  the same number :func:`~tissue_sim_ros.core.tool.yaw_from_quaternion` gives);
+  the same number :func:`~tissue_sim_ros.core.contact.tool.yaw_from_quaternion` gives);
 * :class:`TransformBuffer`: static and time-stamped transforms between named
   frames (a tree, as tf2's), composed along the chain from one frame to
   another, each time-varying link interpolated in time (linear in
@@ -34,7 +34,7 @@ from typing import Iterable
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 Quaternion = tuple[float, float, float, float]
 Vector = tuple[float, float, float]
@@ -152,7 +152,7 @@ def project_pose(t_plane_src: Transform, position: Vector,
     """A pose given in a source frame, in the plane frame: (x, y, height above the plane, orientation there).
 
     The caller takes the yaw about the plane's normal from the returned
-    orientation with :func:`~tissue_sim_ros.core.tool.yaw_from_quaternion`
+    orientation with :func:`~tissue_sim_ros.core.contact.tool.yaw_from_quaternion`
     (the heading of the tool's +x axis in the plane).
     """
     p = t_plane_src.apply(position)

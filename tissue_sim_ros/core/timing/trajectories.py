@@ -6,7 +6,7 @@ through :func:`resolve_trajectory`: a name of :data:`PRESETS`, or a file:
 
 * CSV with a header ``time,x,y,yaw`` (time [s], the tool centre's x, y [m], yaw
   [rad]; or ``yaw_deg`` [deg]), one timed pose per row, linearly interpolated
-  (:class:`~tissue_sim_ros.core.tool.WaypointTrajectory`);
+  (:class:`~tissue_sim_ros.core.contact.tool.WaypointTrajectory`);
 * YAML, either ``waypoints:`` (a list of ``{time, x, y, yaw}`` mappings or
   ``[time, x, y, yaw]`` rows; ``yaw_deg`` allowed; optional ``hold`` [s]), or a
   straight motion: ``start: {x, y, yaw}`` (or ``yaw_deg``; or ``[x, y, yaw]``),
@@ -48,8 +48,8 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from .errors import InputError, input_file
-from .tool import StraightInsertion, ToolShape, Trajectory, WaypointTrajectory
+from ..contact.tool import StraightInsertion, ToolShape, Trajectory, WaypointTrajectory
+from ..errors import InputError, input_file
 
 #: Experiment a: tip start [m], direction [deg], speed [m per step], steps.
 A_START = (0.25, 0.47)

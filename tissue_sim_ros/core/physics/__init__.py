@@ -1,0 +1,11 @@
+"""The tissue's physics: the frozen :class:`~.model.Model` and its :class:`~.model.State`, the
+material, the numba kernels and the solvers that step them, and the energy a step stores.
+
+``model`` builds the arrays (rest lengths and areas, masses, pins, material tables);
+``kernels``, ``step_kernels``, ``material`` and ``violated_jacobi`` (the paper authors'
+Jacobi) are the ``@njit`` kernels; ``solvers`` and ``sleeping`` run them as PBD and XPBD
+(Gauss-Seidel, Jacobi, substeps); ``statics`` and ``minimize`` find rest shapes by
+Newton; ``energy`` and ``strain`` measure a state. It may import :mod:`..mesh` and
+the array kernels of :mod:`..contact` (the tool is kept out of the tissue inside the
+solver loop), never :mod:`..sim` or above.
+"""
