@@ -1,10 +1,33 @@
 """The tissue's mesh: the :class:`TissueMesh` type, meshing an image, mesh files and mesh quality.
 
-A tissue image becomes a triangle mesh in metres (outline, boundary resampling,
-constrained Delaunay, smoothing); a mesh is also read from and written to
-``.npz``, Triangle (``.node``/``.ele``/``.poly``) and Gmsh (``.msh``) files.
-Imports only :mod:`tissue_sim_ros.core.errors`: everything else in the core
-builds on this package.
+``types`` (the mesh type, meshes from arrays, structured rectangles, the size guard),
+``image`` (reading a tissue image and its mask), ``triangulate`` (image -> mesh: outlines,
+lattice, constrained Delaunay, smoothing), ``files`` (.npz, Triangle, Gmsh) and
+``quality`` (angles, area error, per-body counts). Their public names are importable
+from here. Imports only :mod:`tissue_sim_ros.core.errors`: the rest of the core builds on it.
 """
-from .triangulate import *  # noqa: F401,F403
-from .triangulate import MAX_PARTICLES, OUTLINE_CORNERS, TissueMesh  # noqa: F401
+from .files import MESH_SUFFIXES, load_mesh, load_meshes, mesh_name, write_gmsh, write_triangle
+from .image import MAX_PIXELS, MIN_REGION_PX, read_image, tissue_mask
+from .quality import mesh_quality, triangle_angles
+from .triangulate import CORNER_RUN_PX, CORNER_TURN_DEG, OUTLINE_CORNERS, Grading, mesh_from_image, mesh_from_mask
+from .types import (
+    MAX_PARTICLES,
+    TissueMesh,
+    boundary_vertices,
+    check_mesh_size,
+    combine_meshes,
+    connected_bodies,
+    edges_from_triangles,
+    estimate_vertices,
+    mesh_from_arrays,
+    mesh_rectangle,
+    region_names,
+)
+
+__all__ = [
+    "CORNER_RUN_PX", "CORNER_TURN_DEG", "Grading", "MAX_PARTICLES", "MAX_PIXELS", "MESH_SUFFIXES", "MIN_REGION_PX",
+    "OUTLINE_CORNERS", "TissueMesh", "boundary_vertices", "check_mesh_size", "combine_meshes", "connected_bodies",
+    "edges_from_triangles", "estimate_vertices", "load_mesh", "load_meshes", "mesh_from_arrays", "mesh_from_image",
+    "mesh_from_mask", "mesh_name", "mesh_quality", "mesh_rectangle", "read_image", "region_names", "tissue_mask",
+    "triangle_angles", "write_gmsh", "write_triangle",
+]
