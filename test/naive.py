@@ -308,7 +308,7 @@ def _bisect_root(f, a, b, iters=80):
 
 
 def project_tool(x, x_start, inv_mass, candidates, shape0, shape1, inside_tol=1e-9):
-    """Reference of collision.project_tool: returns (x, dx_accum, moved) with x and dx_accum new arrays.
+    """Reference of contact.kernels.project_tool: returns (x, dx_accum, moved) with x and dx_accum new arrays.
 
     Path p(s) = p0 + s (p1 - p0) in the tool frame (p0 = x_start vs shape0, p1 = x vs shape1).
     Started inside (f(p0) < -tol): nearest surface point of p1. Otherwise, if
@@ -469,7 +469,7 @@ def deepest_on_line(q, n, shape, span=None):
 
 
 def edge_depth(a, b, shape, samples=0):
-    """(depth, t, line_depth) of collision.edge_depth by another route.
+    """(depth, t, line_depth) of contact.kernels.edge_depth by another route.
 
     The deepest tool point over the edge's span is max_u g(u), g(u) the tool's
     far point on the normal line at u (root finding on the SDF). g is concave,
@@ -508,7 +508,7 @@ def edge_depth(a, b, shape, samples=0):
 
 
 def project_edges(x, x_start, inv_mass, edges, shape0, shape1, side_tol, turn_cos=0.7071):
-    """Reference of collision.project_edges: returns (x, dx_accum, moved) as new arrays (edges in order)."""
+    """Reference of contact.kernels.project_edges: returns (x, dx_accum, moved) as new arrays (edges in order)."""
     x = np.array(x, dtype=float)
     acc = np.zeros_like(x)
     ddx = shape1[:2] - shape0[:2]

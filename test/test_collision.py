@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.core.contact import collision as C
+from tissue_sim_ros.core.contact import kernels as K
 from tissue_sim_ros.core.contact.tool import ToolPose, ToolShape, ToolTwist, tool_shape_array
 from tissue_sim_ros.core.mesh import mesh_from_arrays, mesh_rectangle
 from tissue_sim_ros.core.physics.model import Model, SimParams
@@ -69,7 +70,7 @@ def test_project_tool_matches_naive(tool, move):
         inv_mass = np.where(rng.random(n) < 0.1, 0.0, 1e4)
         cand = np.arange(n, dtype=np.int32)
         x_k, acc_k = x.copy(), np.zeros_like(x)
-        moved = C.project_tool(x_k, x_start, inv_mass, cand, s0, s1, acc_k)
+        moved = K.project_tool(x_k, x_start, inv_mass, cand, s0, s1, acc_k)
         x_n, acc_n, moved_n = naive.project_tool(x, x_start, inv_mass, cand, s0, s1)
         np.testing.assert_allclose(x_k, x_n, atol=1e-7)
         np.testing.assert_allclose(acc_k, acc_n, atol=1e-7)
@@ -87,35 +88,35 @@ def test_project_tool_degenerate_inputs():
     s = tool_shape_array(BOX, ToolPose(0.3, 0.2, 0.0), 0.001)
     x = np.array([[0.3, 0.2]])
     acc = np.zeros((1, 2))
-    assert C.project_tool(x, x.copy(), w, cand, s, s, acc) == 1
+    assert K.project_tool(x, x.copy(), w, cand, s, s, acc) == 1
     np.testing.assert_allclose(x, [[0.3, 0.2 + 0.0025 + 0.001]], atol=1e-15)
     np.testing.assert_allclose(acc, [[0.0, 0.0035]], atol=1e-15)
     # the same at yaw pi: the tool's +y is world -y
     s = tool_shape_array(BOX, ToolPose(0.3, 0.2, math.pi), 0.001)
     x = np.array([[0.3, 0.2]])
-    C.project_tool(x, x.copy(), w, cand, s, s, np.zeros((1, 2)))
+    K.project_tool(x, x.copy(), w, cand, s, s, np.zeros((1, 2)))
     np.testing.assert_allclose(x, [[0.3, 0.2 - 0.0035]], atol=1e-12)
     # a zero-length capsule is a disc: a particle at its centre goes out by the radius
     cap = ToolShape("capsule", length=0.0, radius=0.01)
     s = tool_shape_array(cap, ToolPose(0.0, 0.0, 0.0), 0.0)
     x = np.zeros((1, 2))
-    C.project_tool(x, x.copy(), w, cand, s, s, np.zeros((1, 2)))
+    K.project_tool(x, x.copy(), w, cand, s, s, np.zeros((1, 2)))
     assert math.isclose(float(np.hypot(*x[0])), 0.01, rel_tol=1e-12)
     # a zero-length capsule sweeping over a particle pushes it ahead, not through
     s0 = tool_shape_array(cap, ToolPose(-0.05, 0.0, 0.0), 0.0)
     s1 = tool_shape_array(cap, ToolPose(0.5, 0.0, 0.0), 0.0)
     x = np.zeros((1, 2))
-    C.project_tool(x, x.copy(), w, cand, s0, s1, np.zeros((1, 2)))
+    K.project_tool(x, x.copy(), w, cand, s0, s1, np.zeros((1, 2)))
     np.testing.assert_allclose(x, [[0.51, 0.0]], atol=1e-12)
     # a particle resting on the surface of a still tool is not moved
     s = tool_shape_array(BOX, ToolPose(0.0, 0.0, 0.0), 0.0)
     x = np.array([[0.1, 0.0025]])
     acc = np.zeros((1, 2))
-    assert C.project_tool(x, x.copy(), w, cand, s, s, acc) == 0
+    assert K.project_tool(x, x.copy(), w, cand, s, s, acc) == 0
     assert not acc.any()
     # a pinned particle inside is left alone
     x = np.array([[0.0, 0.0]])
-    assert C.project_tool(x, x.copy(), np.zeros(1), cand, s, s, np.zeros((1, 2))) == 0
+    assert K.project_tool(x, x.copy(), np.zeros(1), cand, s, s, np.zeros((1, 2))) == 0
     np.testing.assert_array_equal(x, [[0.0, 0.0]])
 
 
@@ -129,13 +130,13 @@ def test_project_tool_fast_tool_cannot_tunnel(factor):
     x_start = np.stack([xs, np.full_like(xs, 0.49)], axis=1)  # 7 mm below the tool
     x = x_start.copy()
     acc = np.zeros_like(x)
-    moved = C.project_tool(x, x_start, np.ones(len(xs)), np.arange(len(xs), dtype=np.int32), s0, s1, acc)
+    moved = K.project_tool(x, x_start, np.ones(len(xs)), np.arange(len(xs), dtype=np.int32), s0, s1, acc)
     assert moved == len(xs)
     np.testing.assert_allclose(x[:, 1], 0.5 - move - 0.0025 - 0.001, atol=1e-12)  # below the tool, on its surface
     np.testing.assert_allclose(x[:, 0], xs)
     # a particle beyond the tool's end is not touched
     x = np.array([[0.95, 0.49]])
-    assert C.project_tool(x, x.copy(), np.ones(1), np.zeros(1, np.int32), s0, s1, np.zeros((1, 2))) == 0
+    assert K.project_tool(x, x.copy(), np.ones(1), np.zeros(1, np.int32), s0, s1, np.zeros((1, 2))) == 0
 
 
 def test_points_sdf_near_and_compact_match_naive():
@@ -147,11 +148,11 @@ def test_points_sdf_near_and_compact_match_naive():
         for _ in range(10):
             s = random_shape(rng, tool, 0.0, centre=(0.5, 0.32), spread=0.1)
             sdf, grad = np.empty(len(x)), np.empty((len(x), 2))
-            C.points_sdf(x, s, sdf, grad)
+            K.points_sdf(x, s, sdf, grad)
             np.testing.assert_allclose(sdf, naive.rounded_box_sdf(x, s), atol=1e-12)
             reach = rng.uniform(0.0, 0.05)
             out = np.empty(len(tris), dtype=np.int32)
-            n = C.near_triangles(x, tris, sdf, grad, reach, out)
+            n = K.near_triangles(x, tris, sdf, grad, reach, out)
             np.testing.assert_array_equal(out[:n], naive.near_triangles(x, tris, sdf, grad, reach))
             # conservative: every triangle with a sampled point within reach is kept
             bary = rng.dirichlet(np.ones(3), size=64)
@@ -162,7 +163,7 @@ def test_points_sdf_near_and_compact_match_naive():
             if n:
                 vmap = np.full(len(x), -1, dtype=np.int32)
                 verts, ids, ctris = np.empty((len(x), 3)), np.empty(len(x), np.int32), np.empty((n, 3), np.int32)
-                nv = C.compact_triangles(x, tris, out, n, vmap, verts, ids, ctris)
+                nv = K.compact_triangles(x, tris, out, n, vmap, verts, ids, ctris)
                 v_ref, ids_ref, t_ref = naive.compact_triangles(x, tris, out[:n])
                 np.testing.assert_array_equal(ids[:nv], ids_ref)
                 np.testing.assert_array_equal(ctris, t_ref)
@@ -181,7 +182,7 @@ def test_swept_candidates_match_naive_and_cover_the_sweep():
             s1 = random_shape(rng, tool, 0.002, centre=(0.5, 0.3), spread=0.2)
             reach = rng.uniform(0.0, 0.02)
             out = np.empty(len(x), dtype=np.int32)
-            n = C.swept_candidates(x, inv_mass, s0, s1, reach, out)
+            n = K.swept_candidates(x, inv_mass, s0, s1, reach, out)
             np.testing.assert_array_equal(out[:n], naive.swept_candidates(x, inv_mass, s0, s1, reach))
             # every free particle within reach of the tool at an intermediate pose is a candidate
             a0, a1 = math.atan2(s0[3], s0[2]), math.atan2(s1[3], s1[2])
@@ -207,7 +208,7 @@ def test_paper_displacement_matches_naive():
         if trial == 0:
             x[parts[1]] = x[q] + np.array([r, 0.0])  # exactly at r: displaced by zero, still in the set
         out_idx, out_dx = np.empty(n, np.int32), np.empty((n, 2))
-        k = C.paper_displacement(x, parts, inv_mass, q, d_star, u[0], u[1], r, out_idx, out_dx)
+        k = K.paper_displacement(x, parts, inv_mass, q, d_star, u[0], u[1], r, out_idx, out_dx)
         free = parts[inv_mass[parts] > 0]
         idx_ref, dx_ref = naive.paper_displacement(x, free, q, d_star, v, r)
         np.testing.assert_array_equal(out_idx[:k], idx_ref)
@@ -222,7 +223,7 @@ def test_body_nearest_matches_naive():
         body = rng.integers(0, n_bodies, size=50).astype(np.int32)
         sdf = rng.choice([-0.01, 0.0, 0.003, 0.5], size=50)  # ties on purpose
         out_min, out_arg = np.empty(n_bodies + 1), np.empty(n_bodies + 1, dtype=np.int32)  # last body empty
-        C.body_nearest(sdf, body, out_min, out_arg)
+        K.body_nearest(sdf, body, out_min, out_arg)
         ref_min, ref_arg = naive.body_nearest(sdf, body, n_bodies + 1)
         np.testing.assert_array_equal(out_min, ref_min)
         np.testing.assert_array_equal(out_arg, ref_arg)
@@ -509,7 +510,7 @@ def test_project_tool_rotating_tool_sweeps_particles_aside():
     x_start = np.stack([radii * np.cos(0.1), radii * np.sin(0.1)], axis=1)  # halfway through the sweep
     x = x_start.copy()
     acc = np.zeros_like(x)
-    moved = C.project_tool(x, x_start, np.ones(len(radii)), np.arange(len(radii), dtype=np.int32), s0, s1, acc)
+    moved = K.project_tool(x, x_start, np.ones(len(radii)), np.arange(len(radii), dtype=np.int32), s0, s1, acc)
     assert moved == len(radii)
     local = naive.tool_local(x, s1)
     np.testing.assert_allclose(local[:, 1], 0.0025 + 0.001, atol=1e-12)  # pushed ahead, on the +y face that swept into them

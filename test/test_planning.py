@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.core.contact.collision import ContactModel, points_sdf
+from tissue_sim_ros.core.contact.collision import ContactModel
+from tissue_sim_ros.core.contact.kernels import points_sdf
 from tissue_sim_ros.core.contact.tool import StraightInsertion, tool_shape_array
 from tissue_sim_ros.core.plan.insertion import InsertionRequest, candidates_for, locate, plan_insertion, tool_overlaps
 from tissue_sim_ros.core.sim.batch import BatchScene

@@ -10,7 +10,8 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.core.contact.collision import Contacts, _rounded_box_sdf
+from tissue_sim_ros.core.contact.collision import Contacts
+from tissue_sim_ros.core.contact.kernels import _rounded_box_sdf
 from tissue_sim_ros.core.contact.tool import ToolPose, ToolShape, tool_shape_array
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_from_arrays, mesh_rectangle

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from tissue_sim_ros.core.contact import collision as C
+from tissue_sim_ros.core.contact import kernels as K
 from tissue_sim_ros.core.contact.tool import ToolPose, ToolShape, tool_shape_array
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_rectangle
@@ -72,7 +73,7 @@ def test_edge_depth_matches_naive(tool):
         # edges near the tool's end (the tip) or its middle
         centre = tool_shape_array(tool, ToolPose(0.0, 0.0, 0.0))[4] * np.array([s[2], s[3]]) * rng.choice([0.0, 1.0])
         a, b = _random_edge(rng, centre, length=(0.001, 0.08))
-        depth, t, line = C.edge_depth(a[0], a[1], b[0], b[1], s)
+        depth, t, line = K.edge_depth(a[0], a[1], b[0], b[1], s)
         d_ref, t_ref, line_ref = naive.edge_depth(a, b, s, samples=24 if trial % 5 == 0 else 0)
         assert line == pytest.approx(line_ref, abs=1e-12)
         if d_ref == -np.inf:
@@ -91,26 +92,26 @@ def test_edge_depth_degenerate_inputs():
     s = tool_shape_array(BOX, ToolPose(0.0, 0.0, -math.pi / 2), 0.0)  # vertical, tip at (0, -0.4)
     tip = np.array([0.0, -0.4])
     # zero-length edge: no direction, no depth
-    assert C.edge_depth(0.0, -0.39, 0.0, -0.39, s)[0] == -np.inf
+    assert K.edge_depth(0.0, -0.39, 0.0, -0.39, s)[0] == -np.inf
     # the tip exactly on an edge vertex (edge right to left, body below): depth 0, at the part of the
     # tip's flat 5 mm end face (parallel to the edge) over the span: x in [0, 0.0025] -> t = 0.975
-    d, t, _ = C.edge_depth(0.05, -0.4, 0.0, -0.4, s)
+    d, t, _ = K.edge_depth(0.05, -0.4, 0.0, -0.4, s)
     assert d == pytest.approx(0.0, abs=1e-12) and t == pytest.approx(0.975, abs=1e-12)
-    assert C.edge_depth(0.0, -0.4, -0.05, -0.4, s)[1] == pytest.approx(0.025, abs=1e-12)
+    assert K.edge_depth(0.0, -0.4, -0.05, -0.4, s)[1] == pytest.approx(0.025, abs=1e-12)
     # the tip 1 mm past the edge, between its particles: pushed at the tip's place
-    d, t, _ = C.edge_depth(0.04, -0.399, -0.06, -0.399, s)
+    d, t, _ = K.edge_depth(0.04, -0.399, -0.06, -0.399, s)
     assert d == pytest.approx(0.001, abs=1e-12) and t == pytest.approx(0.4, abs=1e-12)
     # an edge parallel to the tool's side (the box's long face at x = 0.0025, y in [-0.4, 0.4]): a -> b going
     # down has its body on the right (+x), so the face is the support set, 0.5 mm past the edge, taken at
     # the middle of its overlap with the span (y in [0.1, 0.4] of [0.1, 0.5]: t = 0.625)
-    d, t, _ = C.edge_depth(0.002, 0.5, 0.002, 0.1, s)
+    d, t, _ = K.edge_depth(0.002, 0.5, 0.002, 0.1, s)
     assert d == pytest.approx(0.0005, abs=1e-12) and t == pytest.approx(0.625, abs=1e-12)
     d_ref, t_ref, _ = naive.edge_depth(np.array([0.002, 0.5]), np.array([0.002, 0.1]), s, samples=101)
     assert (d, t) == pytest.approx((d_ref, t_ref), abs=1e-12)
     # a face parallel to an edge entirely beside its span: nothing in the strip
-    assert C.edge_depth(0.002, 0.5, 0.002, 0.6, s)[0] == -np.inf
+    assert K.edge_depth(0.002, 0.5, 0.002, 0.6, s)[0] == -np.inf
     # the tool on the outer side of the edge: negative depth
-    d, _, line = C.edge_depth(0.05, -0.45, -0.05, -0.45, s)
+    d, _, line = K.edge_depth(0.05, -0.45, -0.05, -0.45, s)
     assert d < 0 and line < 0
     del tip
 
@@ -133,7 +134,7 @@ def test_project_edges_matches_naive():
         edges = np.stack([np.arange(len(xs) - 1), np.arange(1, len(xs))], axis=1).astype(np.int32)
         w = rng.choice([0.0, 1.0, 2.0], size=len(xs), p=[0.2, 0.4, 0.4])
         x_k, acc = x.copy(), np.zeros_like(x)
-        moved = C.project_edges(x_k, x_start, w, edges, s0, s1, 0.002, acc)
+        moved = K.project_edges(x_k, x_start, w, edges, s0, s1, 0.002, acc)
         x_n, acc_n, moved_n = naive.project_edges(x, x_start, w, edges, s0, s1, 0.002)
         assert moved == moved_n
         np.testing.assert_allclose(x_k, x_n, atol=1e-9)
@@ -148,7 +149,7 @@ def test_project_edges_pushes_an_edge_under_the_tip_and_respects_pins():
     for w, expect in (([1.0, 1.0], (0.5, 0.5)), ([1.0, 0.0], (1.0, 0.0)), ([2.0, 1.0], (2 / 3, 1 / 3))):
         x = np.array([[0.05, 0.01], [-0.05, 0.01]])
         acc = np.zeros_like(x)
-        assert C.project_edges(x, x_start, np.array(w), np.array([[0, 1]], np.int32), s, s, 0.002, acc) == 1
+        assert K.project_edges(x, x_start, np.array(w), np.array([[0, 1]], np.int32), s, s, 0.002, acc) == 1
         # the edge passes under the tip (t = 0.5) and moved only down, by the inverse-mass share
         assert 0.5 * (x[0, 1] + x[1, 1]) == pytest.approx(tip_y, abs=1e-12)
         np.testing.assert_allclose(acc[:, 0], 0.0, atol=1e-15)
@@ -156,17 +157,17 @@ def test_project_edges_pushes_an_edge_under_the_tip_and_respects_pins():
         np.testing.assert_allclose(drop / drop.sum(), expect, atol=1e-12)
     # both pinned: nothing moves
     x = np.array([[0.05, 0.01], [-0.05, 0.01]])
-    assert C.project_edges(x, x_start, np.zeros(2), np.array([[0, 1]], np.int32), s, s, 0.002, np.zeros((2, 2))) == 0
+    assert K.project_edges(x, x_start, np.zeros(2), np.array([[0, 1]], np.int32), s, s, 0.002, np.zeros((2, 2))) == 0
     # the tool already 5 cm through the edge at the start: left alone (no snap)
     deep = tool_shape_array(BOX, ToolPose(0.0, 0.4 + 0.01 - 0.05, -math.pi / 2), 0.001)
     x = np.array([[0.05, 0.01], [-0.05, 0.01]])
-    assert C.project_edges(x, x.copy(), np.ones(2), np.array([[0, 1]], np.int32), deep, deep, 0.002,
+    assert K.project_edges(x, x.copy(), np.ones(2), np.array([[0, 1]], np.int32), deep, deep, 0.002,
                            np.zeros((2, 2))) == 0
     # a tool crossing the edge within one step (10 cm) is still pushed back to the outside (swept)
     s0 = tool_shape_array(BOX, ToolPose(0.0, 0.4 + 0.05, -math.pi / 2), 0.001)
     s1 = tool_shape_array(BOX, ToolPose(0.0, 0.4 - 0.05, -math.pi / 2), 0.001)
     x = np.array([[0.05, 0.01], [-0.05, 0.01]])
-    assert C.project_edges(x, x.copy(), np.ones(2), np.array([[0, 1]], np.int32), s0, s1, 0.002, np.zeros((2, 2))) == 1
+    assert K.project_edges(x, x.copy(), np.ones(2), np.array([[0, 1]], np.int32), s0, s1, 0.002, np.zeros((2, 2))) == 1
     assert 0.5 * (x[0, 1] + x[1, 1]) == pytest.approx(-0.05 - 0.001, abs=1e-12)
 
 
@@ -184,7 +185,7 @@ def test_swept_edge_candidates_match_naive_and_cover_the_sweep():
             p1 = ToolPose(p0.x + rng.uniform(-0.05, 0.05), p0.y + rng.uniform(-0.05, 0.05), yaw + rng.uniform(-0.2, 0.2))
             s0, s1 = tool_shape_array(tool, p0, 0.002), tool_shape_array(tool, p1, 0.002)
             reach = rng.uniform(0.0, 0.02)
-            n = C.swept_edge_candidates(x, inv_mass, edges, s0, s1, reach, out)
+            n = K.swept_edge_candidates(x, inv_mass, edges, s0, s1, reach, out)
             np.testing.assert_array_equal(out[:n], naive.swept_edge_candidates(x, inv_mass, edges, s0, s1, reach))
             # conservative: an edge with a free particle and a sampled point within reach of either end pose is kept
             f = np.linspace(0.0, 1.0, 33)[:, None]
@@ -350,7 +351,7 @@ def test_gather_surface_edges_matches_naive():
         cand[:len(cand0)] = cand0
         mark = np.zeros(n_p, dtype=bool)
         out = np.empty((len(edges), 2), np.int32)
-        n = C.gather_surface_edges(edges, sel, len(sel), inv_mass, cand, len(cand0), mark, out)
+        n = K.gather_surface_edges(edges, sel, len(sel), inv_mass, cand, len(cand0), mark, out)
         e_ref, c_ref = naive.gather_surface_edges(edges, sel, inv_mass, cand0)
         np.testing.assert_array_equal(out[:len(sel)], e_ref.reshape(-1, 2))
         np.testing.assert_array_equal(cand[:n], c_ref)

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .collision import _line_interval, _rounded_box_sdf, _sdf_local, _to_local
+from .kernels import _line_interval, _rounded_box_sdf, _sdf_local, _to_local
 
 #: A particle this far inside the tool [m] counts as penetrating (round-off on the surface does not).
 INSIDE_TOL = 1e-9

@@ -35,7 +35,7 @@ import numba
 import numpy as np
 from numba import njit, prange, uint32
 
-from ..contact.collision import project_edges, project_tool
+from ..contact.kernels import project_edges, project_tool
 
 # An empty two-iteration prange call costs 2.2 us with OpenMP and 68 us with
 # numba's workqueue layer (the default here: tbb is not installed), medians on
@@ -456,11 +456,11 @@ def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple
     delimit colours) and runs each colour on all threads;
     :data:`GS_PARTITIONED` needs constraints grouped by part
     (:func:`solve_partitioned`). The projection contact
-    (:func:`~tissue_sim_ros.core.contact.collision.project_tool`) runs after the
+    (:func:`~tissue_sim_ros.core.contact.kernels.project_tool`) runs after the
     constraints of every iteration, so the last word is the tool's and no
     particle ends inside it; an empty ``candidates`` skips it. Then the
     boundary edges ``surface_edges`` (K, 2) int32 (body on the left; empty:
-    none) are kept out of it (:func:`~tissue_sim_ros.core.contact.collision.project_edges`).
+    none) are kept out of it (:func:`~tissue_sim_ros.core.contact.kernels.project_edges`).
 
     The constant arrays come packed: ``edge_set`` = (edges (E, 2) int32, rest
     lengths (E,) [m], offsets (G + 1,) int64), ``tri_set`` = (triangles (T, 3)

@@ -62,7 +62,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..contact.collision import project_edges, project_tool
+from ..contact.kernels import project_edges, project_tool
 
 #: Rest areas [m^2] at or below this (relative to the mean) make a degenerate element (skipped).
 EPS_AREA_REL = 1e-12

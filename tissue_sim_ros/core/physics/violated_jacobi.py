@@ -39,7 +39,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..contact.collision import project_edges, project_tool
+from ..contact.kernels import project_edges, project_tool
 
 #: Squared length [m^2] below which an edge (or a triangle's gradient) counts as degenerate.
 EPS_LEN2 = 1e-30

@@ -61,7 +61,7 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from ..contact.collision import points_sdf
+from ..contact.kernels import points_sdf
 from ..contact.tool import (
     StraightInsertion,
     ToolPose,
