@@ -1,57 +1,213 @@
-"""The core simulator imports without ROS: anyone can use it in a notebook or a planner loop."""
+"""The folders are the architecture: what each layer and each core package may import.
+
+Arrows point down only::
+
+    cli -> experiments / bench -> ros -> render -> core
+
+and inside the core, from the bottom up::
+
+    errors, resources -> mesh -> contact -> timing -> physics -> config -> sim -> plan, fit
+
+A module may import its own package and anything below it, never above. Every import
+counts, including those inside functions (a lazy import is still an arrow); only imports
+under ``if TYPE_CHECKING:`` are exempt, since they never run. The core also never
+imports ROS, so it runs in a notebook, a planner's loop or a test without a ROS graph.
+"""
 from __future__ import annotations
 
-import re
+import ast
 import subprocess
 import sys
 from pathlib import Path
 
-CORE = Path(__file__).resolve().parent.parent / "tissue_sim_ros" / "core"
+import pytest
+
+PACKAGE = Path(__file__).resolve().parent.parent / "tissue_sim_ros"
+CORE = PACKAGE / "core"
 ROS_MODULES = ("rclpy", "std_msgs", "geometry_msgs", "sensor_msgs", "visualization_msgs", "diagnostic_msgs",
-               "std_srvs", "rosgraph_msgs", "builtin_interfaces")
+               "std_srvs", "nav_msgs", "rosgraph_msgs", "builtin_interfaces", "tf2_msgs", "rcl_interfaces")
+
+#: the package's layers, bottom (0) to top; a module imports only its own layer or lower ones
+LAYERS = {"core": 0, "render": 1, "ros": 2, "experiments": 3, "bench": 4, "cli": 5}
+#: the core's packages, bottom (0) to top
+CORE_RANKS = {"errors": 0, "resources": 0, "mesh": 1, "contact": 2, "timing": 3, "physics": 4, "config": 5, "sim": 6,
+              "plan": 7, "fit": 7}
+#: modules outside any layer: the package's own __init__ and the aliases of moved modules (they import anything)
+UNLAYERED = {"tissue_sim_ros", "tissue_sim_ros._moved"}
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _runtime_imports(path: Path) -> list[tuple[int, str]]:
+    """(line, absolute module) of every import of the package that can run (not under TYPE_CHECKING).
+
+    ``from X import name`` counts as an import of ``X.name`` when that is a module of the package.
+    """
+    tree = ast.parse(path.read_text(), filename=str(path))
+    skipped: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            skipped.update(id(n) for stmt in node.body for n in ast.walk(stmt))
+    name = _module_name(path)
+    package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+    found = []
+    for node in ast.walk(tree):
+        if id(node) in skipped:
+            continue
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[: len(package) - node.level + 1]
+                module = ".".join(base + ([node.module] if node.module else []))
+            else:
+                module = node.module or ""
+            if not module.startswith("tissue_sim_ros"):
+                continue
+            for alias in node.names:
+                sub = f"{module}.{alias.name}"
+                found.append((node.lineno, sub if _is_module(sub) else module))
+        elif isinstance(node, ast.Import):
+            found += [(node.lineno, a.name) for a in node.names if a.name.startswith("tissue_sim_ros")]
+    return found
+
+
+def _is_module(dotted: str) -> bool:
+    path = PACKAGE.parent.joinpath(*dotted.split("."))
+    return path.with_suffix(".py").exists() or (path / "__init__.py").exists()
+
+
+def _sources() -> list[Path]:
+    return sorted(p for p in PACKAGE.rglob("*.py") if "__pycache__" not in p.parts)
+
+
+def _layer(module: str) -> tuple[int, int] | None:
+    """(layer, rank inside the core) of a module; None for one outside the layers."""
+    if module in UNLAYERED:
+        return None
+    parts = module.split(".")
+    if len(parts) < 2 or parts[1] == "config":  # tissue_sim_ros.config: the shipped YAML as package data
+        return None
+    layer = LAYERS[parts[1]]
+    if parts[1] != "core":
+        return layer, 0
+    if len(parts) == 2:  # tissue_sim_ros.core itself: re-exports the entry points (lazily)
+        return None
+    return layer, CORE_RANKS[parts[2]]
+
+
+def test_every_module_has_a_layer():
+    unknown = [str(p.relative_to(PACKAGE)) for p in _sources()
+               if _module_name(p) not in UNLAYERED and _module_name(p).split(".")[1] not in {*LAYERS, "config"}]
+    unknown += [str(p.relative_to(PACKAGE)) for p in (CORE).rglob("*.py")
+                if len(_module_name(p).split(".")) > 2 and _module_name(p).split(".")[2] not in CORE_RANKS]
+    assert not unknown, f"modules outside every layer (add them to LAYERS/CORE_RANKS or move them): {unknown}"
+
+
+def test_imports_point_down_only():
+    """No module imports a layer above its own, nor a core package above its own."""
+    offenders = []
+    for path in _sources():
+        mine = _layer(_module_name(path))
+        if mine is None:
+            continue
+        for line, target in _runtime_imports(path):
+            theirs = _layer(target)
+            if theirs is not None and theirs > mine and not (theirs[0] == mine[0] and mine[0] != 0):
+                offenders.append(f"{path.relative_to(PACKAGE)}:{line} imports {target}")
+    assert not offenders, "imports that point up:\n" + "\n".join(offenders)
+
+
+def test_experiments_import_no_bench():
+    """bench may run the experiments (bench fit uses their scenes); the experiments never run a benchmark."""
+    offenders = [f"{p.relative_to(PACKAGE)}:{line}" for p in (PACKAGE / "experiments").rglob("*.py")
+                 for line, target in _runtime_imports(p) if target.startswith("tissue_sim_ros.bench")]
+    assert not offenders, f"experiments importing benchmarks: {offenders}"
+
+
+def test_no_code_imports_a_moved_path():
+    """The old paths are aliases for users' scripts only; the package and its tests use the new ones."""
+    from tissue_sim_ros._moved import MOVED, PREFIX
+
+    old = {PREFIX + k for k in MOVED}
+    files = _sources() + sorted((PACKAGE.parent / "test").glob("*.py")) + sorted((PACKAGE.parent / "scripts").glob("*.py"))
+    offenders = [f"{p.name}:{line} imports {target}" for p in files if p.name != "test_layout.py"
+                 for line, target in _runtime_imports(p) if target in old]
+    assert not offenders, offenders
+
+
+def test_moved_paths_are_gone_and_alias_their_new_home():
+    from tissue_sim_ros._moved import MOVED, PREFIX
+
+    for old, new in MOVED.items():
+        assert not _is_module(PREFIX + old), f"{old} still exists beside its new home {new}"
+        assert _is_module(PREFIX + new), f"{old} aliases {new}, which does not exist"
+    code = ("import warnings, importlib\n"
+            "warnings.simplefilter('error')\n"
+            "import tissue_sim_ros.core.sim.scene as new\n"
+            "try:\n    import tissue_sim_ros.core.scene\nexcept DeprecationWarning as w:\n    print(w)\n"
+            "warnings.simplefilter('ignore')\n"
+            "import tissue_sim_ros.core.scene as old\n"
+            "from tissue_sim_ros.core import build_simulation\n"
+            "print(old is new, old.build_simulation is build_simulation)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.splitlines()
+    assert out == ["tissue_sim_ros.core.scene moved to tissue_sim_ros.core.sim.scene; the old path goes in 0.3",
+                   "True True"]
 
 
 def test_core_sources_import_no_ros():
-    pattern = re.compile(rf"^\s*(import|from)\s+({'|'.join(ROS_MODULES)})\b", re.MULTILINE)
-    offenders = [p.name for p in CORE.glob("*.py") if pattern.search(p.read_text())]
+    offenders = []
+    for path in CORE.rglob("*.py"):
+        tree = ast.parse(path.read_text())
+        for node in ast.walk(tree):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
+            offenders += [f"{path.relative_to(PACKAGE)}: {n}" for n in names if n.split(".")[0] in ROS_MODULES]
     assert not offenders, f"core modules importing ROS: {offenders}"
 
 
 def test_importing_every_core_module_loads_no_ros():
-    modules = sorted(p.stem for p in CORE.glob("*.py") if p.stem != "__init__")
-    code = ("import sys\n" + "".join(f"import tissue_sim_ros.core.{m}\n" for m in modules)
+    modules = sorted(_module_name(p) for p in CORE.rglob("*.py"))
+    code = ("import sys\n" + "".join(f"import {m}\n" for m in modules)
+            + "import tissue_sim_ros.core as c\n" + "".join(f"c.{n}\n" for n in ("resolve_config", "Config",
+                                                                                    "Simulation", "build_simulation",
+                                                                                    "rollout", "rollout_batch"))
             + f"print(sorted(m for m in sys.modules if m.split('.')[0] in {ROS_MODULES!r}))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
 
 
-PACKAGE = CORE.parent
+def test_core_reexports_the_entry_points():
+    import tissue_sim_ros.core as core
+    from tissue_sim_ros.core.config import Config, resolve_config
+    from tissue_sim_ros.core.sim.batch import rollout_batch
+    from tissue_sim_ros.core.sim.rollout import rollout
+    from tissue_sim_ros.core.sim.scene import build_simulation
+    from tissue_sim_ros.core.sim.simulation import Simulation
+
+    assert (core.resolve_config, core.Config, core.Simulation, core.build_simulation, core.rollout,
+            core.rollout_batch) == (resolve_config, Config, Simulation, build_simulation, rollout, rollout_batch)
+    assert sorted(core.__all__) == sorted(["resolve_config", "Config", "Simulation", "build_simulation", "rollout",
+                                           "rollout_batch"])
+    with pytest.raises(AttributeError):
+        core.no_such_name  # noqa: B018
 
 
-def test_imports_run_down_the_layers():
-    """The CLI layer calls the library, never the reverse: core, ros and bench import no CLI module.
-
-    A CLI module is ``tissue_sim_ros/cli*.py`` or ``cli/experiment.py``; bench commands build their
-    configuration from core.config rather than the experiments' command line.
-    """
-    cli = re.compile(r"^\s*(from|import)\s+(\.\.|tissue_sim_ros\.)(cli\w*|experiments\.cli|experiments import cli)\b",
-                     re.MULTILINE)
-    offenders = [str(p.relative_to(PACKAGE)) for layer in ("core", "ros", "bench") for p in (PACKAGE / layer).glob("*.py")
-                 if cli.search(p.read_text())]
-    assert not offenders, f"library modules importing the command line: {offenders}"
+def test_every_package_says_what_it_holds():
+    """Each package's __init__ has a docstring of at least a sentence: what it holds (and may import)."""
+    missing = [str(p.relative_to(PACKAGE)) for p in PACKAGE.rglob("__init__.py")
+               if "__pycache__" not in p.parts and p.parent.name != "config"
+               and len(ast.get_docstring(ast.parse(p.read_text())) or "") < 60]
+    assert not missing, f"packages without a docstring saying what they hold: {missing}"
 
 
-def test_every_command_module_is_in_the_cli_layer():
-    from tissue_sim_ros.cli import COMMANDS
-
-    modules = [m for entry in COMMANDS.values() for m, _ in (entry.values() if isinstance(entry, dict) else [entry])]
-    in_ros = [m for m in modules if m.startswith("tissue_sim_ros.ros.") or m.startswith("tissue_sim_ros.core.")]
-    assert not in_ros, f"commands whose argparse lives in the library layers: {in_ros}"
-
-
-def test_ros_layer_imports_no_experiments():
-    # the tool driver and replay read trajectories from the core (core/timing/trajectories.py), never the experiments
-    ros = CORE.parent / "ros"
-    pattern = re.compile(r"^\s*(import|from)\s+(tissue_sim_ros\.experiments|\.\.experiments)\b", re.MULTILINE)
-    offenders = [p.name for p in ros.glob("*.py") if pattern.search(p.read_text())]
-    assert not offenders, f"ros modules importing the experiments: {offenders}"
+def test_long_modules_say_why_they_are_one_piece():
+    """A module past about 700 lines says in its docstring why it is one piece (or is split)."""
+    long = []
+    for path in _sources():
+        n = len(path.read_text().splitlines())
+        doc = ast.get_docstring(ast.parse(path.read_text())) or ""
+        if n > 720 and "one piece" not in doc:
+            long.append(f"{path.relative_to(PACKAGE)} ({n} lines)")
+    assert not long, f"long modules that do not say why they are one piece: {long}"

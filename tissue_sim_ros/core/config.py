@@ -1,5 +1,9 @@
 """One front door: every parameter declared once, resolved once.
 
+One piece (past 700 lines) on purpose: the table, the alias rule, the cross-checks and the
+YAML reader and writer are the one place a parameter is declared and resolved; splitting them
+would give a parameter two homes.
+
 Every parameter of the simulator (the YAML file, the node, every ``tissue-sim``
 command and the library alike) is one row of :data:`PARAMETERS`: its flat name,
 type, default, unit, description, whether it can change while a simulation runs,

@@ -1,5 +1,9 @@
 """rosbag2 bags with the ``rosbags`` library: write, read, and tool trajectories from bags.
 
+One piece (past 700 lines) on purpose: writing and reading share the type registry, the
+two storage back ends (MCAP, sqlite3) and the stamp policy, and the recorder, the node and
+replay use both sides of them.
+
 No rclpy here: ``tissue-sim replay`` uses this module offline, ``tissue-sim
 record`` and the ROS node write with :class:`BagWriter` (thread-safe, so an
 executor's callbacks can call it). Bags are ordinary

@@ -1,5 +1,10 @@
 """Numba kernels of one simulation step, on plain arrays.
 
+One piece (past 700 lines) on purpose: the projection kernels of every scheme (serial,
+partitioned and coloured Gauss-Seidel, Jacobi) share the constraint helpers that numba inlines
+into each hot loop (``_edge_geometry``, ``_area_constraint``), and
+:mod:`~tissue_sim_ros.core.physics.step_kernels` compiles them into one call per step.
+
 Every kernel takes arrays and scalars and writes into preallocated outputs
 (``@njit(cache=True)``); :mod:`~tissue_sim_ros.core.physics.solvers` owns the
 workspaces and calls them. Each kernel has a slow NumPy twin in
