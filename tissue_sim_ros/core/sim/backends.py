@@ -52,9 +52,17 @@ BACKENDS = ("local", "ray")
 
 
 def check_backend(backend: str) -> str:
+    """``backend`` if it is one of :data:`BACKENDS`, or InputError naming it."""
     if backend not in BACKENDS:
         raise InputError(f"--backend {backend!r}: expected one of {', '.join(BACKENDS)}")
     return backend
+
+
+def check_jobs(jobs: int) -> int:
+    """``jobs`` as a worker count, or InputError: a sweep needs at least one worker."""
+    if jobs < 1:
+        raise InputError(f"--jobs {jobs}: expected at least 1 worker")
+    return int(jobs)
 
 
 def add_backend_arguments(parser: Any, *, jobs_default: int, jobs_help: str) -> None:
