@@ -10,11 +10,18 @@ Each subcommand lives in its own module, which defines::
 Modules are imported only when their subcommand runs, so ``--help`` is fast and
 ROS is imported only by the commands that need it. Bad input
 (:class:`~tissue_sim_ros.core.errors.InputError`) prints one line and exits 2.
+
+This package is the only place argparse lives: a command's ``run`` turns its
+arguments into a :class:`~tissue_sim_ros.core.config.Config` and plain keyword
+arguments and calls the library (core, ros, experiments, bench), which takes
+no command line. A DESCRIPTION may be the library module's docstring: it is
+shown as plain text (:func:`plain_text`), its Sphinx markup is for the docs.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 from typing import Sequence
 
@@ -48,6 +55,32 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
 }
 
 
+#: ``:role:`target` `` or ``:role:`title <target>` `` (Sphinx cross-references), ``~`` to show the last part only
+_ROLE = re.compile(r":(?:py:)?(\w+):`(~?)([^`<]*?)\s*(?:<([^>`]+)>)?`")
+
+
+def _role_text(match: re.Match[str]) -> str:
+    role, tilde, text, target = match.groups()
+    if target is not None:  # an explicit title
+        return text
+    if role == "mod":  # the whole dotted name: in a terminal there is no link to follow to the module
+        return text
+    name = text.rsplit(".", 1)[-1] if tilde else text
+    return name + ("()" if role in ("func", "meth") else "")
+
+
+def plain_text(text: str) -> str:
+    """A docstring's reStructuredText as ``--help`` shows it: cross-references, literals and bold as plain words.
+
+    ``:mod:`~a.b``` -> ``a.b``; ``:func:`~a.f``` -> ``f()``; ``:class:`a.C``` -> ``a.C``;
+    ````x```` -> ``x``; ``**x**`` -> ``x``. Line breaks are kept (the parsers format descriptions raw).
+    """
+    text = _ROLE.sub(_role_text, text)
+    text = re.sub(r"``(.+?)``", r"\1", text, flags=re.DOTALL)
+    # strong emphasis as reST reads it: not inside a word, so x**2 stays a power
+    return re.sub(r"(?<![\w*])\*\*(\S(?:.*?\S)?)\*\*(?![\w*])", r"\1", text)
+
+
 def _add_command(sub: argparse._SubParsersAction, name: str, module: str, help_text: str) -> None:
     try:
         mod = importlib.import_module(module)
@@ -56,8 +89,8 @@ def _add_command(sub: argparse._SubParsersAction, name: str, module: str, help_t
             sub.add_parser(name, help=f"{help_text} (not available in this build)")
             return
         raise
-    parser = sub.add_parser(name, help=getattr(mod, "HELP", help_text),
-                            description=getattr(mod, "DESCRIPTION", getattr(mod, "HELP", help_text)),
+    help_line = plain_text(getattr(mod, "HELP", help_text))
+    parser = sub.add_parser(name, help=help_line, description=plain_text(getattr(mod, "DESCRIPTION", help_line)),
                             formatter_class=argparse.RawDescriptionHelpFormatter)
     mod.add_arguments(parser)
     parser.set_defaults(_run=mod.run)
