@@ -33,7 +33,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
     "mesh": ("tissue_sim_ros.cli.mesh", "mesh a tissue image (or load a mesh file), report quality, write .npz and a picture"),
     "experiment": ("tissue_sim_ros.cli.experiment", "run the paper's experiment a or b offline and write its figures"),
     "plan": ("tissue_sim_ros.cli.plan", "rank insertion angles/speeds toward a target by implicit Euler energy"),
-    "demo": ("tissue_sim_ros.experiments.demo", "the main job: node + tool driver on a private ROS domain, experiment a, recorded to a bag"),
+    "demo": ("tissue_sim_ros.cli.demo", "the main job: node + tool driver on a private ROS domain, experiment a, recorded to a bag"),
     "record": ("tissue_sim_ros.cli.record", "record the node's topics to a rosbag2 bag (MCAP or sqlite3)"),
     "replay": ("tissue_sim_ros.cli.replay", "run the simulation offline on a bag's tool trajectory; write a bag, CSV, plots, frames"),
     "play": ("tissue_sim_ros.cli.play", "publish a bag's tool topics into a live ROS graph with the recorded timing"),
