@@ -38,7 +38,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
     "replay": ("tissue_sim_ros.cli.replay", "run the simulation offline on a bag's tool trajectory; write a bag, CSV, plots, frames"),
     "play": ("tissue_sim_ros.cli.play", "publish a bag's tool topics into a live ROS graph with the recorded timing"),
     "fit": ("tissue_sim_ros.cli.fit", "identify the tissue's material from a recording (tracked points + tool poses)"),
-    "tune": ("tissue_sim_ros.bench.tune", "pick the cheapest mesh spacing/method/iterations meeting an error tolerance"),
+    "tune": ("tissue_sim_ros.cli.tune", "pick the cheapest mesh spacing/method/iterations meeting an error tolerance"),
     "bench": {
         "solver": ("tissue_sim_ros.bench.solver", "ms per step, ns per projection and ratio to NumPy, per method and mesh size"),
         "contact": ("tissue_sim_ros.bench.contact", "contact detection cost per step: culled vs full per-step python-fcl BVH rebuild"),
