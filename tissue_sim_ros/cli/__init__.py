@@ -44,7 +44,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
         "contact": ("tissue_sim_ros.cli.bench.contact", "contact detection cost per step: culled vs full per-step python-fcl BVH rebuild"),
         "node": ("tissue_sim_ros.bench.node", "sustained rate, overruns and pose-to-mesh latency of the ROS node"),
         "accuracy": ("tissue_sim_ros.cli.bench.accuracy", "error against an exact Newton solve versus time per step, Pareto front"),
-        "stability": ("tissue_sim_ros.bench.stability", "where each method fails over dt, stiffness, tool speed and mesh quality"),
+        "stability": ("tissue_sim_ros.cli.bench.stability", "where each method fails over dt, stiffness, tool speed and mesh quality"),
         "spacing": ("tissue_sim_ros.cli.bench.spacing", "effective spring and area moduli, mass per area and sag against mesh spacing"),
         "refinement": ("tissue_sim_ros.bench.refinement", "the material run to rest vs the scikit-fem reference: errors vs mesh spacing and dt"),
         "material": ("tissue_sim_ros.bench.material_accuracy", "the material's solve vs its exact Newton minimiser: step and response errors (median, max) vs time, Pareto"),
