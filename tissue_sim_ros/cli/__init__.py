@@ -42,7 +42,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
     "bench": {
         "solver": ("tissue_sim_ros.cli.bench.solver", "ms per step, ns per projection and ratio to NumPy, per method and mesh size"),
         "contact": ("tissue_sim_ros.cli.bench.contact", "contact detection cost per step: culled vs full per-step python-fcl BVH rebuild"),
-        "node": ("tissue_sim_ros.bench.node", "sustained rate, overruns and pose-to-mesh latency of the ROS node"),
+        "node": ("tissue_sim_ros.cli.bench.node", "sustained rate, overruns and pose-to-mesh latency of the ROS node"),
         "accuracy": ("tissue_sim_ros.cli.bench.accuracy", "error against an exact Newton solve versus time per step, Pareto front"),
         "stability": ("tissue_sim_ros.cli.bench.stability", "where each method fails over dt, stiffness, tool speed and mesh quality"),
         "spacing": ("tissue_sim_ros.cli.bench.spacing", "effective spring and area moduli, mass per area and sag against mesh spacing"),
