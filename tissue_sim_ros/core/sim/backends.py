@@ -65,26 +65,6 @@ def check_jobs(jobs: int) -> int:
     return int(jobs)
 
 
-def add_backend_arguments(parser: Any, *, jobs_default: int, jobs_help: str) -> None:
-    """``--jobs``, ``--backend`` and ``--address``: declared once for every sweep command (plan, bench stability,
-    tune, fit, bench fit), checked by :func:`check_backend_arguments`."""
-    parser.add_argument("--jobs", type=int, default=jobs_default,
-                        help=f"{jobs_help}; with --backend ray: Ray workers at a time")
-    parser.add_argument("--backend", choices=BACKENDS, default="local",
-                        help="local: this machine's cores; ray: a Ray cluster (pip install '.[ray]'); the same "
-                             "results")
-    parser.add_argument("--address", default=None,
-                        help="--backend ray: the cluster (HOST:6379, ray://HOST:10001; default RAY_ADDRESS or a "
-                             "private single-node cluster on 127.0.0.1)")
-
-
-def check_backend_arguments(args: Any) -> tuple[int, str, str | None]:
-    """``(jobs, backend, address)`` of :func:`add_backend_arguments`'s options, or InputError naming the bad one."""
-    if args.jobs < 1:
-        raise InputError(f"--jobs {args.jobs}: expected at least 1 worker")
-    return int(args.jobs), check_backend(args.backend), args.address
-
-
 def import_ray() -> Any:
     """The ray module, or InputError saying how to install it."""
     try:
