@@ -294,14 +294,14 @@ def _plot(rows: list[dict[str, Any]], node_row: dict[str, Any] | None, path: Pat
     plt.close(fig)
 
 
-def run(cfg: Config, out: str | Path, *, candidates: int = 64, steps: int = 100, repeats: int = 5,
+def run(config: Config, out: str | Path, *, candidates: int = 64, steps: int = 100, repeats: int = 5,
         workers: Sequence[int] = (1, 2), seconds: float = 10.0, library_part: bool = True, node_part: bool = True,
         node_workers: int = 2) -> int:
     """The library part and the node part; print the tables, write the CSVs and the chart into ``out``; 0.
 
     Parameters
     ----------
-    cfg : Config
+    config : Config
         The scene (``tissue-sim bench plan`` resolves it over :data:`SCENE_DEFAULTS`).
     out : str or Path
         Output directory (created).
@@ -329,8 +329,8 @@ def run(cfg: Config, out: str | Path, *, candidates: int = 64, steps: int = 100,
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     load_before = _load()
-    rows = [] if not library_part else bench_library(cfg, candidates, steps, repeats, sorted(set(workers)))
-    node_row = None if not node_part else bench_node(cfg, seconds, out, free_domain_id(), node_workers)
+    rows = [] if not library_part else bench_library(config, candidates, steps, repeats, sorted(set(workers)))
+    node_row = None if not node_part else bench_node(config, seconds, out, free_domain_id(), node_workers)
     load = f"{load_before} -> {_load()}"
     if rows:
         _library_table(rows, candidates, steps, repeats, load, out)

@@ -126,17 +126,17 @@ def params_for(values: dict[str, Any], row: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def run(cfg: Config, *, tolerance: float, budget_ms: float, spacings: Sequence[float] = SPACINGS, steps: int = 30,
+def run(config: Config, *, tolerance: float, budget_ms: float, spacings: Sequence[float] = SPACINGS, steps: int = 30,
         out: str | Path | None = None, csv_path: str | Path | None = None, quick: bool = False,
         material_spacings: Sequence[float] = MATERIAL_SPACINGS, grade_spacings: Sequence[float] = GRADE_SPACINGS,
         png_path: str | Path | None = None, verify_only: bool = False, depth: float = 0.003,
         params_file: str | Path | None = None, jobs: int = 1, backend: str = "local",
         address: str | None = None) -> int:
-    """Tune the scene of ``cfg``, print the table and the choice, write it to ``out``; the exit status.
+    """Tune the scene of ``config``, print the table and the choice, write it to ``out``; the exit status.
 
     Parameters
     ----------
-    cfg : Config
+    config : Config
         The scene (its parameter file resolved). ``material: neo_hookean`` tunes the material's physical
         error instead (:func:`~tissue_sim_ros.bench.tune_material.run_tune_material`).
     tolerance : float
@@ -159,11 +159,11 @@ def run(cfg: Config, *, tolerance: float, budget_ms: float, spacings: Sequence[f
     png_path : str or Path, optional
         Material neo_hookean: the error-time chart.
     verify_only : bool
-        Material neo_hookean: measure ``cfg`` as it is against the reference instead.
+        Material neo_hookean: measure ``config`` as it is against the reference instead.
     depth : float
         Material neo_hookean: how far the instrument presses into the tissue [m].
     params_file : str or Path, optional
-        The file ``cfg`` was read from, named in the ``verify_only`` report.
+        The file ``config`` was read from, named in the ``verify_only`` report.
     jobs, backend, address
         Where the independent runs go (:func:`tune`).
 
@@ -189,17 +189,17 @@ def run(cfg: Config, *, tolerance: float, budget_ms: float, spacings: Sequence[f
     from ..core.sim.backends import check_backend, check_jobs  # noqa: PLC0415
 
     jobs, backend = check_jobs(jobs), check_backend(backend)
-    if cfg.sim.material == "neo_hookean":
+    if config.sim.material == "neo_hookean":
         # a physical material: mesh + solver error at rest under the instrument (bench/tune_material.py)
         from .tune_material import run_tune_material  # noqa: PLC0415
 
         if not (math.isfinite(depth) and depth > 0):
             raise InputError(f"--depth={depth}: expected a depth > 0 m")
-        return run_tune_material(cfg, tolerance=tolerance, budget_ms=budget_ms, quick=quick,
+        return run_tune_material(config, tolerance=tolerance, budget_ms=budget_ms, quick=quick,
                                  material_spacings=material_spacings, grade_spacings=grade_spacings, verify_only=verify_only,
                                  depth=depth, out=out, csv_path=csv_path, png_path=png_path, params_file=params_file,
                                  jobs=jobs, backend=backend, address=address)
-    values = cfg.flat()
+    values = config.flat()
     spacings = [0.1, 0.05] if quick else sorted(set(spacings), reverse=True)  # coarse to fine, as tune() reads them
     counts = (1, 10) if quick else COUNTS
     n_steps = min(steps, 4) if quick else steps

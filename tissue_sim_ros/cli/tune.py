@@ -64,16 +64,16 @@ def parse_spacings(text: str) -> list[float]:
 
 
 def run(args: argparse.Namespace) -> int:
-    cfg = resolve_config(params_file=args.params or None)
+    config = resolve_config(params_file=args.params or None)
     # parse only the lists this run reads (--quick reads none; a neo_hookean scene the material ones), so an
     # option that does not apply is ignored, as it always was, rather than refused
-    material = cfg.sim.material == "neo_hookean"
+    material = config.sim.material == "neo_hookean"
     spacings = tune.SPACINGS if args.quick or material else parse_spacings(args.spacings)
     material_spacings, grade_spacings = tune.MATERIAL_SPACINGS, tune.GRADE_SPACINGS
     if material and not args.quick:
         material_spacings = parse_spacings(args.material_spacings)
         grade_spacings = parse_spacings(args.grade_spacings) if args.grade_spacings else []
-    return tune.run(cfg, tolerance=args.tolerance, budget_ms=args.budget_ms, spacings=spacings, steps=args.steps,
+    return tune.run(config, tolerance=args.tolerance, budget_ms=args.budget_ms, spacings=spacings, steps=args.steps,
                     out=args.out or None, csv_path=args.csv or None, quick=args.quick,
                     material_spacings=material_spacings, grade_spacings=grade_spacings, png_path=args.png or None,
                     verify_only=args.verify, depth=args.depth, params_file=args.params, **backend_kwargs(args))

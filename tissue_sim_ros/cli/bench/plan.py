@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    cfg = config_from_args(args, defaults=plan.SCENE_DEFAULTS)
-    return plan.run(cfg, args.out, candidates=args.candidates, steps=args.steps, repeats=args.repeats,
+    config = config_from_args(args, defaults=plan.SCENE_DEFAULTS)
+    return plan.run(config, args.out, candidates=args.candidates, steps=args.steps, repeats=args.repeats,
                     workers=args.workers, seconds=args.seconds, library_part=not args.node_only,
                     node_part=not args.no_node, node_workers=args.node_workers)
