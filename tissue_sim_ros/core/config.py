@@ -27,6 +27,9 @@ value that differs from it was chosen by the user and wins. So ``method:
 xpbd_substep`` gives 30 substeps of 1 iteration; with ``substeps: 10``, 10 of 1.
 To ask for 30 iterations per substep, use ``method: xpbd`` with ``substeps`` and
 ``iterations``. The resolved configuration holds only ``pbd`` or ``xpbd``.
+Code that means a method exactly, whatever the files say (a benchmark's
+setting: ``xpbd_substep`` at 5 substeps), takes its options from
+:func:`method_options`, the same table, and passes them as overrides.
 """
 from __future__ import annotations
 
@@ -543,6 +546,43 @@ def resolve_method_alias(values: dict[str, Any], shipped: Mapping[str, Any]) -> 
     for key, value in alias.items():
         if key == "method" or values.get(key) == _reference_default(key, shipped):
             values[key] = value
+
+
+def method_options(method: str, count: int | None = None) -> dict[str, Any]:
+    """The orthogonal options a method name stands for, by the one alias rule's table (:data:`METHOD_ALIASES`).
+
+    For callers that mean a method exactly, whatever a parameter file or the shipped file holds (a
+    benchmark's setting): pass the result as explicit overrides to :func:`resolve_config` or
+    :meth:`Config.replace`. ``method`` is always resolved to ``pbd`` or ``xpbd``, so the alias rule (which sets
+    only what still holds its shipped value) has nothing left to decide.
+
+    Parameters
+    ----------
+    method : str
+        ``pbd``, ``pbd_jacobi``, ``xpbd``, ``xpbd_jacobi`` or ``xpbd_substep``.
+    count : int, optional
+        How often the method's unit repeats in a step: iterations of one substep, or for an alias made of
+        substeps (``xpbd_substep``: substeps of 1 iteration) the substeps. None: the alias's own values
+        (``xpbd_substep``: 30 substeps of 1 iteration; the others set no count).
+
+    Examples
+    --------
+    >>> method_options("xpbd_substep", 5)
+    {'method': 'xpbd', 'scheme': 'gauss_seidel', 'substeps': 5, 'iterations': 1}
+    >>> method_options("pbd_jacobi", 10)
+    {'method': 'pbd', 'scheme': 'jacobi', 'iterations': 10, 'substeps': 1}
+    """
+    if method not in METHOD_ALIASES:
+        raise InputError(f"method {method!r}: expected one of {', '.join(METHOD_ALIASES)}")
+    values = dict(METHOD_ALIASES[method])
+    if count is not None:
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
+            raise InputError(f"method {method} count={count!r}: expected an integer >= 1")
+        if "substeps" in values:
+            values["substeps"] = int(count)
+        else:
+            values.update(iterations=int(count), substeps=1)
+    return values
 
 
 def resolve_material_defaults(values: dict[str, Any], shipped: Mapping[str, Any], chosen: Iterable[str]) -> None:
