@@ -656,14 +656,31 @@ class Config:
         a, b = self.flat(), other.flat()
         return [n for n in a if not _same(a[n], b[n])]
 
-    def to_yaml(self, node_name: str = NODE_NAME) -> str:
-        """The configuration as a ROS 2 parameter file that the node and every command load identically."""
+    def to_yaml(self, node_name: str = NODE_NAME, names: Iterable[str] | None = None) -> str:
+        """The configuration as a ROS 2 parameter file that the node and every command load identically.
+
+        Parameters
+        ----------
+        node_name : str
+            The file's section: the node's name, or ``"/**"`` for every node.
+        names : iterable of str, optional
+            Write only these parameters (their resolved values): a partial file, as a scene's own file is,
+            over which the shipped ``config/tissue_sim.yaml`` fills the rest when it is loaded (and a
+            material's solver settings apply to what it leaves out). Default: every parameter.
+        """
         flat = self.flat()
-        lines = [f"# resolved by tissue-sim config: every parameter of {node_name} (msg_docs/parameters.md)",
+        only = None if names is None else set(names)
+        if only is not None and only - set(flat):
+            raise InputError(f"to_yaml: unknown parameter(s) {', '.join(sorted(only - set(flat)))}")
+        what = "every parameter" if only is None else f"{len(only)} parameters (the others: the shipped file)"
+        lines = [f"# resolved by tissue-sim config: {what} of {node_name} (msg_docs/parameters.md)",
                  f"{node_name}:", "  ros__parameters:"]
         for group in GROUPS:
+            specs = [p for p in PARAMETERS if p.group == group and (only is None or p.name in only)]
+            if not specs:
+                continue
             lines.append(f"    # {group}")
-            for spec in (p for p in PARAMETERS if p.group == group):
+            for spec in specs:
                 value = _yaml_scalar(flat[spec.name])
                 unit = f"  # [{spec.unit}]" if spec.unit and spec.unit not in ("path",) else ""
                 lines.append(f"    {spec.name}: {value}{unit}")
