@@ -158,10 +158,9 @@ class SceneResult:
         }
 
 
-def _write_params(path: Path, values: dict[str, Any]) -> None:
-    import yaml  # noqa: PLC0415
-
-    path.write_text(yaml.safe_dump({"/**": {"ros__parameters": values}}, sort_keys=False))
+def _write_params(path: Path, cfg: Any) -> None:
+    """Every parameter of ``cfg`` (a resolved Config) as the node's ``--params-file``, in its ``/**`` section."""
+    path.write_text(cfg.to_yaml(node_name="/**"))
 
 
 def _isolated_env(domain_id: int) -> dict[str, str]:
@@ -307,14 +306,15 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
     from ..ros import messages, qos  # noqa: PLC0415
 
     extra = {"marker_rate": marker_rate} if marker_rate is not None else {}
-    params = resolve_config({**overrides, "points_rate": 1000.0,
-                             "markers_wireframe": True, "diagnostics_rate": 1.0, "max_tool_jump": 1.0,
-                             "lock_step": mode == "lock_step", "phase_lock": phase_locks[0], **extra},
-                            source="bench node").flat()
+    cfg = resolve_config({**overrides, "points_rate": 1000.0,
+                          "markers_wireframe": True, "diagnostics_rate": 1.0, "max_tool_jump": 1.0,
+                          "lock_step": mode == "lock_step", "phase_lock": phase_locks[0], **extra},
+                         source="bench node")
+    params = cfg.flat()
     dt = float(params["dt"])
     tag = f"{name}_{mode}"
     params_file = out / f"node_{tag}.yaml"
-    _write_params(params_file, params)
+    _write_params(params_file, cfg)
     log_path = out / f"node_{tag}.log"
     period_ns = int(round(dt * 1e9))
     step_stamps: deque[int] = deque(maxlen=200)  # the newest steps' stamps: the node's tick phase
