@@ -695,12 +695,17 @@ def test_bench_node_command_writes_its_table(ros_env: dict[str, str], tmp_path: 
     if not may and sys.platform.startswith("linux"):
         assert "step_rt_priority=3 not applied" in (out / "node_paper_lock_step.log").read_text()
     assert (out / "node.png").stat().st_size > 0 and (out / "node_latency_paper_lock_step.csv").exists()
+    # bad input creates nothing: run where the default --out (bench_out/node) would land ('make test' left
+    # an empty bench_out/node/ in the checkout when the --set check came after the directory was made)
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
     bad = subprocess.run([console_script("tissue-sim"), "bench", "node", "--seconds", "0"], env=ros_env,
-                         capture_output=True, text=True, timeout=60)
+                         capture_output=True, text=True, timeout=60, cwd=cwd)
     assert bad.returncode == 2 and "--seconds" in bad.stderr and "Traceback" not in bad.stderr
     bad = subprocess.run([console_script("tissue-sim"), "bench", "node", "--set", "step_rt_priority=100"],
-                         env=ros_env, capture_output=True, text=True, timeout=60)
+                         env=ros_env, capture_output=True, text=True, timeout=60, cwd=cwd)
     assert bad.returncode == 2 and "step_rt_priority=100" in bad.stderr and "Traceback" not in bad.stderr
+    assert not any(cwd.iterdir()), sorted(cwd.rglob("*"))
 
 
 @pytest.mark.parametrize("args, expected", [

@@ -662,8 +662,6 @@ def run(out: str | Path, *, seconds: float = 10.0, warmup: float = 2.0, scenes: 
     domain_id = domain_id if domain_id is not None else free_domain_id()
     if not 0 <= domain_id <= 101:
         raise InputError(f"--domain-id={domain_id}: expected 0..101")
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     from ..core.config import resolve_config  # noqa: PLC0415
 
     dt = resolve_config().sim.dt
@@ -675,6 +673,8 @@ def run(out: str | Path, *, seconds: float = 10.0, warmup: float = 2.0, scenes: 
         raise InputError(f"--settle={settle}: expected a time >= 0 s")
     node_params = dict(node_params or {})
     resolve_config(node_params, source="--set")  # a bad name or value: one line, exit 2, before any node starts
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)  # once every input is checked: bad input creates nothing
     if soak is not None:
         return _run_soak(out, domain_id, node_params, soak=soak, scenes=scenes, modes=modes, warmup=warmup,
                          marker_rate=marker_rate, phase_lock=phase_lock)
