@@ -43,7 +43,7 @@ from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
-from ..core.config import (
+from ...core.config import (
     FOREIGN_PREFIXES,
     METHOD_ALIASES,
     Config,
@@ -52,21 +52,21 @@ from ..core.config import (
     params_json,
     resolve_config,
 )
-from ..core.contact.tool import ToolPose, ToolTwist, twist_from_poses, yaw_from_quaternion
-from ..core.errors import InputError
-from ..core.sim.simulation import Simulation, StepReport
-from ..core.timing.frames import FrameLookupError
-from ..core.timing.phase_lock import PhaseLock
-from ..core.timing.stamps import Stamp, stamp_from_ns, stamp_to_seconds
-from . import messages, qos, tool_applied
+from ...core.contact.tool import ToolPose, ToolTwist, twist_from_poses, yaw_from_quaternion
+from ...core.errors import InputError
+from ...core.sim.simulation import Simulation, StepReport
+from ...core.timing.frames import FrameLookupError
+from ...core.timing.phase_lock import PhaseLock
+from ...core.timing.stamps import Stamp, stamp_from_ns, stamp_to_seconds
+from .. import messages, qos, tool_applied
+from ..marker_publisher import MarkerPublisher, MarkerSnapshot
+from ..parameters import BY_NAME, PARAMETERS, SIM_NAMES, descriptor, parameter_value
+from ..planner_service import PlannerService
+from ..raw_publish import GilFreePublisher
+from ..realtime import set_step_priority, thread_scheduling
+from ..tf_input import FrameInput
 from .clock_follow import ClockFollower
-from .marker_publisher import MarkerPublisher, MarkerSnapshot
-from .node_recording import NodeRecorder
-from .parameters import BY_NAME, PARAMETERS, SIM_NAMES, descriptor, parameter_value
-from .planner_service import PlannerService
-from .raw_publish import GilFreePublisher
-from .realtime import set_step_priority, thread_scheduling
-from .tf_input import FrameInput
+from .recording import NodeRecorder
 
 _TAKE_MAX = 10
 """Queued tool messages a tick takes at most per topic (the subscriptions keep 10 in timer mode)."""

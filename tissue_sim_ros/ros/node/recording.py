@@ -24,7 +24,7 @@ from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 
-from .bags import BagWriter
+from ..bags import BagWriter
 
 
 def _type_name(msg_class: Any) -> str:
