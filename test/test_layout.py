@@ -36,7 +36,7 @@ def test_imports_run_down_the_layers():
     """
     cli = re.compile(r"^\s*(from|import)\s+(\.\.|tissue_sim_ros\.)(cli\w*|experiments\.cli|experiments import cli)\b",
                      re.MULTILINE)
-    offenders = [str(p.relative_to(PACKAGE)) for layer in ("core", "ros", "bench") for p in (PACKAGE / layer).glob("*.py")
+    offenders = [str(p.relative_to(PACKAGE)) for layer in ("core", "ros", "bench") for p in (PACKAGE / layer).rglob("*.py")
                  if cli.search(p.read_text())]
     assert not offenders, f"library modules importing the command line: {offenders}"
 
@@ -53,5 +53,5 @@ def test_ros_layer_imports_no_experiments():
     # the tool driver and replay read trajectories from the core (core/timing/trajectories.py), never the experiments
     ros = CORE.parent / "ros"
     pattern = re.compile(r"^\s*(import|from)\s+(tissue_sim_ros\.experiments|\.\.experiments)\b", re.MULTILINE)
-    offenders = [p.name for p in ros.glob("*.py") if pattern.search(p.read_text())]
+    offenders = [p.name for p in ros.rglob("*.py") if pattern.search(p.read_text())]
     assert not offenders, f"ros modules importing the experiments: {offenders}"

@@ -642,7 +642,7 @@ def test_an_interrupt_while_the_node_starts_ends_it_cleanly(ros_env: dict[str, s
             "from tissue_sim_ros.ros import node\n"
             "def interrupted(self):\n"
             "    raise KeyboardInterrupt\n"
-            "node.TissueSimNode._publish_rest_mesh = interrupted\n"
+            "node.outputs.Outputs.publish_rest_mesh = interrupted\n"
             "code = node.main()\n"
             "import threading\n"
             "print('threads left:', sorted(t.name for t in threading.enumerate() if t is not threading.main_thread()))\n"

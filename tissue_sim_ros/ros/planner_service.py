@@ -120,7 +120,8 @@ class PlannerService:
                 raise
 
     def _param(self, name: str) -> Any:
-        return self.node.get_parameter(name).value
+        """A ``plan_*`` setting of the node, typed, as it is now (a request reads them when it comes)."""
+        return getattr(self.node.config.node, name)
 
     # ------------------------------------------------------------------ the request
 
