@@ -658,6 +658,31 @@ def test_an_interrupt_while_the_node_starts_ends_it_cleanly(ros_env: dict[str, s
     assert (bag / "metadata.yaml").exists()  # closed, not left to --recover
 
 
+@pytest.mark.parametrize("script", ["tissue_sim_node", "tool_driver"])
+def test_help_prints_a_usage_and_starts_no_node(ros_env: dict[str, str], script: str) -> None:
+    """``--help`` outside ``--ros-args`` prints a short usage (what it is, -p, --params-file, where msg_docs are)
+    and exits 0 at once, without initialising rclpy. (Before: it started a whole node on the current domain.)"""
+    import subprocess  # noqa: PLC0415
+
+    from ros_env import console_script  # noqa: PLC0415
+
+    run = subprocess.run([console_script(script), "--help"], env=ros_env, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stdout + run.stderr
+    out = run.stdout
+    assert out.startswith(f"usage: {script} ") and "--ros-args" in out, out
+    assert "-p NAME:=VALUE" in out and "--params-file FILE" in out and "msg_docs" in out, out
+    # rclpy is never initialised: the same main, with rclpy.init made to fail, and -h among ROS arguments
+    module = {"tissue_sim_node": "tissue_sim_ros.ros.node", "tool_driver": "tissue_sim_ros.ros.tool_driver"}[script]
+    code = ("import sys, rclpy\n"
+            "def init(*args, **kwargs):\n"
+            "    raise SystemExit('rclpy.init was called')\n"
+            "rclpy.init = init\n"
+            f"from {module} import main\n"
+            f"sys.exit(main([{script!r}, '--ros-args', '-p', 'lock_step:=true', '--', '-h']))\n")
+    run = subprocess.run([sys.executable, "-c", code], env=ros_env, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and run.stdout.startswith(f"usage: {script} "), run.stdout + run.stderr
+
+
 def test_tool_driver_bad_preset_exits_2(start_process: Any) -> None:
     proc = start_process(["tool_driver", "--ros-args", "-p", "preset:=bogus"], name="bad_driver")
     assert proc.wait(timeout=60) == 2

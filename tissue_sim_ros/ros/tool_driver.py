@@ -44,6 +44,7 @@ from ..core.sim.scene import tool_from_mapping
 from ..core.timing.stamps import ns_from_seconds, stamp_from_ns
 from ..core.timing.trajectories import preset, resolve_trajectory
 from . import messages, qos
+from .usage import msg_docs_dir, ros_arguments, wants_help
 
 #: The driver's own parameters, name -> (default, description); the simulation's it shares are :data:`SIM_PARAMETERS`.
 DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
@@ -233,8 +234,37 @@ class ToolDriver(Node):
         self.k += 1
 
 
+def usage() -> str:
+    """What ``tool_driver --help`` prints."""
+    names = [*DRIVER_PARAMETERS, *SIM_PARAMETERS]
+    lines, line = [], " "
+    for name in names:
+        if len(line) + len(name) + 2 > 100:
+            lines.append(line.rstrip())
+            line = " "
+        line += f" {name},"
+    lines.append(line.rstrip(","))
+    return (
+        "usage: tool_driver [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r __ns:=/NS]]\n\n"
+        "Plays a scripted tool trajectory on tool/pose and tool/twist for tissue_sim_node, so the simulation can\n"
+        "be seen working without a robot: by default the paper's experiment a (preset experiment_a), else a\n"
+        "preset, a trajectory file (-p trajectory:=FILE.csv) or a straight insertion (-p preset:=straight).\n"
+        "Exit 0 when the trajectory has played, 1 if no subscriber came, 2 on a bad parameter (named).\n\n"
+        "options:\n"
+        "  -h, --help            show this message and exit (no node is started)\n\n"
+        + ros_arguments("tool_driver", "-p preset:=straight -p angle:=-30.0")
+        + "\nparameters (all read-only):\n" + "\n".join(lines) + "\n\n"
+        f"Its topics and every parameter: {msg_docs_dir()}/tool_driver.md\n")
+
+
 def main(args: list[str] | None = None) -> int:
-    """Console script ``tool_driver``: 0 when the trajectory played, 1 if no subscriber came, 2 on a bad parameter."""
+    """Console script ``tool_driver``: 0 when the trajectory played, 1 if no subscriber came, 2 on a bad parameter.
+
+    ``-h``/``--help`` outside ``--ros-args`` prints :func:`usage` and returns 0 before rclpy is initialised.
+    """
+    if wants_help(args):
+        print(usage(), end="")
+        return 0
     try:
         rclpy.init(args=args)
     except Exception as exc:  # noqa: BLE001  rcl's argument/parameter-file errors

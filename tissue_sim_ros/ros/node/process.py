@@ -18,9 +18,28 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_i
 from ...core.config import load_params_file
 from ...core.errors import InputError
 from ..realtime import set_step_priority
+from ..usage import msg_docs_dir, ros_arguments, wants_help
 
 SWITCH_INTERVAL = 0.0005
 """Seconds a thread may hold the GIL before another waiting thread gets it (Python's default: 0.005)."""
+
+
+def usage() -> str:
+    """What ``tissue_sim_node --help`` prints."""
+    return (
+        "usage: tissue_sim_node [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r __ns:=/NS]]\n\n"
+        "A 2D soft tissue under a surgical tool, simulated as a ROS 2 node: it takes the tool's pose on tool/pose\n"
+        "(and its velocity on tool/twist), steps the simulation at 1/dt of its clock (or once per pose with\n"
+        "-p lock_step:=true) and publishes the deformed mesh (tissue/markers, tissue/points), the energy\n"
+        "(tissue/energy/...), the reaction on the tool (tool/wrench), the tool each step used (tool/applied_*)\n"
+        "and /diagnostics; services ~/reset, ~/pause, ~/plan_insertion. Ends on SIGINT/SIGTERM (exit 0);\n"
+        "a bad parameter exits 2 naming it.\n\n"
+        "options:\n"
+        "  -h, --help            show this message and exit (no node is started)\n\n"
+        + ros_arguments("tissue_sim_node", "-p lock_step:=true -p record_path:=run1")
+        + "  e.g. tissue_sim_node --ros-args --params-file config/tissue_sim.yaml -p marker_rate:=10.0\n\n"
+        f"Every topic, parameter (with its default and unit) and service: {msg_docs_dir()}\n"
+        "(README.md, topics.md, parameters.md, services.md); `tissue-sim config` prints the resolved parameters.\n")
 
 
 def params_files(argv: list[str]) -> list[str]:
@@ -150,7 +169,13 @@ class MemoryTrace:
 
 
 def main(args: list[str] | None = None) -> int:
-    """Console script ``tissue_sim_node``: exit 0 on SIGINT/SIGTERM, 2 on a bad parameter (named)."""
+    """Console script ``tissue_sim_node``: exit 0 on SIGINT/SIGTERM, 2 on a bad parameter (named).
+
+    ``-h``/``--help`` outside ``--ros-args`` prints :func:`usage` and returns 0 before rclpy is initialised.
+    """
+    if wants_help(args):
+        print(usage(), end="")
+        return 0
     from . import TissueSimNode  # noqa: PLC0415  (the package imports this module)
 
     try:
