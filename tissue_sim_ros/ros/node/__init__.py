@@ -25,7 +25,8 @@ which takes the node as an argument:
 * :mod:`.settings`: the parameters, declared resolved and changed at run time;
 * :mod:`.recording` (``record_path``), :mod:`.clock_follow` (``follow_clock``), :mod:`.stats` (counters,
   throttled warnings);
-* :mod:`.process`: the console script :func:`main` and the process-wide settings (heap, memory trace).
+* :mod:`.process`: the console script :func:`main` and the process-wide settings (heap, memory trace);
+  :mod:`.shutdown`: a signal ends the node between two steps' outputs, never inside one.
 """
 from __future__ import annotations
 
@@ -53,6 +54,7 @@ from .outputs import Outputs
 from .process import HeapTrimmer, MemoryTrace, main
 from .recording import NodeRecorder, start_recording
 from .settings import ParameterChanges, declare_parameters
+from .shutdown import OutputGate
 from .stats import NodeStats, Warnings
 from .stepping import Stepper, warm_up
 
@@ -94,6 +96,7 @@ class TissueSimNode(Node):
         self.last_report: StepReport | None = None
 
         # the parts, by job
+        self.output_gate = OutputGate()
         self.stats = NodeStats()
         self.warnings = Warnings(self)
         self.inputs = ToolInputs(self)

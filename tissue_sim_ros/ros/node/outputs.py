@@ -80,7 +80,7 @@ class Outputs:
         node = self.node
         self._publish_state(stamp, report)
         # what this step used, for an exact offline replay (tool_applied.py); last, so that a step whose
-        # applied tool is out (and recorded) has all its outputs out too, even when a signal ends the node
+        # applied tool is out (and recorded) has all its outputs out too (a signal waits for the whole step anyway)
         frame = node.frame_id
         if pose is not None:
             node.pub_applied_pose.publish(tool_applied.encode_applied_pose(stamp, frame, pose.x, pose.y, quaternion))

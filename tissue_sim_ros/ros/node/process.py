@@ -1,12 +1,14 @@
 """The node's process: the console script ``tissue_sim_node`` (:func:`main`) and what it sets for the whole
-process: the collector frozen after start-up, a short GIL switch interval, glibc's heap kept small
-(:class:`HeapTrimmer`) and, for debugging a memory creep, :class:`MemoryTrace`."""
+process: its own SIGINT/SIGTERM handling (:mod:`.shutdown`), the collector frozen after start-up, a short GIL
+switch interval, glibc's heap kept small (:class:`HeapTrimmer`) and, for debugging a memory creep,
+:class:`MemoryTrace`."""
 from __future__ import annotations
 
 import gc
 import math
 import os
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -14,11 +16,13 @@ from typing import Any
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy_impl
+from rclpy.signals import SignalHandlerOptions
 
 from ...core.config import load_params_file
 from ...core.errors import InputError
 from ..realtime import set_step_priority
 from ..usage import msg_docs_dir, ros_arguments, wants_help
+from .shutdown import SignalShutdown
 
 SWITCH_INTERVAL = 0.0005
 """Seconds a thread may hold the GIL before another waiting thread gets it (Python's default: 0.005)."""
@@ -186,15 +190,21 @@ def main(args: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"tissue_sim_node: error: {exc}", file=sys.stderr)
         return 2
+    # signals are handled here, not by rclpy, so that one never ends the node inside a step's outputs (shutdown.py);
+    # Python lets only the main thread install handlers
+    own_signals = threading.current_thread() is threading.main_thread()
     try:
-        rclpy.init(args=args)
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO if own_signals else None)
     except Exception as exc:  # noqa: BLE001  rcl's parse errors (a missing or malformed --params-file)
         print(f"tissue_sim_node: error: {exc}", file=sys.stderr)
         return 2
+    signals = SignalShutdown(rclpy.get_default_context()) if own_signals else None
     node = None
     code = 0
     try:
         node = TissueSimNode()
+        if signals is not None:
+            signals.gate = node.output_gate
         # everything built so far lives as long as the node: keep the collector from rescanning it each step
         gc.collect()
         gc.freeze()
@@ -213,7 +223,8 @@ def main(args: list[str] | None = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except _rclpy_impl.RCLError:
-        # SIGTERM/SIGINT shut the context down while a callback was publishing: a clean shutdown
+        # SIGTERM/SIGINT shut the context down while a callback was publishing (diagnostics, the rest mesh; never
+        # a step's outputs): a clean shutdown
         if rclpy.ok():
             raise
     finally:
@@ -223,4 +234,6 @@ def main(args: list[str] | None = None) -> int:
             rclpy.try_shutdown()
         except _rclpy_impl.RCLError:
             pass  # the signal handler shut the context down meanwhile ("rcl_shutdown already called")
+        if signals is not None:
+            signals.uninstall()
     return code

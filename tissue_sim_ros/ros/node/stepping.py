@@ -141,7 +141,10 @@ class Stepper:
             s.divergences += 1
             node.warnings.warn("diverged", f"step {report.step}: the solver diverged; restored the last good state "
                                            f"({s.divergences} divergences so far)")
-        node.outputs.publish_step(stamp, report, pose, quaternion, twist)
+        # whole or not at all: a signal ending the node waits for the step's last message (shutdown.py)
+        with node.output_gate as open_:
+            if open_:
+                node.outputs.publish_step(stamp, report, pose, quaternion, twist)
         elapsed = time.perf_counter() - t0
         s.window_steps += 1
         s.window_step_time_sum += elapsed
