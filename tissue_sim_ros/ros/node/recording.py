@@ -92,12 +92,14 @@ def start_recording(node: Any, path: str, storage: str) -> NodeRecorder:
     """Wrap every publisher of ``node`` so what it publishes is also written to the bag; record the tool inputs.
 
     The bag holds the node's resolved parameters (``tissue_sim.params``), what ``tissue-sim replay --mode
-    applied`` needs to rebuild this very Simulation from the bag alone.
+    applied`` needs to rebuild this very Simulation from the bag alone, written when the recording starts.
     """
     if os.path.exists(path):
         raise InputError(f"parameter record_path={path!r}: that path exists; expected a new bag directory")
     recorder = NodeRecorder(node, path, storage)
-    recorder.writer.set_custom_data("tissue_sim.params", params_json(node.config))
+    # durable: in the storage file from the start, so a node killed hard (SIGKILL, a crash) leaves them too and
+    # `tissue-sim record --recover` carries them into the bag it writes
+    recorder.writer.set_custom_data("tissue_sim.params", params_json(node.config), durable=True)
     for name in RECORDED_PUBLISHERS:
         setattr(node, name, recorder.wrap(getattr(node, name)))
     node.pub_energy_terms = {k: recorder.wrap(p) for k, p in node.pub_energy_terms.items()}
