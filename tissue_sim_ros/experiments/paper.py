@@ -124,7 +124,7 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None =
     another trajectory (default: all of it). ``{prefix}_trajectory.csv`` records the poses run.
     ``settle``: steps under gravity alone (no tool) before the run, not recorded: the run starts from the
     settled state (velocities kept) at step 0, as the authors' recording started after their tissue had
-    hung for a while (29 steps: README "Reproducing the authors' run").
+    hung for a while (29 steps: docs/paper.md, "Reproducing the authors' run").
     """
     snapshot_steps = scene.a_snapshots if snapshot_steps is None else snapshot_steps
     from ..render import plot_energy, save_snapshots  # noqa: PLC0415  (matplotlib only when drawing)
