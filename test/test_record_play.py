@@ -399,3 +399,58 @@ def test_tool_only_on_tf_played_into_the_node_equals_the_offline_replay(tmp_path
     live = np.array([m.decode_float64(raw) for raw in energy.messages])
     assert live.shape == (40,), f"{len(live)} energy messages for 40 tool transforms"
     np.testing.assert_array_equal(live, offline.rollout.scene_total)
+
+
+@pytest.mark.parametrize("recorded_qos", [True, False], ids=["latched-in-metadata", "no-qos-recorded"])
+def test_play_delivers_a_bags_tf_static_to_the_node(tmp_path, ros_client, start_process, recorded_qos):
+    """A robot bag whose tool frame reaches the node only through /tf_static (world -> robot_base, poses in
+    robot_base): played into a fresh lock-step node, every pose becomes a step, none dropped as dropped_frame.
+
+    The node subscribes to /tf_static TRANSIENT_LOCAL; a VOLATILE publisher never matches it (DDS: "offering
+    incompatible QoS ... DURABILITY"), so play must publish it latched, as its publishers offered it.
+    """
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+    from std_msgs.msg import Float64
+
+    from tissue_sim_ros.ros import play as player
+    from tissue_sim_ros.ros import tf_input
+
+    from bag_fixtures import T, header, irregular_times, pose, trajectory, transform_stamped
+
+    if not tf_input.TF_AVAILABLE:
+        pytest.skip("tf2_msgs is not importable here (scripts/build_tf2_msgs.sh generates it)")
+    n = 30
+    times = irregular_times(n, 40.0)
+    poses = trajectory(times)
+    base = (0.05, -0.02, 0.0)  # world -> robot_base: a pure translation in the plane
+    static = T["tf2_msgs/msg/TFMessage"](transforms=[transform_stamped(int(times[0]) - 1_000_000, "world",
+                                                                       "robot_base", *base)])
+    msgs = [("/tf_static", "tf2_msgs/msg/TFMessage", int(times[0]) - 1_000_000, static)]
+    for t, (x, y, yaw) in zip(times, poses):
+        msgs.append(("/tool/pose", "geometry_msgs/msg/PoseStamped", int(t),
+                     T["geometry_msgs/msg/PoseStamped"](header=header(int(t), "robot_base"),
+                                                        pose=pose(float(x - base[0]), float(y - base[1]), float(yaw)))))
+    zero = QosTime(0, 0)
+    latched = Qos(history=QosHistory.KEEP_LAST, depth=1, reliability=QosReliability.RELIABLE,
+                  durability=QosDurability.TRANSIENT_LOCAL, deadline=zero, lifespan=zero,
+                  liveliness=QosLiveliness.AUTOMATIC, liveliness_lease_duration=zero,
+                  avoid_ros_namespace_conventions=False)
+    src = write_bag(tmp_path / "robot_bag", msgs, qos={"/tf_static": latched} if recorded_qos else None)
+    with Bag(src) as bag:
+        assert bag.offered_qos("/tf_static") == ((True, True, 1) if recorded_qos else None)
+        assert player.play_qos(bag, "/tf_static", 1) == (True, True, 1)
+        assert player.play_qos(bag, "/tool/pose", n) == (True, False, 1000)
+
+    params = write_params(tmp_path, frame_id="world", lock_step=True)
+    energy = ros_client.raw_subscription(Float64, "/tissue/energy", QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+    node = start_process(["tissue_sim_node", "--ros-args", "--params-file", str(params)], name="node")
+    ros_client.wait_for_publisher("/tissue/energy", timeout=120, process=node)
+    ros_client.spin_until(lambda: energy.sub.get_publisher_count() > 0, 30, node, "matching /tissue/energy")
+    play = start_process(["tissue-sim", "play", str(src), "--no-clock", "--wait", "30"], name="play")
+    assert play.wait(timeout=60) == 0, _text(play)
+    ros_client.spin_until(lambda: len(energy.messages) >= n, 60, node,
+                          f"{n} energy messages (every pose in robot_base taken through /tf_static)")
+    ros_client.spin_for(0.3)
+    assert len(energy.messages) == n
