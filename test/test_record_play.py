@@ -244,6 +244,15 @@ def test_record_duration_with_nothing_to_record_ends_after_wait(tmp_path, start_
     assert (out / "metadata.yaml").exists()  # a closed, empty bag
 
 
+def test_a_recorder_with_nothing_yet_says_what_it_waits_for(tmp_path, start_process):
+    """Seconds of "0 messages" while a node starts read as a hang: the recorder says what it is waiting for."""
+    out = tmp_path / "waiting"
+    rec = start_process(["tissue-sim", "record", "-o", str(out), "--topics", "/nobody/publishes/this", "--duration",
+                         "1", "--wait", "4"], name="record_waiting")
+    assert rec.wait(timeout=60) == 0, _text(rec)
+    assert "waiting for publishers: none yet on /nobody/publishes/this in ROS domain" in _text(rec), _text(rec)
+
+
 def test_offline_replay_equals_node_in_lock_step(tmp_path, ros_client, start_process):
     """The node stepping once per played pose publishes what the offline replay writes, to the bit.
 

@@ -210,6 +210,21 @@ class Recorder:
             new.append(topic)
         return new
 
+    def waiting_for(self) -> str:
+        """One line on what a recording that has received nothing yet is waiting for."""
+        import os  # noqa: PLC0415
+
+        domain = os.environ.get("ROS_DOMAIN_ID", "0")
+        live = sorted(t for t in self.subscriptions if self.node.count_publishers(t) > 0)
+        if live:
+            return (f"waiting for a first message: subscribed to {len(self.subscriptions)} topics, "
+                    f"{len(live)} with a publisher ({', '.join(live[:4])}{', ...' if len(live) > 4 else ''})")
+        wanted = ("every topic" if self.wanted is None
+                  else ", ".join(sorted(self.wanted)[:3]) + (", ..." if len(self.wanted) > 3 else "")
+                  + "".join(f", {p}*" for p in self.prefixes))
+        return (f"waiting for publishers: none yet on {wanted} in ROS domain {domain} (a node that is still "
+                "starting appears here; check its namespace and ROS_DOMAIN_ID)")
+
     @property
     def done(self) -> bool:
         """``duration`` seconds have passed since the first message."""
@@ -297,6 +312,7 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
         start = time.monotonic()
         next_discovery = 0.0
         next_status = start + 1.0
+        next_waiting = start + 2.0
         announced = duration is None
         while not stop.is_set():
             now = time.monotonic()
@@ -317,7 +333,12 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
             executor.spin_once(timeout_sec=0.05)
             if not quiet and now >= next_status:
                 next_status = now + 1.0
-                print(f"  {now - start:6.1f} s  {sum(writer.counts.values())} messages", flush=True)
+                total = sum(writer.counts.values())
+                print(f"  {now - start:6.1f} s  {total} messages", flush=True)
+                if total == 0 and now >= next_waiting:
+                    # a status of 0 messages for many seconds reads as a hang: say what it waits for
+                    next_waiting = now + 5.0
+                    print("  " + recorder.waiting_for(), flush=True)
     finally:
         writer.close()
         if node is not None:
