@@ -453,7 +453,12 @@ def strict_json(value: Any) -> Any:
 def params_json(cfg: "Config") -> str:
     """Every resolved parameter as strict JSON (what a bag's ``tissue_sim.params`` holds): a non-finite number
     (an unset bound such as ``pin_y_top``) is written as null, which every JSON parser reads."""
-    return json.dumps(strict_json(cfg.flat()), default=str, allow_nan=False)
+    return params_json_flat(cfg.flat())
+
+
+def params_json_flat(flat: Mapping[str, Any]) -> str:
+    """:func:`params_json` of flat resolved parameters (``Config.flat()``)."""
+    return json.dumps(strict_json(dict(flat)), default=str, allow_nan=False)
 
 
 def params_from_json(text: str) -> dict[str, Any]:

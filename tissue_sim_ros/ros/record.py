@@ -17,6 +17,11 @@ received (the time to discover publishers is not counted; it waits up to
 second, so even a killed recorder leaves what it wrote; ``recover=BROKEN``
 turns that into a closed bag (sqlite3 also reads as it is).
 
+The simulator node behind the recording (the one publishing ``tissue/energy``)
+is asked for its parameters through its parameter services; they go into the
+bag as ``tissue_sim.params`` (as the node's own ``record_path`` recordings hold
+them), so ``tissue-sim replay`` steps the run with the node's physics.
+
 Each subscription's QoS follows its publishers (as ``ros2 bag record`` does):
 reliable when every publisher is reliable, else best effort; transient local
 when every publisher is (a latched rest mesh is then recorded too).
@@ -241,6 +246,84 @@ class Recorder:
         self.writer.write(topic, data, self.node.get_clock().now().nanoseconds)
 
 
+#: A recording's simulator: the node that publishes this topic (relative to the namespace) is asked for its
+#: parameters, which go into the bag (custom data ``tissue_sim.params``) as the node's own recordings hold them.
+SIMULATOR_TOPIC = "tissue/energy"
+
+
+class ParameterFetch:
+    """Asks the simulator node behind a recording for its parameters, without blocking the recording.
+
+    Once :meth:`poll` sees exactly one node publishing the simulator's topic, it calls that node's
+    ``list_parameters`` and ``get_parameters`` services; when both answered, :attr:`params` holds the
+    values of every simulator parameter (``core/config.py``'s table), resolved through the front door,
+    so ``tissue-sim replay`` steps the recorded run with the node's own physics, not the shipped defaults.
+    """
+
+    def __init__(self, node: Any, topics: list[str]) -> None:
+        self.node = node
+        self.topics = topics
+        self.target: str | None = None
+        """The node asked (``/namespace/name``), once chosen."""
+        self.params: dict[str, Any] | None = None
+        self.problem: str | None = None
+        self._list = self._get = None
+        self._future = None
+        self._names: list[str] = []
+
+    def poll(self) -> str | None:
+        """Advance; returns a line to print when something happened (the node found, parameters in, a problem)."""
+        if self.params is not None or self.problem is not None:
+            return None
+        if self.target is None:
+            infos = [i for t in self.topics for i in self.node.get_publishers_info_by_topic(t)]
+            if not infos or any(i.node_name.startswith("_NODE_NAME_UNKNOWN") for i in infos):
+                return None  # the graph names a publisher's node a moment after the publisher itself
+            nodes = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos})
+            if len(nodes) > 1:
+                self.problem = (f"several nodes publish {', '.join(self.topics)} ({', '.join(nodes)}): their parameters "
+                                "are not recorded; replay this bag with --params")
+                return self.problem
+            from rcl_interfaces.srv import GetParameters, ListParameters  # noqa: PLC0415
+
+            self.target = nodes[0]
+            self._list = self.node.create_client(ListParameters, f"{self.target}/list_parameters")
+            self._get = self.node.create_client(GetParameters, f"{self.target}/get_parameters")
+            return None
+        if self._future is None:
+            if not self._list.service_is_ready():
+                return None
+            from rcl_interfaces.srv import ListParameters  # noqa: PLC0415
+
+            self._future = ("list", self._list.call_async(ListParameters.Request()))
+            return None
+        kind, future = self._future
+        if not future.done():
+            return None
+        if future.exception() is not None:
+            self.problem = f"{self.target} did not give its parameters ({future.exception()}): replay with --params"
+            return self.problem
+        if kind == "list":
+            from rcl_interfaces.srv import GetParameters  # noqa: PLC0415
+
+            from ..core.config import BY_NAME  # noqa: PLC0415
+
+            self._names = [n for n in future.result().result.names if n in BY_NAME]
+            self._future = ("get", self._get.call_async(GetParameters.Request(names=self._names)))
+            return None
+        from rclpy.parameter import parameter_value_to_python  # noqa: PLC0415
+
+        values = {n: parameter_value_to_python(v) for n, v in zip(self._names, future.result().values)}
+        try:
+            from ..core.config import resolve_config  # noqa: PLC0415
+
+            self.params = resolve_config(overrides=values, source=f"the parameters of {self.target}").flat()
+        except InputError as exc:
+            self.problem = f"the parameters of {self.target} do not resolve ({exc}): replay with --params"
+            return self.problem
+        return f"  parameters of {self.target} recorded ({len(self.params)}): replay steps with them"
+
+
 def record(output: str | Path | None = None, storage: str = "mcap", *, duration: float | None = None,
            namespace: str = "", topics: list[str] | None = None, all_topics: bool = False, flush_period: float = 1.0,
            quiet: bool = False, use_sim_time: bool = False, recover: str | Path | None = None,
@@ -300,6 +383,8 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
             wanted = {resolve(t, namespace) for t in DEFAULT_TOPICS}
             prefixes = tuple(resolve(p, namespace) for p in _PREFIXES)
         recorder = Recorder(node, writer, wanted, prefixes, duration=duration)
+        simulator = resolve(SIMULATOR_TOPIC, namespace)
+        fetch = ParameterFetch(node, [simulator] if wanted is None or recorder._want(simulator) else [])
         for name, msgtype in KNOWN_INPUTS.items():
             topic = resolve(name, namespace)
             if wanted is not None and topic in wanted:
@@ -331,6 +416,13 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
                     print(f"  + {topic} ({writer.topics[topic]})", flush=True)
                 next_discovery = now + 0.2
             executor.spin_once(timeout_sec=0.05)
+            said = fetch.poll()
+            if said:
+                print(said, flush=True)
+                if fetch.params is not None:
+                    from ..core.config import params_json_flat  # noqa: PLC0415
+
+                    writer.set_custom_data("tissue_sim.params", params_json_flat(fetch.params))
             if not quiet and now >= next_status:
                 next_status = now + 1.0
                 total = sum(writer.counts.values())
