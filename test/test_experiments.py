@@ -127,19 +127,22 @@ def test_experiment_cli_bad_input_creates_nothing(tmp_path, capsys):
 
 
 def test_readme_names_the_files_experiment_a_writes(tmp_path, capsys):
-    """README's file names are what `tissue-sim experiment a` writes (it named an experiment_a_trajectory.csv
-    that the default run does not write)."""
+    """The file names README and docs/paper.md (where the experiments and trajectory files are described) give are
+    what `tissue-sim experiment a` writes (the README named an experiment_a_trajectory.csv that the default run does
+    not write)."""
     import re
 
     from tissue_sim_ros.cli import main
 
     assert main(["experiment", "a", "--out", str(tmp_path), "--steps", "3", "--no-progress"]) == 0
     written = {p.name for p in tmp_path.iterdir()}
-    readme = (Path(__file__).parents[1] / "README.md").read_text()
-    named = set(re.findall(r"experiment_a_(?:paper|projection)_\w+\.(?:csv|png)", readme))
-    assert named and named <= written, named - written
+    root = Path(__file__).parents[1]
+    readme, paper = (root / "README.md").read_text(), (root / "docs" / "paper.md").read_text()
+    for doc in (readme, paper):
+        named = set(re.findall(r"experiment_a_(?:paper|projection)_\w+\.(?:csv|png)", doc))
+        assert named and named <= written, named - written
     for name in sorted(n for n in written if n.endswith("_trajectory.csv")):
-        assert f"`{name}`" in readme, name
+        assert f"`{name}`" in paper, name
 
 
 def _mcap_messages(bag_dir: Path) -> dict[str, list[bytes]]:

@@ -1,6 +1,6 @@
 """The stability boundary (bench/stability.py): the safe region stays safe, documented failures are caught.
 
-The region called safe in docs/benchmarks.md is pinned here on the sweep's
+The region called safe in docs/benchmarks/stability.md is pinned here on the sweep's
 strip (regular mesh, 30 steps of the tool pushing down); each documented
 failure is reproduced and must be reported by the failure checks.
 """
@@ -19,7 +19,7 @@ from tissue_sim_ros.cli import main
 SOLVER_FAILURES = {"nonfinite", "energy_growth", "inverted", "no_convergence"}
 
 
-# --- the safe region (docs/benchmarks.md) ------------------------------------------------------------
+# --- the safe region (docs/benchmarks/stability.md) --------------------------------------------------
 # Corners and middle of the swept box on the regular mesh: dt 1e-4..0.05 s, stiffness 1x..1000x,
 # tool speed 0.001..0.2 m per step.
 
