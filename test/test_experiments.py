@@ -239,3 +239,19 @@ def test_plan_refuses_a_target_outside_the_tissue(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--target 5 5" in err and "is outside the tissue: expected a target inside it" in err
     assert not out.exists()
+
+
+def test_a_trajectory_shorter_than_one_step_is_refused_everywhere(tmp_path, capsys):
+    """A one-row CSV ran experiment a for 0 steps, exit 0, empty figures (replay refused it): now every command
+    that runs a trajectory refuses it in one line, and writes nothing."""
+    from tissue_sim_ros.cli import main
+
+    one = tmp_path / "one.csv"
+    one.write_text("time,x,y,yaw\n0,0.1,0.5,0\n")
+    for argv in (["experiment", "a", "--trajectory", str(one), "--out", str(tmp_path / "a")],
+                 ["experiment", "b", "--trajectory", str(one), "--out", str(tmp_path / "b")],
+                 ["replay", "--trajectory", str(one), "--out", str(tmp_path / "r")]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert f"trajectory {str(one)!r} lasts 0.0 s: shorter than one step of dt=0.01 s" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["one.csv"]

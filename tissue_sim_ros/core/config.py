@@ -418,7 +418,10 @@ def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, 
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or type(exc).__name__
         raise InputError(f"parameter file {str(path)!r} is not valid YAML{where}: {problem}") from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError:
+        raise InputError(f"parameter file {str(path)!r} is not text (a binary file?): expected a parameter "
+                         "YAML such as config/tissue_sim.yaml") from None
+    except OSError as exc:
         raise InputError(f"parameter file {str(path)!r} cannot be read: {exc}") from None
     if data is None:
         return {}
