@@ -463,3 +463,24 @@ def test_play_delivers_a_bags_tf_static_to_the_node(tmp_path, ros_client, start_
                           f"{n} energy messages (every pose in robot_base taken through /tf_static)")
     ros_client.spin_for(0.3)
     assert len(energy.messages) == n
+
+
+def test_the_recorders_summary_says_what_a_recording_holds_fewer_of():
+    """The demo's bag held 263 marker arrays for 300 steps and nothing said so: markers are a display stream
+    (the node skipped them while its marker thread was busy), which the summary now says; a per-step topic
+    short of another means messages were lost, which it warns about."""
+    from tissue_sim_ros.ros.record import completeness
+
+    full = {"/tissue/energy": 300, "/tissue/energy/bodies": 300, "/tool/wrench": 300, "/tool/applied_twist": 300,
+            "/tissue/points": 300}
+    assert completeness({**full, "/tissue/markers": 300}) == []
+    lines = completeness({**full, "/tissue/markers": 263})
+    assert len(lines) == 1 and lines[0].startswith("note: /tissue/markers holds 263 arrays for 300 steps: the node "
+                                                   "publishes markers as a display stream")
+    lines = completeness({**full, "/tool/wrench": 290, "/tissue/markers": 300})
+    assert lines == ["WARNING: per-step topics differ (/tool/wrench 290, against 300): messages were lost on the way "
+                     "(a loaded machine, or the recorder started after the node)"]
+    ns = {f"/left{t}": n for t, n in {**full, "/tissue/markers": 10}.items()}
+    assert completeness(ns, "left")[0].startswith("note: /left/tissue/markers holds 10 arrays for 300 steps")
+    assert completeness(full, lost={"/tissue/points": 3}) == [
+        "WARNING: /tissue/points: DDS reported 3 messages lost in transport"]

@@ -138,6 +138,18 @@ class Recorder:
         self.skipped_types: dict[str, str] = {}
         self._provisional: dict[str, str] = {}
         """Topics subscribed before any publisher was seen, with the type assumed."""
+        self.lost: dict[str, int] = {}
+        """Messages DDS reported lost per topic (the subscription's message-lost event), when any."""
+
+    def _subscribe(self, cls: Any, topic: str, qos: Any) -> Any:
+        """A raw subscription whose messages go to the bag and whose DDS-reported losses are counted."""
+        from rclpy.event_handler import SubscriptionEventCallbacks  # noqa: PLC0415
+
+        def on_lost(info: Any, t: str = topic) -> None:
+            self.lost[t] = int(info.total_count)
+
+        return self.node.create_subscription(cls, topic, lambda data, t=topic: self._on_message(t, data), qos,
+                                             raw=True, event_callbacks=SubscriptionEventCallbacks(message_lost=on_lost))
 
     def _want(self, topic: str) -> bool:
         if self.wanted is None:
@@ -161,8 +173,7 @@ class Recorder:
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
         self.writer.add_topic(topic, msgtype)
-        self.subscriptions[topic] = self.node.create_subscription(
-            message_class(msgtype), topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True)
+        self.subscriptions[topic] = self._subscribe(message_class(msgtype), topic, qos)
         self._provisional[topic] = msgtype
 
     def _settle(self, topic: str, types: list[str]) -> None:
@@ -179,9 +190,7 @@ class Recorder:
         if any(i.qos_profile.reliability != ReliabilityPolicy.RELIABLE for i in infos):
             # a best-effort publisher does not match a reliable subscription: follow it
             self.node.destroy_subscription(self.subscriptions[topic])
-            self.subscriptions[topic] = self.node.create_subscription(
-                message_class(msgtype), topic, lambda data, t=topic: self._on_message(t, data), self._qos(topic),
-                raw=True)
+            self.subscriptions[topic] = self._subscribe(message_class(msgtype), topic, self._qos(topic))
 
     def discover(self) -> list[str]:
         """Subscribe to wanted topics that appeared in the graph since the last call; returns the new ones."""
@@ -210,8 +219,7 @@ class Recorder:
             qos = self._qos(topic)
             self.writer.add_topic(topic, msgtype, reliable=qos.reliability == ReliabilityPolicy.RELIABLE,
                                   transient_local=qos.durability == DurabilityPolicy.TRANSIENT_LOCAL)
-            self.subscriptions[topic] = self.node.create_subscription(
-                cls, topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True)
+            self.subscriptions[topic] = self._subscribe(cls, topic, qos)
             new.append(topic)
         return new
 
@@ -244,6 +252,39 @@ class Recorder:
         elif self.done:
             return  # arrived after the recording's duration
         self.writer.write(topic, data, self.node.get_clock().now().nanoseconds)
+
+
+#: The node's display stream and a topic it publishes every step (names relative to the namespace)
+DISPLAY_TOPIC, STEP_TOPIC = "tissue/markers", "tissue/energy"
+#: Topics the node publishes once per step: a recording with fewer of one than of another lost messages
+PER_STEP_TOPICS = ("tissue/energy", "tissue/energy/bodies", "tool/wrench", "tool/applied_twist")
+
+
+def completeness(counts: dict[str, int], namespace: str = "", lost: dict[str, int] | None = None) -> list[str]:
+    """Lines on what a recording of the node holds fewer of than it stepped, and why; empty when nothing is short.
+
+    The node's markers are a display stream (newest state only, at most ``marker_rate``: msg_docs/topics.md),
+    so fewer markers than steps is by design, but must not look like a complete record of the run; a
+    per-step topic with fewer messages than another lost some on the way.
+    """
+    lines = []
+    steps = counts.get(resolve(STEP_TOPIC, namespace))
+    markers = counts.get(resolve(DISPLAY_TOPIC, namespace))
+    if steps and markers is not None and markers < steps:
+        lines.append(f"note: {resolve(DISPLAY_TOPIC, namespace)} holds {markers} arrays for {steps} steps: the node "
+                     "publishes markers as a display stream (newest state only, at most marker_rate), skipping steps "
+                     "while its marker thread is busy; every step is in the per-step topics (energy, wrench, points "
+                     "at points_rate)")
+    per_step = {t: counts[resolve(t, namespace)] for t in PER_STEP_TOPICS if resolve(t, namespace) in counts}
+    if per_step and min(per_step.values()) < max(per_step.values()):
+        most = max(per_step.values())
+        short = ", ".join(f"{resolve(t, namespace)} {n}" for t, n in per_step.items() if n < most)
+        lines.append(f"WARNING: per-step topics differ ({short}, against {most}): messages were lost on the way "
+                     "(a loaded machine, or the recorder started after the node)")
+    for topic, n in sorted((lost or {}).items()):
+        if n:
+            lines.append(f"WARNING: {topic}: DDS reported {n} messages lost in transport")
+    return lines
 
 
 #: A recording's simulator: the node that publishes this topic (relative to the namespace) is asked for its
@@ -369,7 +410,7 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
     old_handlers = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     # args=[]: rcl must not parse this process's command line (tissue-sim's own options), only ROS's defaults
     rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
-    node = None
+    node = recorder = None
     try:
         from rclpy.parameter import Parameter  # noqa: PLC0415
 
@@ -442,4 +483,6 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
     counts = writer.counts
     print(f"closed {output}{why}: {sum(counts.values())} messages; "
           + (", ".join(f"{t} {n}" for t, n in sorted(counts.items())) or "no topics found"), flush=True)
+    for line in completeness(counts, namespace, recorder.lost if recorder is not None else None):
+        print(line, flush=True)
     return dict(counts)
