@@ -43,7 +43,7 @@ DEFAULT_TOPICS = (
     "tool/pose", "tool/twist",
     "tissue/markers", "tissue/points", "tissue/rest_mesh",
     "tissue/energy", "tissue/energy/inertial", "tissue/energy/spring", "tissue/energy/area", "tissue/energy/strain",
-    "tissue/energy/potential", "tissue/energy/bodies",
+    "tissue/energy/potential", "tissue/energy/bodies", "tissue/contact",
     "tool/wrench",
 )
 _PREFIXES = ("tissue/", "tool/")
@@ -257,7 +257,7 @@ class Recorder:
 #: The node's display stream and a topic it publishes every step (names relative to the namespace)
 DISPLAY_TOPIC, STEP_TOPIC = "tissue/markers", "tissue/energy"
 #: Topics the node publishes once per step: a recording with fewer of one than of another lost messages
-PER_STEP_TOPICS = ("tissue/energy", "tissue/energy/bodies", "tool/wrench", "tool/applied_twist")
+PER_STEP_TOPICS = ("tissue/energy", "tissue/energy/bodies", "tissue/contact", "tool/wrench", "tool/applied_twist")
 
 
 def completeness(counts: dict[str, int], namespace: str = "", lost: dict[str, int] | None = None) -> list[str]:
@@ -273,8 +273,8 @@ def completeness(counts: dict[str, int], namespace: str = "", lost: dict[str, in
     if steps and markers is not None and markers < steps:
         lines.append(f"note: {resolve(DISPLAY_TOPIC, namespace)} holds {markers} arrays for {steps} steps: the node "
                      "publishes markers as a display stream (newest state only, at most marker_rate), skipping steps "
-                     "while its marker thread is busy; every step is in the per-step topics (energy, wrench, points "
-                     "at points_rate)")
+                     "while its marker thread is busy; every step is in the per-step topics (energy, contact, wrench, "
+                     "points at points_rate)")
     per_step = {t: counts[resolve(t, namespace)] for t in PER_STEP_TOPICS if resolve(t, namespace) in counts}
     if per_step and min(per_step.values()) < max(per_step.values()):
         most = max(per_step.values())
