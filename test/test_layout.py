@@ -211,3 +211,29 @@ def test_long_modules_say_why_they_are_one_piece():
         if n > 720 and "one piece" not in doc:
             long.append(f"{path.relative_to(PACKAGE)} ({n} lines)")
     assert not long, f"long modules that do not say why they are one piece: {long}"
+
+
+def test_argparse_lives_in_the_cli_only():
+    """The library layers take a Config and plain arguments; parsing a command line is the CLI's job."""
+    offenders = []
+    for path in _sources():
+        if _module_name(path).startswith("tissue_sim_ros.cli"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            offenders += [f"{path.relative_to(PACKAGE)}:{node.lineno}" for n in names if n.split(".")[0] == "argparse"]
+    assert not offenders, f"argparse outside cli/: {offenders}"
+
+
+def test_every_command_is_a_cli_module():
+    from importlib import import_module
+
+    from tissue_sim_ros.cli import COMMANDS
+
+    modules = [m for entry in COMMANDS.values() for m, _ in (entry.values() if isinstance(entry, dict) else [entry])]
+    outside = [m for m in modules if not m.startswith("tissue_sim_ros.cli.")]
+    assert not outside, f"commands whose argument parsing lives outside cli/: {outside}"
+    for name in modules:
+        module = import_module(name)
+        assert all(hasattr(module, attr) for attr in ("HELP", "add_arguments", "run")), name

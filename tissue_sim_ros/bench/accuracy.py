@@ -26,26 +26,22 @@ error) and the cheapest setting for each error tolerance.
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..core.config import parse_assignments, resolve_config
+from ..core.config import resolve_config
 from ..core.contact.collision import ContactModel, Contacts
 from ..core.contact.tool import ToolPose, ToolShape, twist_from_poses
 from ..core.errors import InputError
 from ..core.mesh import TissueMesh, mesh_rectangle
 from ..core.physics.model import Model, SimParams, State
 from .reference import reference_step, relative_error
-
-HELP = "error against an exact Newton solve versus time per step, Pareto front"
-DESCRIPTION = __doc__
 
 #: Method names of the chart, in drawing order.
 METHOD_NAMES = ("pbd", "pbd_jacobi", "xpbd", "xpbd_jacobi", "xpbd_substep", "newton")
@@ -566,36 +562,43 @@ def make_plan(quick: bool) -> Plan:
 
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="bench_out/accuracy", help="output directory (CSV, PNG)")
-    parser.add_argument("--quick", action="store_true", help="a few settings on a coarse mesh (smoke test)")
-    parser.add_argument("--tolerance", type=float, action="append",
-                        help="error tolerance to pick the cheapest setting for (repeatable; default 0.3, 0.1, 0.01, 1e-3)")
-    parser.add_argument("--steps", type=int, default=None, help="trajectory length in steps (default 30; quick 4)")
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                        help="override a parameter of config/tissue_sim.yaml for every scene (repeatable), e.g. "
-                             "--set mass_per_area=0.0506 so that refined and graded meshes are the same tissue")
-    parser.add_argument("--parallel", action="store_true",
-                        help="Gauss-Seidel on all threads (Solver(parallel=True)); default: one thread, as the "
-                             "solver's own default, so times compare across methods and do not collapse when "
-                             "other work shares the cores")
+#: error tolerances to pick the cheapest setting for
+TOLERANCES = (0.3, 0.1, 0.01, 1e-3)
 
 
-def run(args: argparse.Namespace) -> int:
+def run(out: str | Path, *, quick: bool = False, tolerances: Sequence[float] | None = None,
+        steps: int | None = None, overrides: Mapping[str, Any] | None = None, parallel: bool = False) -> int:
+    """Measure every setting against the exact reference; print the Pareto front, write the CSVs and charts; 0.
+
+    Parameters
+    ----------
+    out : str or Path
+        Output directory (created).
+    quick : bool
+        A few settings on a coarse mesh (smoke test).
+    tolerances : sequence of float, optional
+        Error tolerances to pick the cheapest setting for (default :data:`TOLERANCES`).
+    steps : int, optional
+        Trajectory length in steps (default 30; ``quick`` 4).
+    overrides : mapping, optional
+        Parameters over config/tissue_sim.yaml for every scene (flat names, as ``--set``).
+    parallel : bool
+        Gauss-Seidel on all threads (``Solver(parallel=True)``); default one thread, the solver's own default.
+    """
     from tqdm import tqdm  # noqa: PLC0415
 
-    plan = make_plan(args.quick)
-    if args.steps is not None:
-        if args.steps < 1:
-            raise InputError(f"--steps={args.steps}: expected at least 1 step")
-        plan.n_steps = args.steps
-    tolerances = args.tolerance or [0.3, 0.1, 0.01, 1e-3]
+    plan = make_plan(quick)
+    if steps is not None:
+        if steps < 1:
+            raise InputError(f"--steps={steps}: expected at least 1 step")
+        plan.n_steps = steps
+    tolerances = list(tolerances or TOLERANCES)
     for tol in tolerances:
         if not (math.isfinite(tol) and tol > 0):
             raise InputError(f"--tolerance={tol}: expected an error > 0")
-    out = Path(args.out)
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    overrides = parse_assignments(args.set)
+    overrides = dict(overrides or {})
 
     # the scenes: every resolution at the first dt; the other dts at the base resolution; graded at base spacing
     base_speed = 0.002  # unused by experiment a's scenes (their speed is the experiment's)
@@ -648,7 +651,7 @@ def run(args: argparse.Namespace) -> int:
                 # step from its state takes Newton minutes: there only its accumulated error is measured
                 skip = fine_scene.get(id(scene), True) and setting.method.startswith("pbd")
                 row = measure_setting(scene, setting, ref_runs[id(scene)], 0 if skip else every, bar.update,
-                                      solver_options={"parallel": bool(args.parallel)})
+                                      solver_options={"parallel": bool(parallel)})
                 # the exact solve's time on the same scene: the accuracy end of the front
                 row["newton_ms"] = newton_ms[id(scene)]
                 rows.append(row)

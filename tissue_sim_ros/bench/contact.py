@@ -22,7 +22,6 @@ Run: ``tissue-sim bench contact [--out DIR] [--steps N] [--quick]``.
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import time
@@ -37,15 +36,6 @@ from ..core.errors import InputError
 from ..core.mesh import mesh_rectangle
 from ..core.physics.model import Model, SimParams
 from ..core.sim.simulation import Simulation
-
-HELP = "contact detection cost per step: culled vs full per-step python-fcl BVH rebuild"
-DESCRIPTION = __doc__
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="bench_out/contact", help="output directory (CSV, PNG)")
-    parser.add_argument("--steps", type=int, default=None, help="steps of each trajectory (default 300; quick 160)")
-    parser.add_argument("--quick", action="store_true", help="the paper scene only, 160 steps (smoke test)")
 
 
 def _scenes(kind: str, quick: bool = False) -> list[tuple[str, Simulation, StraightInsertion]]:
@@ -111,18 +101,34 @@ def measure(kind: str, steps: int, progress=None, quick: bool = False) -> list[d
     return rows
 
 
-def run(args: argparse.Namespace) -> int:
+def run(out: str | Path, *, steps: int | None = None, quick: bool = False) -> int:
+    """Time both BVH modes on both scenes and contact models; print, write contact.csv/png into ``out``.
+
+    Parameters
+    ----------
+    out : str or Path
+        Output directory (created).
+    steps : int, optional
+        Steps of each trajectory (default 300; ``quick`` 160).
+    quick : bool
+        The paper scene only (smoke test).
+
+    Returns
+    -------
+    int
+        0, or 1 when no step brought the tool within alpha of the tissue.
+    """
     from tqdm import tqdm  # noqa: PLC0415
 
-    steps = args.steps if args.steps is not None else (160 if args.quick else 300)
+    steps = steps if steps is not None else (160 if quick else 300)
     if steps < 1:
         raise InputError(f"--steps={steps}: expected at least 1 step")
-    out = Path(args.out)
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rows: list[dict[str, Any]] = []
-    with tqdm(total=(2 if args.quick else 4) * steps, desc="contact bench") as bar:
+    with tqdm(total=(2 if quick else 4) * steps, desc="contact bench") as bar:
         for kind in ("paper", "projection"):
-            rows += measure(kind, steps, bar, args.quick)
+            rows += measure(kind, steps, bar, quick)
     if not rows:
         print(f"no step brought the tool within alpha of the tissue in {steps} steps: nothing to report")
         return 1
@@ -156,9 +162,3 @@ def run(args: argparse.Namespace) -> int:
     fig.savefig(out / "contact.png", dpi=120)
     print(f"wrote {out / 'contact.csv'} and {out / 'contact.png'}")
     return 0
-
-
-if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(parser)
-    raise SystemExit(run(parser.parse_args()))

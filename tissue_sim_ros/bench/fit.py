@@ -17,32 +17,19 @@ in at most 60 s on 2 cores. Writes fit.csv and fit.png to --out.
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import os
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
 from ..core.errors import InputError
 
-HELP = "fit known parameters back from simulated recordings on another mesh: error, coverage, time"
-DESCRIPTION = __doc__
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="out/bench_fit", help="output directory (default: out/bench_fit)")
-    parser.add_argument("--points", default="10,20,30", help="tracked point counts, one recording each (default 10,20,30)")
-    parser.add_argument("--seeds", type=int, default=2, help="recordings per point count, each its own noise and points")
-    from ..core.sim.backends import add_backend_arguments  # noqa: PLC0415
-
-    add_backend_arguments(parser, jobs_default=min(2, os.cpu_count() or 1), jobs_help="worker processes per fit")
-    parser.add_argument("--record-spacing", type=float, default=None, help="mesh spacing of the recordings [m]")
-    parser.add_argument("--fit-spacing", type=float, default=None, help="mesh spacing of the fits [m]")
-    parser.add_argument("--quick", action="store_true", help="one short recording at coarse spacings (smoke test)")
+#: tracked point counts, one recording each
+POINTS = (10, 20, 30)
 
 
 def measure(n_points: int, seed: int, *, record_spacing: float, fit_spacing: float, jobs: int, work: Path,
@@ -81,26 +68,43 @@ def measure(n_points: int, seed: int, *, record_spacing: float, fit_spacing: flo
     }
 
 
-def run(args: argparse.Namespace) -> int:
+def run(out: str | Path, *, points: Sequence[int] = POINTS, seeds: int = 2, record_spacing: float | None = None,
+        fit_spacing: float | None = None, quick: bool = False, jobs: int | None = None, backend: str = "local",
+        address: str | None = None) -> int:
+    """Record, fit and compare with the truth for every point count and seed; print, write fit.csv/png; 0.
+
+    Parameters
+    ----------
+    out : str or Path
+        Output directory (created).
+    points : sequence of int
+        Tracked point counts, one recording each (``quick``: the first).
+    seeds : int
+        Recordings per point count, each its own noise and points (``quick``: 1).
+    record_spacing, fit_spacing : float, optional
+        Mesh spacings of the recordings and of the fits [m] (default: experiments/fit_scene.py's; ``quick``
+        6 and 8 mm).
+    quick : bool
+        One short recording at coarse spacings (smoke test).
+    jobs : int, optional
+        Worker processes per fit (default: 2 or the cores).
+    backend, address
+        ``"local"`` or ``"ray"`` and the Ray cluster.
+    """
+    from ..core.sim.backends import check_backend, check_jobs  # noqa: PLC0415
     from ..experiments import fit_scene as fs  # noqa: PLC0415
 
-    try:
-        counts = [int(v) for v in args.points.split(",") if v.strip()]
-    except ValueError:
-        raise InputError(f"--points {args.points!r}: expected comma-separated integers") from None
-    from ..core.sim.backends import check_backend_arguments  # noqa: PLC0415
-
-    jobs, backend, address = check_backend_arguments(args)
-    if not counts or min(counts) < 1 or args.seeds < 1:
+    counts = list(points)
+    jobs = check_jobs(min(2, os.cpu_count() or 1) if jobs is None else jobs)
+    backend = check_backend(backend)
+    if not counts or min(counts) < 1 or seeds < 1:
         raise InputError("--points and --seeds: expected at least 1")
-    rec_sp = args.record_spacing or (0.006 if args.quick else fs.RECORDING_SPACING)
-    fit_sp = args.fit_spacing or (0.008 if args.quick else fs.FIT_SPACING)
-    duration = 1.5 if args.quick else None
-    if args.quick:
+    rec_sp = record_spacing or (0.006 if quick else fs.RECORDING_SPACING)
+    fit_sp = fit_spacing or (0.008 if quick else fs.FIT_SPACING)
+    duration = 1.5 if quick else None
+    if quick:
         counts, seeds = counts[:1], 1
-    else:
-        seeds = args.seeds
-    out = Path(args.out)
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     with open("/proc/loadavg") if os.path.exists("/proc/loadavg") else open(os.devnull) as fh:
@@ -118,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
     with open("/proc/loadavg") if os.path.exists("/proc/loadavg") else open(os.devnull) as fh:
         load_after = fh.read().strip()
     print(f"recordings on a {rec_sp * 1e3:g} mm mesh, fits on {fit_sp * 1e3:g} mm; truth E {fs.TRUTH['young_modulus']:g} Pa, "
-          f"nu {fs.TRUTH['poisson_ratio']:g}; start 2000 Pa, 0.45; 0.5 mm noise; {args.jobs} worker(s)")
+          f"nu {fs.TRUTH['poisson_ratio']:g}; start 2000 Pa, 0.45; 0.5 mm noise; {jobs} worker(s)")
     head = (f"{'points':>6} {'seed':>4} {'steps':>5} {'E [Pa]':>8} {'+-1s':>6} {'E err':>7} {'cov':>4} {'nu':>7} "
             f"{'+-1s':>6} {'nu err':>7} {'cov':>4} {'RMS fit':>8} {'RMS hold':>8} {'evals':>5} {'fit s':>6}")
     print(head)

@@ -29,23 +29,19 @@ drawn. Writes ``material_accuracy.csv`` and ``material_accuracy.png``.
 """
 from __future__ import annotations
 
-import argparse
 import math
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..core.config import Config, parse_assignments, resolve_config
+from ..core.config import Config, resolve_config
 from ..core.errors import InputError
 from ..core.mesh import mesh_rectangle
 from ..core.physics.model import State
 from ..core.sim.simulation import Simulation
 from .material_reference import MembraneEnergy
 from .reference import minimize_step
-
-HELP = "the material's solve vs its exact (Newton) minimiser: step and response errors (median, max) vs time"
-DESCRIPTION = __doc__
 
 #: (scheme, substeps, iterations) of the sweep
 SETTINGS = (("gauss_seidel", 1, 10), ("gauss_seidel", 1, 50), ("gauss_seidel", 2, 5), ("gauss_seidel", 5, 2),
@@ -167,27 +163,34 @@ def plot(path: Path, rows: Sequence[dict[str, Any]]) -> None:
     plt.close(fig)
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="bench_out/material", help="output directory (CSV, PNG)")
-    parser.add_argument("--scenes", default="strip,liver", help="comma-separated: strip, liver")
-    parser.add_argument("--steps", type=int, default=20, help="steps per setting (default 20)")
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                        help="parameter over the scene's, e.g. --set dt=0.005 (repeatable)")
-    parser.add_argument("--quick", action="store_true", help="three settings, three steps, the strip only")
+def run(out: str | Path, *, scenes: Sequence[str] = ("strip", "liver"), steps: int = 20,
+        overrides: Mapping[str, Any] | None = None, quick: bool = False) -> int:
+    """Every setting against the exact step on each scene; print the tables and fronts, write the CSV and chart; 0.
 
-
-def run(args: argparse.Namespace) -> int:
+    Parameters
+    ----------
+    out : str or Path
+        Output directory (created).
+    scenes : sequence of str
+        ``"strip"`` and/or ``"liver"`` (``quick``: the strip only).
+    steps : int
+        Steps per setting (``quick``: 3).
+    overrides : mapping, optional
+        Parameters over the scene's (flat names, as ``--set``).
+    quick : bool
+        Three settings, three steps, the strip only.
+    """
     from .accuracy import format_table  # noqa: PLC0415
     from .refinement import write_csv  # noqa: PLC0415
 
-    if args.steps < 1:
-        raise InputError(f"--steps {args.steps}: expected at least 1")
-    overrides = parse_assignments(args.set)
-    scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
-    settings, steps = (QUICK_SETTINGS, 3) if args.quick else (SETTINGS, args.steps)
-    if args.quick:
+    if steps < 1:
+        raise InputError(f"--steps {steps}: expected at least 1")
+    overrides = dict(overrides or {})
+    scenes = list(scenes)
+    settings, steps = (QUICK_SETTINGS, 3) if quick else (SETTINGS, steps)
+    if quick:
         scenes = ["strip"]
-    out = Path(args.out)
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for scene in scenes:

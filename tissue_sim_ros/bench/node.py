@@ -56,7 +56,6 @@ points, which a run otherwise meets whenever a reader first falls 1 s behind).
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import os
@@ -68,16 +67,13 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from ..core.errors import InputError
 from ..core.timing.stamps import stamp_from_ns, stamp_to_seconds
 from ..ros.domain import free_domain_id
-
-HELP = "sustained rate, overruns and pose-to-mesh latency of the ROS node"
-DESCRIPTION = __doc__
 
 SCENES: dict[str, dict[str, Any]] = {
     "paper": {},
@@ -662,65 +658,71 @@ def _plot(results: list[SceneResult], dt: float, path: Path) -> None:
     plt.close(fig)
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="bench_out/node", help="output directory (CSV, PNG, node logs)")
-    parser.add_argument("--seconds", type=float, default=10.0, help="measured time per scene [s]")
-    parser.add_argument("--warmup", type=float, default=2.0, help="time driven before measuring [s]")
-    parser.add_argument("--scene", action="append", choices=sorted(SCENES),
-                        help="scene to run (repeatable; default all)")
-    parser.add_argument("--mode", action="append", choices=MODES,
-                        help="timer (1/dt timer, newest pose) or lock_step (one step per pose); repeatable; default both")
-    parser.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID of the private graph (default 1 + pid %% 100)")
-    parser.add_argument("--marker-rate", type=float, default=None,
-                        help="the node's marker_rate [Hz] (default: the node's default, a display rate)")
-    parser.add_argument("--phases", type=int, default=8,
-                        help="timer mode: publisher phases measured in turn, (k + 1/2)/N of a period after the node's "
-                             "ticks (0: one run at whatever phase the timers start with)")
-    parser.add_argument("--settle", type=float, default=2.0,
-                        help="time after placing the publisher at a phase before measuring it [s]")
-    parser.add_argument("--phase-lock", choices=("both", "on", "off"), default="both",
-                        help="timer mode: the node's phase_lock on, off, or both: at each phase off then on, from "
-                             "the same starting phase, in one node process (the soak: on unless off)")
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                        help="a node parameter for every run (repeatable; checked as the node checks it), e.g. "
-                             "step_rt_priority=50 or marker_nice=0 to compare settings side by side; the benchmark's "
-                             "own (points_rate, markers_wireframe, diagnostics_rate, max_tool_jump, lock_step, "
-                             "phase_lock, and marker_rate with --marker-rate) win")
-    parser.add_argument("--soak", type=float, default=None, metavar="SECONDS",
-                        help="one long timer-mode run instead (scene 5k unless --scene): RSS growth and overruns")
+def run(out: str | Path, *, seconds: float = 10.0, warmup: float = 2.0, scenes: Sequence[str] | None = None,
+        modes: Sequence[str] | None = None, domain_id: int | None = None, marker_rate: float | None = None,
+        phases: int = 8, settle: float = 2.0, phase_lock: str = "both",
+        node_params: Mapping[str, Any] | None = None, soak: float | None = None) -> int:
+    """Run the node on each scene and mode; print the table and verdicts, write the CSVs and chart into ``out``; 0.
 
-
-def run(args: argparse.Namespace) -> int:
-    if not (math.isfinite(args.seconds) and args.seconds >= 1):
-        raise InputError(f"--seconds={args.seconds}: expected at least 1 s")
-    if not (math.isfinite(args.warmup) and args.warmup >= 0):
-        raise InputError(f"--warmup={args.warmup}: expected a time >= 0 s")
-    domain_id = args.domain_id if args.domain_id is not None else free_domain_id()
+    Parameters
+    ----------
+    out : str or Path
+        Output directory (CSV, PNG, node logs; created).
+    seconds : float
+        Measured time per scene (and phase) [s].
+    warmup : float
+        Time driven before measuring [s].
+    scenes : sequence of str, optional
+        Names in :data:`SCENES` (default all).
+    modes : sequence of str, optional
+        ``"timer"`` and/or ``"lock_step"`` (default both).
+    domain_id : int, optional
+        ROS_DOMAIN_ID of the private graph, 0..101 (default: a free-looking one).
+    marker_rate : float, optional
+        The node's marker_rate [Hz] (default: the node's default).
+    phases : int
+        Timer mode: publisher phases measured in turn (0: one run at whatever phase the timers start with).
+    settle : float
+        Time after placing the publisher at a phase before measuring it [s].
+    phase_lock : str
+        ``"both"``, ``"on"`` or ``"off"``: the node's phase_lock (the soak: on unless off).
+    node_params : mapping, optional
+        Node parameters for every run (flat names, as ``--set``), checked as the node checks them; the
+        benchmark's own win.
+    soak : float, optional
+        Instead, one long timer-mode run of this many seconds (scene 5k unless given): RSS growth and overruns.
+    """
+    if not (math.isfinite(seconds) and seconds >= 1):
+        raise InputError(f"--seconds={seconds}: expected at least 1 s")
+    if not (math.isfinite(warmup) and warmup >= 0):
+        raise InputError(f"--warmup={warmup}: expected a time >= 0 s")
+    domain_id = domain_id if domain_id is not None else free_domain_id()
     if not 0 <= domain_id <= 101:
         raise InputError(f"--domain-id={domain_id}: expected 0..101")
-    out = Path(args.out)
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    from ..core.config import parse_assignments, resolve_config  # noqa: PLC0415
+    from ..core.config import resolve_config  # noqa: PLC0415
 
     dt = resolve_config().sim.dt
-    if args.marker_rate is not None and not (math.isfinite(args.marker_rate) and args.marker_rate > 0):
-        raise InputError(f"--marker-rate={args.marker_rate}: expected a rate > 0 Hz")
-    if not 0 <= args.phases <= 100:
-        raise InputError(f"--phases={args.phases}: expected 0..100")
-    if not (math.isfinite(args.settle) and args.settle >= 0):
-        raise InputError(f"--settle={args.settle}: expected a time >= 0 s")
-    node_params = parse_assignments(args.set)
+    if marker_rate is not None and not (math.isfinite(marker_rate) and marker_rate > 0):
+        raise InputError(f"--marker-rate={marker_rate}: expected a rate > 0 Hz")
+    if not 0 <= phases <= 100:
+        raise InputError(f"--phases={phases}: expected 0..100")
+    if not (math.isfinite(settle) and settle >= 0):
+        raise InputError(f"--settle={settle}: expected a time >= 0 s")
+    node_params = dict(node_params or {})
     resolve_config(node_params, source="--set")  # a bad name or value: one line, exit 2, before any node starts
-    if args.soak is not None:
-        return _run_soak(args, out, domain_id, node_params)
-    locks = {"both": (False, True), "on": (True,), "off": (False,)}[args.phase_lock]
+    if soak is not None:
+        return _run_soak(out, domain_id, node_params, soak=soak, scenes=scenes, modes=modes, warmup=warmup,
+                         marker_rate=marker_rate, phase_lock=phase_lock)
+    locks = {"both": (False, True), "on": (True,), "off": (False,)}[phase_lock]
     load = [os.getloadavg()[0]]
     results: list[SceneResult] = []
-    for name in args.scene or list(SCENES):
-        for mode in args.mode or list(MODES):
-            results += bench_scene(name, {**SCENES[name], **node_params}, args.seconds, args.warmup, out, domain_id, mode,
-                                   marker_rate=args.marker_rate, phase_locks=locks,
-                                   phases=args.phases if mode == "timer" else 0, settle=args.settle)
+    for name in scenes or list(SCENES):
+        for mode in modes or list(MODES):
+            results += bench_scene(name, {**SCENES[name], **node_params}, seconds, warmup, out, domain_id, mode,
+                                   marker_rate=marker_rate, phase_locks=locks,
+                                   phases=phases if mode == "timer" else 0, settle=settle)
     load.append(os.getloadavg()[0])
     rows = [r.row(dt) for r in results]
     with open(out / "node.csv", "w", newline="") as f:
@@ -761,16 +763,17 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_soak(args: argparse.Namespace, out: Path, domain_id: int, node_params: dict[str, Any]) -> int:
+def _run_soak(out: Path, domain_id: int, node_params: dict[str, Any], *, soak: float, scenes: Sequence[str] | None,
+              modes: Sequence[str] | None, warmup: float, marker_rate: float | None, phase_lock: str) -> int:
     """``--soak SECONDS``: one long run; RSS samples and counters to node_soak.csv/png and a summary."""
-    if not (math.isfinite(args.soak) and args.soak >= 2 * SOAK_SAMPLE_PERIOD):
-        raise InputError(f"--soak={args.soak}: expected at least {2 * SOAK_SAMPLE_PERIOD:g} s")
-    scenes = args.scene or ["5k"]
-    modes = args.mode or ["timer"]
+    if not (math.isfinite(soak) and soak >= 2 * SOAK_SAMPLE_PERIOD):
+        raise InputError(f"--soak={soak}: expected at least {2 * SOAK_SAMPLE_PERIOD:g} s")
+    scenes = list(scenes or ["5k"])
+    modes = list(modes or ["timer"])
     if len(scenes) != 1 or len(modes) != 1:
         raise InputError("--soak runs one scene in one mode: give at most one --scene and one --mode")
-    r = bench_scene(scenes[0], {**SCENES[scenes[0]], **node_params}, args.soak, max(args.warmup, 5.0), out, domain_id, modes[0],
-                    marker_rate=args.marker_rate, soak=True, phase_locks=(args.phase_lock != "off",))[0]
+    r = bench_scene(scenes[0], {**SCENES[scenes[0]], **node_params}, soak, max(warmup, 5.0), out, domain_id, modes[0],
+                    marker_rate=marker_rate, soak=True, phase_locks=(phase_lock != "off",))[0]
     rows = r.soak
     with open(out / "node_soak.csv", "w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))

@@ -27,7 +27,6 @@ skipped. Writes ``peers.csv`` and ``peers.png`` and prints ms per step and
 each peer's time relative to ours (> 1: ours is faster), all from this run.
 """
 # no "from __future__ import annotations": Taichi reads kernel argument annotations as objects
-import argparse
 import importlib.util
 import math
 import time
@@ -40,9 +39,6 @@ from ..core.contact.collision import Contacts
 from ..core.mesh import TissueMesh, mesh_rectangle
 from ..core.physics.model import Model, SimParams
 from .accuracy import format_table, write_csv
-
-HELP = "time per step against Taichi, MuJoCo flex and the NumPy baseline on the same meshes"
-DESCRIPTION = __doc__
 
 #: strip spacing -> 496 / 2016 / 8064 / 20301 particles on a 1 m x 0.5 m strip
 SIZES = {"500": 1 / 30, "2k": 1 / 62, "8k": 1 / 125, "20k": 1 / 200}
@@ -257,34 +253,37 @@ def available(name: str) -> bool:
     return importlib.util.find_spec(name) is not None
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="bench_out/peers", help="output directory (CSV, PNG)")
-    parser.add_argument("--quick", action="store_true", help="the smallest mesh, few steps (smoke test)")
-    parser.add_argument("--steps", type=int, default=30, help="timed steps per measurement (median)")
-    parser.add_argument("--fem", action="store_true",
-                        help="instead: the material model (dynamic and static settle), MuJoCo's flex membrane and Newton's "
-                             "triangle FEM run to rest on the hanging strip, "
-                             "errors against the scikit-fem reference and wall time to rest (bench/peers_fem.py)")
+def run(out: str | Path, *, quick: bool = False, steps: int = 30, fem: bool = False) -> int:
+    """Time ours and every installed peer on the strips; print the table, write peers.csv/png into ``out``; 0.
 
-
-def run(args: argparse.Namespace) -> int:
+    Parameters
+    ----------
+    out : str or Path
+        Output directory (created).
+    quick : bool
+        The smallest mesh, few steps (smoke test).
+    steps : int
+        Timed steps per measurement (median; ``quick``: at most 5).
+    fem : bool
+        Instead: the peers on the same FEM problem, run to rest (:func:`~tissue_sim_ros.bench.peers_fem.run_fem`).
+    """
     from tqdm import tqdm  # noqa: PLC0415
 
     from ..core.errors import InputError  # noqa: PLC0415
 
-    if args.steps < 1:
-        raise InputError(f"--steps={args.steps}: expected at least 1 timed step")
-    out = Path(args.out)
+    if steps < 1:
+        raise InputError(f"--steps={steps}: expected at least 1 timed step")
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    if args.fem:
+    if fem:
         from .peers_fem import run_fem  # noqa: PLC0415
 
         for name, pkg in (("mujoco", "mujoco"), ("newton", "newton")):
             if not available(pkg):
                 print(f"{name} is not installed: skipped (pip install '.[peers]')")
-        return run_fem(out, args.quick, available("mujoco"), available("newton") and available("warp"))
-    sizes = {"500": SIZES["500"]} if args.quick else SIZES
-    n_steps = min(args.steps, 5) if args.quick else args.steps
+        return run_fem(out, quick, available("mujoco"), available("newton") and available("warp"))
+    sizes = {"500": SIZES["500"]} if quick else SIZES
+    n_steps = min(steps, 5) if quick else steps
     have = {name: available(name) for name in ("taichi", "mujoco")}
     for name, ok in have.items():
         if not ok:

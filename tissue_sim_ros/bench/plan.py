@@ -37,38 +37,23 @@ Writes ``plan_bench.csv`` (one row per backend), ``plan_node.csv``,
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import os
 import subprocess
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
-from ..core.config import Config, parse_assignments, resolve_config
+from ..core.config import Config
 from ..core.errors import InputError
 from ..core.timing import trajectories as tr
 from ..ros.domain import free_domain_id
 
-HELP = "batch rollouts per second (serial, 1 and 2 workers) and the planner service's latency and node rate"
-DESCRIPTION = __doc__
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="bench_out/plan", help="output directory (CSV, PNG)")
-    parser.add_argument("--candidates", type=int, default=64, help="candidates per batch (default 64)")
-    parser.add_argument("--steps", type=int, default=100, help="steps per candidate (default 100)")
-    parser.add_argument("--repeats", type=int, default=5, help="batches per backend; the median is reported")
-    parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="pool sizes (default 1 2)")
-    parser.add_argument("--seconds", type=float, default=10.0, help="node part: seconds idle and planning each")
-    parser.add_argument("--no-node", action="store_true", help="skip the node part")
-    parser.add_argument("--node-workers", type=int, default=2, help="node part: the node's plan_workers (default 2)")
-    parser.add_argument("--node-only", action="store_true", help="skip the library part")
-    parser.add_argument("--params", metavar="FILE", help="parameter YAML over the shipped config/tissue_sim.yaml")
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override one parameter")
+#: the scene's defaults under the parameter file: experiment b's 0.3 m box, as the planner uses
+SCENE_DEFAULTS = {"tool_shape": tr.B_TOOL.kind, "tool_length": tr.B_TOOL.length, "tool_width": tr.B_TOOL.width}
 
 
 def _load() -> str:
@@ -309,26 +294,46 @@ def _plot(rows: list[dict[str, Any]], node_row: dict[str, Any] | None, path: Pat
     plt.close(fig)
 
 
-def run(args: argparse.Namespace) -> int:
-    for name in ("candidates", "steps", "repeats"):
-        if getattr(args, name) < 1:
-            raise InputError(f"--{name}={getattr(args, name)}: expected at least 1")
-    if any(w < 1 for w in args.workers):
-        raise InputError(f"--workers {args.workers}: expected pool sizes >= 1")
-    if not (math.isfinite(args.seconds) and args.seconds >= 1):
-        raise InputError(f"--seconds={args.seconds}: expected at least 1 s")
-    b_tool = {"tool_shape": tr.B_TOOL.kind, "tool_length": tr.B_TOOL.length, "tool_width": tr.B_TOOL.width}
-    cfg = resolve_config(overrides=parse_assignments(args.set), params_file=args.params, defaults=b_tool,
-                         source="--set")
-    out = Path(args.out)
+def run(config: Config, out: str | Path, *, candidates: int = 64, steps: int = 100, repeats: int = 5,
+        workers: Sequence[int] = (1, 2), seconds: float = 10.0, library_part: bool = True, node_part: bool = True,
+        node_workers: int = 2) -> int:
+    """The library part and the node part; print the tables, write the CSVs and the chart into ``out``; 0.
+
+    Parameters
+    ----------
+    config : Config
+        The scene (``tissue-sim bench plan`` resolves it over :data:`SCENE_DEFAULTS`).
+    out : str or Path
+        Output directory (created).
+    candidates, steps : int
+        Candidates per batch and steps per candidate.
+    repeats : int
+        Batches per backend; the median is reported.
+    workers : sequence of int
+        Pool sizes.
+    seconds : float
+        Node part: seconds idle and planning each.
+    library_part, node_part : bool
+        Run the library part (batches in this process and in pools) and the node part (the planner service).
+    node_workers : int
+        Node part: the node's ``plan_workers``.
+    """
+    for name, value in (("candidates", candidates), ("steps", steps), ("repeats", repeats)):
+        if value < 1:
+            raise InputError(f"--{name}={value}: expected at least 1")
+    workers = list(workers)
+    if any(w < 1 for w in workers):
+        raise InputError(f"--workers {workers}: expected pool sizes >= 1")
+    if not (math.isfinite(seconds) and seconds >= 1):
+        raise InputError(f"--seconds={seconds}: expected at least 1 s")
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     load_before = _load()
-    rows = [] if args.node_only else bench_library(cfg, args.candidates, args.steps, args.repeats,
-                                                   sorted(set(args.workers)))
-    node_row = None if args.no_node else bench_node(cfg, args.seconds, out, free_domain_id(), args.node_workers)
+    rows = [] if not library_part else bench_library(config, candidates, steps, repeats, sorted(set(workers)))
+    node_row = None if not node_part else bench_node(config, seconds, out, free_domain_id(), node_workers)
     load = f"{load_before} -> {_load()}"
     if rows:
-        _library_table(rows, args, load, out)
+        _library_table(rows, candidates, steps, repeats, load, out)
     if node_row:
         _node_table(node_row, out)
     if rows:
@@ -338,13 +343,14 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _library_table(rows: list[dict[str, Any]], args: argparse.Namespace, load: str, out: Path) -> None:
+def _library_table(rows: list[dict[str, Any]], candidates: int, steps: int, repeats: int, load: str,
+                   out: Path) -> None:
     with open(out / "plan_bench.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    print(f"{args.candidates} candidates x {args.steps} steps on the paper scene (+ the baseline), "
-          f"median of {args.repeats}; load average {load}; {os.cpu_count()} cores")
+    print(f"{candidates} candidates x {steps} steps on the paper scene (+ the baseline), "
+          f"median of {repeats}; load average {load}; {os.cpu_count()} cores")
     print(f"{'backend':<9} {'wall s':>7} {'min':>6} {'max':>6} {'cand/s':>7} {'steps/s':>8} {'ms/step':>7} "
           f"{'reused':>6} {'vs serial':>9} {'vs 1 wkr':>8} {'start s':>7} identical")
     for r in rows:

@@ -35,25 +35,21 @@ front door like every command's.
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..core.config import parse_assignments, resolve_config
+from ..core.config import resolve_config
 from ..core.contact.tool import ToolPose
 from ..core.errors import InputError
 from ..core.mesh import mesh_rectangle
 from ..core.sim.simulation import Simulation
 from . import fem_reference as fem
-
-HELP = "the material model run to rest against the scikit-fem reference: errors vs mesh spacing and dt"
-DESCRIPTION = __doc__
 
 WIDTH, HEIGHT = 0.10, 0.04
 MATERIAL = {"material": "neo_hookean", "young_modulus": 50e3, "poisson_ratio": 0.45, "thickness": 1e-3,
@@ -204,41 +200,48 @@ def plot(path: Path, spacing_rows: Sequence[dict[str, Any]], dt_rows: Sequence[d
     plt.close(fig)
 
 
-def _floats(text: str, name: str) -> list[float]:
-    try:
-        values = [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise InputError(f"{name}={text!r}: expected comma-separated numbers") from None
-    if not values or any(not (math.isfinite(v) and v > 0) for v in values):
-        raise InputError(f"{name}={text!r}: expected numbers > 0")
-    return values
+def run(out: str | Path, *, spacings: Sequence[float] = SPACINGS, dts: Sequence[float] = DTS,
+        spacing_dt: float = 0.002, damping: float = 30.0, rest_speed: float = 1e-6, max_steps: int = 5000,
+        overrides: Mapping[str, Any] | None = None, quick: bool = False) -> int:
+    """Both studies against the FEM reference; print the tables, write refinement.csv/png into ``out``.
 
+    Parameters
+    ----------
+    out : str or Path
+        Output directory (created).
+    spacings : sequence of float
+        Mesh spacings [m] of the refinement study (``quick``: 20 and 10 mm).
+    dts : sequence of float
+        Time steps [s] of the dt study (``quick``: 4 and 2 ms).
+    spacing_dt : float
+        Time step of the refinement study [s].
+    damping : float
+        Viscous damping on the way to rest [1/s].
+    rest_speed : float
+        At rest: every particle slower than this [m/s].
+    max_steps : int
+        Give up on rest after this many steps (at least 21).
+    overrides : mapping, optional
+        Solver settings over the material's defaults (flat names, as ``--set``).
+    quick : bool
+        Two coarse spacings and two dts (smoke test).
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="bench_out/refinement", help="output directory (CSV, PNG)")
-    parser.add_argument("--spacings", default=",".join(map(str, SPACINGS)), help="mesh spacings [m], coarse to fine")
-    parser.add_argument("--dts", default=",".join(map(str, DTS)), help="time steps [s] of the dt study")
-    parser.add_argument("--dt", type=float, default=0.002, help="time step of the refinement study [s] (default 0.002)")
-    parser.add_argument("--damping", type=float, default=30.0, help="viscous damping on the way to rest [1/s]")
-    parser.add_argument("--rest-speed", type=float, default=1e-6, help="at rest: every particle slower than this [m/s]")
-    parser.add_argument("--max-steps", type=int, default=5000, help="give up on rest after this many steps")
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                        help="solver setting over the material's defaults, e.g. --set iterations=20 (repeatable)")
-    parser.add_argument("--quick", action="store_true", help="two coarse spacings and two dts (smoke test)")
-
-
-def run(args: argparse.Namespace) -> int:
-    overrides = parse_assignments(args.set)
-    spacings = sorted(_floats(args.spacings, "--spacings"), reverse=True)
-    dts = sorted(_floats(args.dts, "--dts"), reverse=True)
-    if args.quick:
+    Returns
+    -------
+    int
+        0, or 1 when a run did not come to rest within ``max_steps``.
+    """
+    overrides = dict(overrides or {})
+    spacings = sorted(spacings, reverse=True)
+    dts = sorted(dts, reverse=True)
+    if quick:
         spacings, dts = [0.02, 0.01], [0.004, 0.002]
-    if args.max_steps < 21:
-        raise InputError(f"--max-steps {args.max_steps}: expected at least 21")
-    out = Path(args.out)
+    if max_steps < 21:
+        raise InputError(f"--max-steps {max_steps}: expected at least 21")
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    kw = dict(damping=args.damping, rest_speed=args.rest_speed, max_steps=args.max_steps)
-    spacing_rows = [dict(measure(problem, h, args.dt, overrides, **kw), study="spacing")
+    kw = dict(damping=damping, rest_speed=rest_speed, max_steps=max_steps)
+    spacing_rows = [dict(measure(problem, h, spacing_dt, overrides, **kw), study="spacing")
                     for problem in ("hanging_strip", "flat_punch") for h in spacings]
     mid = spacings[min(1, len(spacings) - 1)]
     dt_rows = [dict(measure("hanging_strip", mid, dt, overrides, **kw), study="dt_rest") for dt in dts]

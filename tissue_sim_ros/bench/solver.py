@@ -30,7 +30,6 @@ so numbers from a busy machine can be recognised. Writes ``solver.csv`` and
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import functools
 import math
@@ -38,7 +37,7 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numba
 import numpy as np
@@ -51,9 +50,6 @@ from ..core.physics.model import Model, SimParams
 from ..core.physics.solvers import Solver
 from ..core.sim.simulation import Simulation
 from .numpy_baseline import NumpyJacobiSolver
-
-HELP = "ms per step, ns per projection and ratio to NumPy, per method and mesh size"
-DESCRIPTION = __doc__
 
 SIZES = (500, 2000, 8000, 20000)
 QUICK_SIZES = (150, 500)
@@ -281,34 +277,46 @@ def plot_step_rows(path: Path, rows: list[dict[str, Any]]) -> None:
     plt.close(fig)
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="bench_out/solver", help="output directory (CSV, PNG)")
-    parser.add_argument("--sizes", type=int, nargs="+", default=None,
-                        help=f"approximate particle counts (default {' '.join(map(str, SIZES))})")
-    parser.add_argument("--steps", type=int, default=None, help="steps timed per method and size (default 20; quick 3)")
-    parser.add_argument("--iterations", type=int, default=30, help="solver iterations per step (default 30)")
-    parser.add_argument("--quick", action="store_true", help=f"small sizes only ({' '.join(map(str, QUICK_SIZES))}), few steps")
-    parser.add_argument("--paper-only", action="store_true",
-                        help="only the paper scene's whole step, one compiled call vs the step before it (ref "
-                             "columns), tool-free and in contact: solver_paper.csv, solver_paper.png")
+def run(out: str | Path, *, sizes: Sequence[int] | None = None, steps: int | None = None, iterations: int = 30,
+        quick: bool = False, paper_only: bool = False) -> int:
+    """Time every method on every strip size and the paper scene; print, write solver.csv/png into ``out``.
 
+    Parameters
+    ----------
+    out : str or Path
+        Output directory (created).
+    sizes : sequence of int, optional
+        Approximate particle counts (default :data:`SIZES`; ``quick``: :data:`QUICK_SIZES`).
+    steps : int, optional
+        Steps timed per method and size (default 20; ``quick`` 3).
+    iterations : int
+        Solver iterations per step.
+    quick : bool
+        Small sizes, few steps (smoke test).
+    paper_only : bool
+        Only the paper scene's whole step, one compiled call against the step before it (solver_paper.csv/png).
 
-def run(args: argparse.Namespace) -> int:
+    Returns
+    -------
+    int
+        0; with ``paper_only``, 1 when a compiled step differs from the step before it.
+    """
     from tqdm import tqdm  # noqa: PLC0415
 
-    sizes = args.sizes or (QUICK_SIZES if args.quick else SIZES)
-    steps = args.steps if args.steps is not None else (3 if args.quick else 20)
+    timed_steps = steps
+    sizes = sizes or (QUICK_SIZES if quick else SIZES)
+    steps = timed_steps if timed_steps is not None else (3 if quick else 20)
     if steps < 1:
         raise InputError(f"--steps={steps}: expected at least 1 step")
-    if args.iterations < 1:
-        raise InputError(f"--iterations={args.iterations}: expected at least 1 iteration")
+    if iterations < 1:
+        raise InputError(f"--iterations={iterations}: expected at least 1 iteration")
     for s in sizes:
         if s < 4:
             raise InputError(f"--sizes {s}: expected particle counts >= 4")
-    out = Path(args.out)
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    if args.paper_only:
-        step_rows = paper_step_rows(args.iterations, steps if args.steps is not None else (20 if args.quick else 200))
+    if paper_only:
+        step_rows = paper_step_rows(iterations, steps if timed_steps is not None else (20 if quick else 200))
         write_csv(out / "solver_paper.csv", step_rows, STEP_COLUMNS)
         print_step_rows(step_rows)
         plot_step_rows(out / "solver_paper.png", step_rows)
@@ -323,7 +331,7 @@ def run(args: argparse.Namespace) -> int:
         size_rows = []
         for method in METHODS:
             params = dict(method.params)
-            params.setdefault("iterations", args.iterations)
+            params.setdefault("iterations", iterations)
             model = strip_model(mesh, SimParams(**params))
             # the NumPy baseline is ~20x slower: fewer steps keep the run short, the median stays robust
             n_steps = max(3, steps // 4) if method.numpy else steps
@@ -342,7 +350,7 @@ def run(args: argparse.Namespace) -> int:
 
     paper = paper_scene_rows(paper_methods + [Method("xpbd_gs_projection", "XPBD GS, projection contact",
                                                      dict(method="xpbd", contact_model="projection"))],
-                             args.iterations, steps if not args.quick else 5, progress)
+                             iterations, steps if not quick else 5, progress)
     numpy_paper = next((r for r in paper if r["method"] == "numpy_jacobi" and "ns_per_projection" in r), None)
     for r in paper:
         if numpy_paper is not None and "ns_per_projection" in r:

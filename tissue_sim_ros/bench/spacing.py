@@ -30,10 +30,9 @@ Writes ``spacing.csv`` and ``spacing.png`` and prints the table.
 """
 from __future__ import annotations
 
-import argparse
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -44,9 +43,6 @@ from ..core.physics.energy import energy_terms
 from ..core.physics.model import Model, SimParams
 from .accuracy import format_table, write_csv
 from .reference import reference_step
-
-HELP = "effective spring and area moduli, mass per area and sag against mesh spacing"
-DESCRIPTION = __doc__
 
 STRAIN = 1e-3
 """Strain of the stretch and dilation probes (small: the moduli are those of the linearised energy)."""
@@ -105,26 +101,35 @@ def measure(spacings: list[float], width: float = 0.4, height: float = 0.2, mass
     return rows
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="bench_out/spacing", help="output directory (CSV, PNG)")
-    parser.add_argument("--spacings", type=float, nargs="+", default=[0.05, 0.025, 0.0125, 0.00625],
-                        help="mesh spacings [m] (default 0.05 0.025 0.0125 0.00625)")
-    parser.add_argument("--width", type=float, default=0.4, help="strip width [m] (default 0.4)")
-    parser.add_argument("--height", type=float, default=0.2, help="strip height [m] (default 0.2)")
-    parser.add_argument("--mass-per-area", type=float, default=0.0506,
-                        help="areal density of the areal-mass runs [kg/m^2] (default 0.0506, the default scene's)")
-    parser.add_argument("--quick", action="store_true", help="two coarse spacings (smoke test)")
+#: mesh spacings [m] of the sweep
+SPACINGS = (0.05, 0.025, 0.0125, 0.00625)
 
 
-def run(args: argparse.Namespace) -> int:
-    spacings = [0.1, 0.05] if args.quick else list(args.spacings)
+def run(out: str | Path, *, spacings: Sequence[float] = SPACINGS, width: float = 0.4, height: float = 0.2,
+        mass_per_area: float = 0.0506, quick: bool = False) -> int:
+    """Measure the moduli, mass and sag at every spacing; print, write spacing.csv/png into ``out``; 0.
+
+    Parameters
+    ----------
+    out : str or Path
+        Output directory (created).
+    spacings : sequence of float
+        Mesh spacings [m] (``quick``: 0.1 and 0.05).
+    width, height : float
+        The strip [m].
+    mass_per_area : float
+        Areal density of the areal-mass runs [kg/m^2] (default: the default scene's).
+    quick : bool
+        Two coarse spacings (smoke test).
+    """
+    spacings = [0.1, 0.05] if quick else list(spacings)
     if not spacings or any(not (h > 0) for h in spacings):
         raise InputError(f"--spacings {spacings}: expected spacings > 0 m")
-    if not (args.width > 0 and args.height > 0 and args.mass_per_area > 0):
+    if not (width > 0 and height > 0 and mass_per_area > 0):
         raise InputError("--width, --height and --mass-per-area: expected values > 0")
-    out = Path(args.out)
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = measure(sorted(spacings, reverse=True), args.width, args.height, args.mass_per_area)
+    rows = measure(sorted(spacings, reverse=True), width, height, mass_per_area)
     print(format_table(rows, ["spacing_m", "particles", "spring_modulus_N_per_m", "area_modulus_N_per_m",
                               "area_modulus_over_2ka_h2", "mass_per_area_table_i", "mass_per_area_areal",
                               "sag_table_i_m", "sag_areal_m", "sag_springs_only_areal_m", "static_converged"]))

@@ -24,7 +24,6 @@ first failure) and prints a table of failure counts and the safe region.
 """
 from __future__ import annotations
 
-import argparse
 import functools
 import itertools
 import math
@@ -42,9 +41,6 @@ from ..core.physics.solvers import Solver
 from ..core.sim.simulation import Simulation
 from .accuracy import format_table, push_poses, write_csv
 from .failures import FAILURE_KINDS, Failure, FailureMonitor, iteration_residuals, residual_falls
-
-HELP = "where each method fails over dt, stiffness, tool speed and mesh quality"
-DESCRIPTION = __doc__
 
 #: method name -> (SimParams changes, Solver options)
 METHODS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
@@ -327,37 +323,43 @@ def inversion_rows(n_steps: int) -> list[dict[str, Any]]:
     return rows
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..core.sim.backends import add_backend_arguments  # noqa: PLC0415
-    parser.add_argument("--out", default="bench_out/stability", help="output directory (CSV, PNG)")
-    parser.add_argument("--quick", action="store_true", help="a few runs (smoke test)")
-    parser.add_argument("--material", action="store_true",
-                        help="instead: the neo_hookean material over dt, E 1 kPa-1 MPa, tool speed and mesh quality "
-                             "on a real-size strip (bench/material_stability.py)")
-    add_backend_arguments(parser, jobs_default=1, jobs_help="worker processes (default 1: in this process)")
+def run(out: str | Path, *, quick: bool = False, material: bool = False, jobs: int = 1, backend: str = "local",
+        address: str | None = None) -> int:
+    """Run the sweep; print the failure counts, write stability.csv and a map per method into ``out``; 0.
 
-
-def run(args: argparse.Namespace) -> int:
+    Parameters
+    ----------
+    out : str or Path
+        Output directory (created).
+    quick : bool
+        A few runs (smoke test).
+    material : bool
+        Instead: the neo_hookean material's sweep (:func:`~tissue_sim_ros.bench.material_stability.run_material`,
+        in this process).
+    jobs, backend, address
+        Where the runs go: worker processes or Ray (:func:`~tissue_sim_ros.core.sim.backends.map_calls`);
+        the same rows either way.
+    """
     from tqdm import tqdm  # noqa: PLC0415
 
-    out = Path(args.out)
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    if args.material:
+    if material:
         from .material_stability import run_material  # noqa: PLC0415
 
-        return run_material(out, args.quick)
-    sweep = make_sweep(args.quick)
+        return run_material(out, quick)
+    sweep = make_sweep(quick)
     meshes = {q: make_mesh(q) for q in sweep.mesh_qualities}
     configs = [RunConfig(m, c, dt, s, v, q, n_steps=sweep.n_steps)
                for m in sweep.methods for c in sweep.contact_models for dt in sweep.dts
                for s in sweep.stiffness_scales for v in sweep.tool_speeds for q in sweep.mesh_qualities]
-    from ..core.sim.backends import check_backend_arguments, map_calls  # noqa: PLC0415
+    from ..core.sim.backends import check_backend, check_jobs, map_calls  # noqa: PLC0415
 
-    jobs, backend, address = check_backend_arguments(args)
+    jobs, backend = check_jobs(jobs), check_backend(backend)
     with tqdm(total=len(configs), desc="stability", unit="run", dynamic_ncols=True) as bar:
         rows = map_calls(run_one, [(cfg, meshes[cfg.mesh_quality]) for cfg in configs], backend=backend,
                          workers=jobs, address=address, progress=lambda: bar.update(1))
-    rows += inversion_rows(10 if args.quick else 30)
+    rows += inversion_rows(10 if quick else 30)
     write_csv(out / "stability.csv", rows)
     for method in sweep.methods:
         plot_method_map(out / f"stability_{method}.png", rows, method, sweep)

@@ -28,15 +28,14 @@ within the budget is printed), and with --verify when the file's error exceeds
 """
 from __future__ import annotations
 
-import argparse
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import yaml
 
-from ..core.config import resolve_config
+from ..core.config import Config
 from ..core.errors import InputError
 from ..core.physics.model import SimParams
 from .accuracy import (
@@ -49,55 +48,13 @@ from .accuracy import (
     write_csv,
 )
 
-HELP = "pick the cheapest mesh spacing/method/iterations meeting an error tolerance"
-DESCRIPTION = __doc__
-
 COUNTS = (1, 2, 5, 10, 20, 50, 100, 200)
 METHODS = ("pbd", "xpbd", "xpbd_jacobi", "xpbd_substep")
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--tolerance", type=float, required=True,
-                        help="largest accepted error (relative to the tissue's displacement), e.g. 0.1")
-    parser.add_argument("--budget-ms", type=float, required=True, help="largest accepted solve time per step [ms]")
-    parser.add_argument("--out", default="",
-                        help="write the chosen parameters to this YAML file (nothing is written, exit 1, when no "
-                             "setting meets the tolerance within the budget)")
-    parser.add_argument("--params", default="", help="scene parameter file (default: config/tissue_sim.yaml)")
-    parser.add_argument("--spacings", default="0.1,0.05",
-                        help="candidate mesh spacings [m], comma-separated (the reference is twice as fine as the "
-                             "finest; below 0.025 the exact reference run gets slow: the finer mesh is a softer "
-                             "material that folds under the tool, where each exact step takes Newton minutes)")
-    parser.add_argument("--steps", type=int, default=30, help="trajectory length in steps")
-    parser.add_argument("--csv", default="", help="also write every measured setting to this CSV")
-    parser.add_argument("--quick", action="store_true", help="two coarse spacings, few counts (smoke test)")
-    parser.add_argument("--material-spacings", default="0.005,0.0035,0.0025",
-                        help="material neo_hookean: candidate spacings [m] (the reference mesh is 2 sqrt(2) x finer than the finest)")
-    parser.add_argument("--grade-spacings", default="0.00125,0.000875,0.000625,0.00044",
-                        help="material neo_hookean: candidate spacings near the instrument [m] for graded meshes "
-                             "(each with every coarser spacing; uniform meshes are always candidates; the "
-                             "reference is graded 2 sqrt(2) x finer than the finest); empty = uniform only")
-    parser.add_argument("--png", default="", help="material neo_hookean: write the error-time chart to this PNG")
-    parser.add_argument("--verify", action="store_true",
-                        help="material neo_hookean: measure the --params file as it is against the reference of "
-                             "--material-spacings/--grade-spacings (exit 1 when an error exceeds --tolerance)")
-    parser.add_argument("--depth", type=float, default=0.003,
-                        help="material neo_hookean: how far the instrument presses into the tissue [m]")
-    from ..core.sim.backends import add_backend_arguments  # noqa: PLC0415
-
-    add_backend_arguments(parser, jobs_default=1,
-                          jobs_help="worker processes for independent runs (default 1: in this process; the errors "
-                                    "are the same with more, the times are measured beside the other workers)")
-
-
-def _parse_spacings(text: str) -> list[float]:
-    try:
-        values = sorted({float(v) for v in text.split(",") if v.strip()}, reverse=True)
-    except ValueError:
-        raise InputError(f"--spacings={text!r}: expected comma-separated numbers in metres") from None
-    if not values or any(not (math.isfinite(v) and v > 0) for v in values):
-        raise InputError(f"--spacings={text!r}: expected spacings > 0 m")
-    return values
+#: candidate mesh spacings [m], coarse to fine (the reference is twice as fine as the finest)
+SPACINGS = (0.1, 0.05)
+#: material neo_hookean: candidate uniform spacings and spacings near the instrument [m], coarse to fine
+MATERIAL_SPACINGS = (0.005, 0.0035, 0.0025)
+GRADE_SPACINGS = (0.00125, 0.000875, 0.000625, 0.00044)
 
 
 def _chain(scene: Any, method: str, counts: tuple[int, ...], ref_run: list[np.ndarray], disc: float,
@@ -169,58 +126,111 @@ def params_for(values: dict[str, Any], row: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def run(args: argparse.Namespace) -> int:
+def run(config: Config, *, tolerance: float, budget_ms: float, spacings: Sequence[float] = SPACINGS, steps: int = 30,
+        out: str | Path | None = None, csv_path: str | Path | None = None, quick: bool = False,
+        material_spacings: Sequence[float] = MATERIAL_SPACINGS, grade_spacings: Sequence[float] = GRADE_SPACINGS,
+        png_path: str | Path | None = None, verify_only: bool = False, depth: float = 0.003,
+        params_file: str | Path | None = None, jobs: int = 1, backend: str = "local",
+        address: str | None = None) -> int:
+    """Tune the scene of ``config``, print the table and the choice, write it to ``out``; the exit status.
+
+    Parameters
+    ----------
+    config : Config
+        The scene (its parameter file resolved). ``material: neo_hookean`` tunes the material's physical
+        error instead (:func:`~tissue_sim_ros.bench.tune_material.run_tune_material`).
+    tolerance : float
+        Largest accepted error, relative to the tissue's displacement.
+    budget_ms : float
+        Largest accepted solve time per step [ms].
+    spacings : sequence of float
+        Candidate mesh spacings [m], coarse to fine (``quick``: 0.1 and 0.05).
+    steps : int
+        Trajectory length in steps (``quick``: at most 4).
+    out : str or Path, optional
+        Write the chosen parameters to this YAML file (nothing is written when no setting qualifies).
+    csv_path : str or Path, optional
+        Also write every measured setting to this CSV.
+    quick : bool
+        Two coarse spacings, few counts (smoke test).
+    material_spacings, grade_spacings : sequence of float
+        Material neo_hookean: candidate uniform spacings and spacings near the instrument [m] (grade: empty for
+        uniform meshes only).
+    png_path : str or Path, optional
+        Material neo_hookean: the error-time chart.
+    verify_only : bool
+        Material neo_hookean: measure ``config`` as it is against the reference instead.
+    depth : float
+        Material neo_hookean: how far the instrument presses into the tissue [m].
+    params_file : str or Path, optional
+        The file ``config`` was read from, named in the ``verify_only`` report.
+    jobs, backend, address
+        Where the independent runs go (:func:`tune`).
+
+    Returns
+    -------
+    int
+        0 when a setting meets the tolerance within the budget; 1 when none does (and with ``verify_only`` when the
+        file's error exceeds the tolerance).
+
+    Raises
+    ------
+    InputError
+        A tolerance, budget, step count, depth, jobs or backend out of range.
+    """
     from tqdm import tqdm  # noqa: PLC0415
 
-    if not (math.isfinite(args.tolerance) and args.tolerance > 0):
-        raise InputError(f"--tolerance={args.tolerance}: expected an error > 0")
-    if not (math.isfinite(args.budget_ms) and args.budget_ms > 0):
-        raise InputError(f"--budget-ms={args.budget_ms}: expected a time > 0 ms")
-    if args.steps < 1:
-        raise InputError(f"--steps={args.steps}: expected at least 1 step")
-    from ..core.sim.backends import check_backend_arguments  # noqa: PLC0415
+    if not (math.isfinite(tolerance) and tolerance > 0):
+        raise InputError(f"--tolerance={tolerance}: expected an error > 0")
+    if not (math.isfinite(budget_ms) and budget_ms > 0):
+        raise InputError(f"--budget-ms={budget_ms}: expected a time > 0 ms")
+    if steps < 1:
+        raise InputError(f"--steps={steps}: expected at least 1 step")
+    from ..core.sim.backends import check_backend, check_jobs  # noqa: PLC0415
 
-    jobs, backend, address = check_backend_arguments(args)
-    cfg = resolve_config(params_file=args.params or None)
-    if cfg.sim.material == "neo_hookean":
+    jobs, backend = check_jobs(jobs), check_backend(backend)
+    if config.sim.material == "neo_hookean":
         # a physical material: mesh + solver error at rest under the instrument (bench/tune_material.py)
         from .tune_material import run_tune_material  # noqa: PLC0415
 
-        if not (math.isfinite(args.depth) and args.depth > 0):
-            raise InputError(f"--depth={args.depth}: expected a depth > 0 m")
-        return run_tune_material(args, cfg, jobs=jobs, backend=backend, address=address)
-    values = cfg.flat()
-    spacings = [0.1, 0.05] if args.quick else _parse_spacings(args.spacings)
-    counts = (1, 10) if args.quick else COUNTS
-    n_steps = min(args.steps, 4) if args.quick else args.steps
+        if not (math.isfinite(depth) and depth > 0):
+            raise InputError(f"--depth={depth}: expected a depth > 0 m")
+        return run_tune_material(config, tolerance=tolerance, budget_ms=budget_ms, quick=quick,
+                                 material_spacings=material_spacings, grade_spacings=grade_spacings, verify_only=verify_only,
+                                 depth=depth, out=out, csv_path=csv_path, png_path=png_path, params_file=params_file,
+                                 jobs=jobs, backend=backend, address=address)
+    values = config.flat()
+    spacings = [0.1, 0.05] if quick else sorted(set(spacings), reverse=True)  # coarse to fine, as tune() reads them
+    counts = (1, 10) if quick else COUNTS
+    n_steps = min(steps, 4) if quick else steps
 
     with tqdm(desc="tune", unit="step", dynamic_ncols=True) as bar:
-        best, rows = tune(values, args.tolerance, args.budget_ms, spacings, n_steps, counts, METHODS, bar.update,
+        best, rows = tune(values, tolerance, budget_ms, spacings, n_steps, counts, METHODS, bar.update,
                            jobs=jobs, backend=backend, address=address)
-    if args.csv:
-        Path(args.csv).parent.mkdir(parents=True, exist_ok=True)
-        write_csv(Path(args.csv), rows)
+    if csv_path:
+        Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
+        write_csv(Path(csv_path), rows)
     cols = ["spacing", "particles", "method", "count", "ms_per_step", "err_accum_final", "err_discretisation", "error"]
     print("\nmeasured settings (error = method vs exact on its mesh + exact vs the finest mesh):")
     print(format_table(rows, cols))
     if best is None:
-        within = [r for r in rows if r["ms_per_step"] <= args.budget_ms and math.isfinite(r["error"])]
+        within = [r for r in rows if r["ms_per_step"] <= budget_ms and math.isfinite(r["error"])]
         hint = min(within, key=lambda r: r["error"]) if within else None
-        msg = f"\nno setting meets error <= {args.tolerance:g} within {args.budget_ms:g} ms per step"
+        msg = f"\nno setting meets error <= {tolerance:g} within {budget_ms:g} ms per step"
         if hint:
             msg += (f"; the most accurate within budget: {hint['method']} count {hint['count']} at spacing "
                     f"{hint['spacing']:g} (error {hint['error']:.3g}, {hint['ms_per_step']:.3g} ms)")
-        print(msg + (f"; {args.out} not written" if args.out else "") + " (exit 1)")
+        print(msg + (f"; {out} not written" if out else "") + " (exit 1)")
         return 1
     print(f"\nchosen: spacing {best['spacing']:g} m ({best['particles']} particles), {best['method']} count "
           f"{best['count']}: {best['ms_per_step']:.3g} ms per step, error {best['error']:.3g} "
           f"(method {best['err_accum_final']:.3g} + mesh {best['err_discretisation']:.3g})")
-    if args.out:
-        out = params_for(values, best)
-        doc = {"tissue_sim_node": {"ros__parameters": out}}
-        path = Path(args.out)
+    if out:
+        chosen = params_for(values, best)
+        doc = {"tissue_sim_node": {"ros__parameters": chosen}}
+        path = Path(out)
         path.parent.mkdir(parents=True, exist_ok=True)
-        header = (f"# written by tissue-sim tune --tolerance {args.tolerance:g} --budget-ms {args.budget_ms:g}\n"
+        header = (f"# written by tissue-sim tune --tolerance {tolerance:g} --budget-ms {budget_ms:g}\n"
                   f"# measured: {best['ms_per_step']:.3g} ms per step, error {best['error']:.3g} on experiment a (steps 175-205)\n")
         path.write_text(header + yaml.safe_dump(doc, sort_keys=False))
         print(f"wrote {path}")

@@ -312,55 +312,64 @@ TABLE = ["spacing", "grade_spacing", "particles", "substeps", "iterations", "ms_
          "solver_field", "mesh_force", "solver_force", "mesh_energy", "solver_energy", "error", "at_rest"]
 
 
-def run_tune_material(args: Any, cfg: Config, **backend: Any) -> int:
+def run_tune_material(cfg: Config, *, tolerance: float, budget_ms: float, material_spacings: Sequence[float],
+                      grade_spacings: Sequence[float] = (), quick: bool = False,
+                      verify_only: bool = False, depth: float = 0.003, out: str | Path | None = None,
+                      csv_path: str | Path | None = None, png_path: str | Path | None = None,
+                      params_file: str | Path | None = None, **backend: Any) -> int:
+    """``tissue-sim tune`` on a neo_hookean scene: the arguments of :func:`~tissue_sim_ros.bench.tune.run`.
+
+    ``material_spacings`` and ``grade_spacings`` [m] are the candidates (``quick``: 6 mm and 3 mm; no grade
+    spacing: uniform meshes only); ``backend`` holds ``jobs``, ``backend`` and ``address``. Returns the exit status.
+    """
     from ..core.config import resolve_config  # noqa: PLC0415
     from .accuracy import format_table, write_csv  # noqa: PLC0415
-    from .tune import _parse_spacings  # noqa: PLC0415
 
-    if args.quick:
+    if quick:
         spacings, grades, settings, converged = [0.006], [0.003], QUICK_SETTINGS, QUICK_CONVERGED
     else:
-        spacings = _parse_spacings(args.material_spacings)
-        grades = _parse_spacings(args.grade_spacings) if args.grade_spacings else []
+        spacings = sorted(set(material_spacings), reverse=True)
+        grades = sorted(set(grade_spacings), reverse=True)
         settings, converged = SETTINGS, CONVERGED
-    if args.verify:
-        return run_verify(args, cfg, spacings, grades, converged, **backend)
-    best, rows, reference = tune_material(cfg, args.tolerance, args.budget_ms, spacings, grades, args.depth,
+    if verify_only:
+        return run_verify(cfg, spacings, grades, converged, depth=depth, tolerance=tolerance,
+                          params_file=params_file, **backend)
+    best, rows, reference = tune_material(cfg, tolerance, budget_ms, spacings, grades, depth,
                                           settings, converged, **backend)
-    if args.csv:
-        Path(args.csv).parent.mkdir(parents=True, exist_ok=True)
-        write_csv(Path(args.csv), rows)
-    title = (f"tune, material {cfg.sim.material}, E {cfg.sim.young_modulus:g} Pa, instrument {args.depth * 1e3:g} mm "
+    if csv_path:
+        Path(csv_path).parent.mkdir(parents=True, exist_ok=True)
+        write_csv(Path(csv_path), rows)
+    title = (f"tune, material {cfg.sim.material}, E {cfg.sim.young_modulus:g} Pa, instrument {depth * 1e3:g} mm "
              f"in;\nreference {reference['spacing'] * 1e3:.3g} mm, {reference['grade_spacing'] * 1e3:.3g} mm at the tool")
-    if args.png:
-        Path(args.png).parent.mkdir(parents=True, exist_ok=True)
-        plot(Path(args.png), rows, best, args.tolerance, title)
+    if png_path:
+        Path(png_path).parent.mkdir(parents=True, exist_ok=True)
+        plot(Path(png_path), rows, best, tolerance, title)
     print(f"\n{title.replace(chr(10), ' ')}; error = mesh (converged {converged[0]} x {converged[1]} vs the reference, plus the reference's "
           f"own error: " + _listing(reference["error"])
           + f") + solver (vs {converged[0]} x {converged[1]} on the same mesh), per quantity; 'error' is the worst:")
     print(format_table(rows, TABLE))
     if best is None:
-        within = [r for r in rows if r["ms_per_step"] <= args.budget_ms and r["at_rest"]]
+        within = [r for r in rows if r["ms_per_step"] <= budget_ms and r["at_rest"]]
         hint = min(within, key=lambda r: r["error"]) if within else None
-        msg = f"\nno setting meets error <= {args.tolerance:g} within {args.budget_ms:g} ms per step"
+        msg = f"\nno setting meets error <= {tolerance:g} within {budget_ms:g} ms per step"
         if hint:
             msg += (f"; the most accurate within budget: spacing {hint['spacing']:g} m, grade_spacing "
                     f"{hint['grade_spacing']:g} m, {hint['substeps']} x {hint['iterations']} (error field "
                     f"{hint['err_field']:.3g}, force {hint['err_force']:.3g}, energy {hint['err_energy']:.3g}, "
                     f"{hint['ms_per_step']:.3g} ms)")
-        print(msg + (f"; {args.out} not written" if args.out else "") + " (exit 1)")
+        print(msg + (f"; {out} not written" if out else "") + " (exit 1)")
         return 1
     print(f"\nchosen: spacing {best['spacing']:g} m" + (f", {best['grade_spacing']:g} m near the tool"
                                                        if best["grade_spacing"] else "")
           + f" ({best['particles']} particles), {best['substeps']} substeps x {best['iterations']} iterations: "
           f"{best['ms_per_step']:.3g} ms per step, error field {best['err_field']:.3g}, force {best['err_force']:.3g}, "
           f"energy {best['err_energy']:.3g}")
-    if args.out:
+    if out:
         chosen = chosen_config(cfg, reference["press"], best)
-        header = (f"# written by tissue-sim tune --tolerance {args.tolerance:g} --budget-ms {args.budget_ms:g}"
+        header = (f"# written by tissue-sim tune --tolerance {tolerance:g} --budget-ms {budget_ms:g}"
                   f" (material): measured {best['ms_per_step']:.3g} ms per step, error (mesh + solver) field "
                   f"{best['err_field']:.3g}, force {best['err_force']:.3g}, energy {best['err_energy']:.3g}\n")
-        path = Path(args.out)
+        path = Path(out)
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(header + chosen.to_yaml())
         print(f"wrote {path}")
@@ -373,14 +382,14 @@ def run_tune_material(args: Any, cfg: Config, **backend: Any) -> int:
     return 0
 
 
-def run_verify(args: Any, cfg: Config, spacings: Sequence[float], grades: Sequence[float],
-               converged: tuple[int, int], **backend: Any) -> int:
+def run_verify(cfg: Config, spacings: Sequence[float], grades: Sequence[float], converged: tuple[int, int], *,
+               depth: float, tolerance: float, params_file: str | Path | None = None, **backend: Any) -> int:
     """``--verify``: the parameter file as it is, against the reference tune would build for these candidates."""
-    reference = build_reference(cfg, *reference_meshes(spacings, grades), args.depth, converged, **backend)
+    reference = build_reference(cfg, *reference_meshes(spacings, grades), depth, converged, **backend)
     check = verify(cfg, reference)
-    print(f"\n{args.params}: {check['particles']} particles (spacing {cfg.scene.spacing:g} m, grade_spacing "
+    print(f"\n{params_file or ''}: {check['particles']} particles (spacing {cfg.scene.spacing:g} m, grade_spacing "
           f"{cfg.scene.grade_spacing:g} m), {cfg.sim.substeps} x {cfg.sim.iterations}: {check['ms_per_step']:.3g} ms "
           f"per step, error against the reference field {check['err_field']:.3g}, force {check['err_force']:.3g}, "
           f"energy {check['err_energy']:.3g}" + ("" if check["at_rest"] else " (not at rest)")
           + " (the reference's own: " + _listing(reference["error"]) + ")")
-    return 0 if check["error"] <= args.tolerance and check["at_rest"] else 1
+    return 0 if check["error"] <= tolerance and check["at_rest"] else 1

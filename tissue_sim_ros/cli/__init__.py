@@ -10,11 +10,18 @@ Each subcommand lives in its own module, which defines::
 Modules are imported only when their subcommand runs, so ``--help`` is fast and
 ROS is imported only by the commands that need it. Bad input
 (:class:`~tissue_sim_ros.core.errors.InputError`) prints one line and exits 2.
+
+This package is the only place argparse lives: a command's ``run`` turns its
+arguments into a :class:`~tissue_sim_ros.core.config.Config` and plain keyword
+arguments and calls the library (core, ros, experiments, bench), which takes
+no command line. A DESCRIPTION may be the library module's docstring: it is
+shown as plain text (:func:`plain_text`), its Sphinx markup is for the docs.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 from typing import Sequence
 
@@ -25,27 +32,53 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
     "config": ("tissue_sim_ros.cli.config", "print the resolved configuration (shipped YAML + --params + --set) as a parameter YAML"),
     "mesh": ("tissue_sim_ros.cli.mesh", "mesh a tissue image (or load a mesh file), report quality, write .npz and a picture"),
     "experiment": ("tissue_sim_ros.cli.experiment", "run the paper's experiment a or b offline and write its figures"),
-    "plan": ("tissue_sim_ros.experiments.plan", "rank insertion angles/speeds toward a target by implicit Euler energy"),
-    "demo": ("tissue_sim_ros.experiments.demo", "the main job: node + tool driver on a private ROS domain, experiment a, recorded to a bag"),
+    "plan": ("tissue_sim_ros.cli.plan", "rank insertion angles/speeds toward a target by implicit Euler energy"),
+    "demo": ("tissue_sim_ros.cli.demo", "the main job: node + tool driver on a private ROS domain, experiment a, recorded to a bag"),
     "record": ("tissue_sim_ros.cli.record", "record the node's topics to a rosbag2 bag (MCAP or sqlite3)"),
     "replay": ("tissue_sim_ros.cli.replay", "run the simulation offline on a bag's tool trajectory; write a bag, CSV, plots, frames"),
     "play": ("tissue_sim_ros.cli.play", "publish a bag's tool topics into a live ROS graph with the recorded timing"),
     "fit": ("tissue_sim_ros.cli.fit", "identify the tissue's material from a recording (tracked points + tool poses)"),
-    "tune": ("tissue_sim_ros.bench.tune", "pick the cheapest mesh spacing/method/iterations meeting an error tolerance"),
+    "tune": ("tissue_sim_ros.cli.tune", "pick the cheapest mesh spacing/method/iterations meeting an error tolerance"),
     "bench": {
-        "solver": ("tissue_sim_ros.bench.solver", "ms per step, ns per projection and ratio to NumPy, per method and mesh size"),
-        "contact": ("tissue_sim_ros.bench.contact", "contact detection cost per step: culled vs full per-step python-fcl BVH rebuild"),
-        "node": ("tissue_sim_ros.bench.node", "sustained rate, overruns and pose-to-mesh latency of the ROS node"),
-        "accuracy": ("tissue_sim_ros.bench.accuracy", "error against an exact Newton solve versus time per step, Pareto front"),
-        "stability": ("tissue_sim_ros.bench.stability", "where each method fails over dt, stiffness, tool speed and mesh quality"),
-        "spacing": ("tissue_sim_ros.bench.spacing", "effective spring and area moduli, mass per area and sag against mesh spacing"),
-        "refinement": ("tissue_sim_ros.bench.refinement", "the material run to rest vs the scikit-fem reference: errors vs mesh spacing and dt"),
-        "material": ("tissue_sim_ros.bench.material_accuracy", "the material's solve vs its exact Newton minimiser: step and response errors (median, max) vs time, Pareto"),
-        "plan": ("tissue_sim_ros.bench.plan", "batch rollouts per second (serial, 1 and 2 workers); the planner service's latency and node rate"),
-        "fit": ("tissue_sim_ros.bench.fit", "fit known parameters back from simulated recordings on another mesh: error, coverage, time"),
-        "peers": ("tissue_sim_ros.bench.peers", "time per step against Taichi, MuJoCo flex and the NumPy baseline (optional extras)"),
+        "solver": ("tissue_sim_ros.cli.bench.solver", "ms per step, ns per projection and ratio to NumPy, per method and mesh size"),
+        "contact": ("tissue_sim_ros.cli.bench.contact", "contact detection cost per step: culled vs full per-step python-fcl BVH rebuild"),
+        "node": ("tissue_sim_ros.cli.bench.node", "sustained rate, overruns and pose-to-mesh latency of the ROS node"),
+        "accuracy": ("tissue_sim_ros.cli.bench.accuracy", "error against an exact Newton solve versus time per step, Pareto front"),
+        "stability": ("tissue_sim_ros.cli.bench.stability", "where each method fails over dt, stiffness, tool speed and mesh quality"),
+        "spacing": ("tissue_sim_ros.cli.bench.spacing", "effective spring and area moduli, mass per area and sag against mesh spacing"),
+        "refinement": ("tissue_sim_ros.cli.bench.refinement", "the material run to rest vs the scikit-fem reference: errors vs mesh spacing and dt"),
+        "material": ("tissue_sim_ros.cli.bench.material", "the material's solve vs its exact Newton minimiser: step and response errors (median, max) vs time, Pareto"),
+        "plan": ("tissue_sim_ros.cli.bench.plan", "batch rollouts per second (serial, 1 and 2 workers); the planner service's latency and node rate"),
+        "fit": ("tissue_sim_ros.cli.bench.fit", "fit known parameters back from simulated recordings on another mesh: error, coverage, time"),
+        "peers": ("tissue_sim_ros.cli.bench.peers", "time per step against Taichi, MuJoCo flex and the NumPy baseline (optional extras)"),
     },
 }
+
+
+#: ``:role:`target` `` or ``:role:`title <target>` `` (Sphinx cross-references), ``~`` to show the last part only
+_ROLE = re.compile(r":(?:py:)?(\w+):`(~?)([^`<]*?)\s*(?:<([^>`]+)>)?`")
+
+
+def _role_text(match: re.Match[str]) -> str:
+    role, tilde, text, target = match.groups()
+    if target is not None:  # an explicit title
+        return text
+    if role == "mod":  # the whole dotted name: in a terminal there is no link to follow to the module
+        return text
+    name = text.rsplit(".", 1)[-1] if tilde else text
+    return name + ("()" if role in ("func", "meth") else "")
+
+
+def plain_text(text: str) -> str:
+    """A docstring's reStructuredText as ``--help`` shows it: cross-references, literals and bold as plain words.
+
+    ``:mod:`~a.b``` -> ``a.b``; ``:func:`~a.f``` -> ``f()``; ``:class:`a.C``` -> ``a.C``;
+    ````x```` -> ``x``; ``**x**`` -> ``x``. Line breaks are kept (the parsers format descriptions raw).
+    """
+    text = _ROLE.sub(_role_text, text)
+    text = re.sub(r"``(.+?)``", r"\1", text, flags=re.DOTALL)
+    # strong emphasis as reST reads it: not inside a word, so x**2 stays a power
+    return re.sub(r"(?<![\w*])\*\*(\S(?:.*?\S)?)\*\*(?![\w*])", r"\1", text)
 
 
 def _add_command(sub: argparse._SubParsersAction, name: str, module: str, help_text: str) -> None:
@@ -56,8 +89,8 @@ def _add_command(sub: argparse._SubParsersAction, name: str, module: str, help_t
             sub.add_parser(name, help=f"{help_text} (not available in this build)")
             return
         raise
-    parser = sub.add_parser(name, help=getattr(mod, "HELP", help_text),
-                            description=getattr(mod, "DESCRIPTION", getattr(mod, "HELP", help_text)),
+    help_line = plain_text(getattr(mod, "HELP", help_text))
+    parser = sub.add_parser(name, help=help_line, description=plain_text(getattr(mod, "DESCRIPTION", help_line)),
                             formatter_class=argparse.RawDescriptionHelpFormatter)
     mod.add_arguments(parser)
     parser.set_defaults(_run=mod.run)

@@ -63,6 +63,7 @@ from ..experiments.fit import (
     write_outputs,
 )
 from .config import add_config_arguments
+from .options import add_backend_arguments
 
 HELP = "identify the tissue's material (Young's modulus, Poisson's ratio, damping...) from a recorded bag"
 DESCRIPTION = __doc__.split("\n\n", 1)[1] if __doc__ else HELP
@@ -97,8 +98,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "one, 0.04 of Poisson's ratio; contact makes rollouts rough at the micrometre level)")
     parser.add_argument("--no-mesh-check", action="store_true",
                         help="skip the rollout on half the mesh spacing whose shift of the estimate joins its error bar")
-    from ..core.sim.backends import add_backend_arguments  # noqa: PLC0415
-
     add_backend_arguments(parser, jobs_default=min(2, os.cpu_count() or 1),
                           jobs_help="worker processes for the rollouts (default: 2 or the cores; 1: in this process)")
     parser.add_argument("--out", required=True, help="output directory (must not exist or be empty)")
@@ -159,9 +158,9 @@ def run(args: argparse.Namespace) -> int:
         names = parse_fit_names(args.fit)
         if args.max_evals < 2:
             raise InputError(f"--max-evals {args.max_evals}: expected at least 2")
-        from ..core.sim.backends import check_backend_arguments  # noqa: PLC0415
+        from ..core.sim.backends import check_backend, check_jobs  # noqa: PLC0415
 
-        jobs, backend, address = check_backend_arguments(args)
+        jobs, backend, address = check_jobs(args.jobs), check_backend(args.backend), args.address
         recording = read_recording(bag, points_topic, tool_topic, frame=args.frame)
         recording.source = recording.source.replace(str(staging), str(out))  # --demo: where it will be
         values = load_scene_values(params, args.set)

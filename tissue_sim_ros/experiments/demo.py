@@ -11,7 +11,6 @@ snapshots from ``tissue/points``, energy and its terms per tissue from
 """
 from __future__ import annotations
 
-import argparse
 import os
 import queue
 import signal
@@ -27,31 +26,10 @@ from tqdm import tqdm
 
 from ..core.contact.tool import yaw_from_quaternion
 from ..core.errors import InputError
-from ..core.resources import scene_names, scene_params_file
+from ..core.resources import scene_params_file
 from ..core.timing import trajectories as tr
 from ..core.timing.stamps import stamp_to_ns
 from ..ros.domain import free_domain_id
-
-HELP = "the main job: node + tool driver on a private ROS domain, experiment a, recorded to a bag"
-DESCRIPTION = __doc__
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="out", help="output directory for the bag, figures and logs (default: out)")
-    parser.add_argument("--scene", default="paper", choices=scene_names(),
-                        help="shipped scene: the node's parameter file (config/scenes/NAME.yaml; paper: "
-                             "config/tissue_sim.yaml) and the driver's experiment a for it (default: paper)")
-    parser.add_argument("--params", help="parameter YAML for the node, over the shipped config/tissue_sim.yaml "
-                                         "(default: the scene's)")
-    parser.add_argument("--domain-id", type=int, default=None,
-                        help="ROS_DOMAIN_ID to use (default: a free-looking one derived from the process id)")
-    parser.add_argument("--timeout", type=float, default=120.0, help="give up after this many seconds (default 120)")
-    parser.add_argument("--trajectory", default="experiment_a", metavar="PRESET|FILE",
-                        help="the tool driver's trajectory: a preset (experiment_a, experiment_b_shallow, "
-                             "experiment_b_steep, authors) or a .csv/.yaml trajectory file (default experiment_a)")
-    parser.add_argument("--contact-model", choices=["paper", "projection"], default="projection",
-                        help="contact model of the node (default projection: the tissue is pushed; the paper's eq. (3) "
-                             "lets the tool pass into the tissue once it touches)")
 
 
 class _Process:
@@ -243,24 +221,52 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
     }
 
 
-def run(args: argparse.Namespace) -> int:
+def run(out: str | Path, *, scene: str = "paper", params_file: str | Path | None = None,
+        domain_id: int | None = None, timeout: float = 120.0, trajectory: str = "experiment_a",
+        contact_model: str = "projection") -> int:
+    """The demo end to end: node, recorder and driver as processes, figures from the bag; the exit status (0).
+
+    Parameters
+    ----------
+    out : str or Path
+        Output directory for the bag, figures and logs (created).
+    scene : str
+        Shipped scene: the node's parameter file (config/scenes/NAME.yaml; paper: config/tissue_sim.yaml) and
+        the driver's experiment a for it.
+    params_file : str or Path, optional
+        Parameter YAML for the node, over the shipped config/tissue_sim.yaml (default: the scene's).
+    domain_id : int, optional
+        ROS_DOMAIN_ID, 0..232 (default: a free-looking one derived from the process id).
+    timeout : float
+        Give up after this many seconds.
+    trajectory : str
+        The driver's trajectory: a preset or a .csv/.yaml trajectory file.
+    contact_model : str
+        The node's contact model, ``"paper"`` or ``"projection"``.
+
+    Raises
+    ------
+    InputError
+        A bad domain id, trajectory or parameter, or a node or recorder that does not deliver every step.
+    """
     from ..core.config import resolve_config  # noqa: PLC0415
     from ..core.contact.tool import ToolPose  # noqa: PLC0415
     from ..core.physics.model import Model  # noqa: PLC0415
     from ..render import plot_energy, save_snapshots  # noqa: PLC0415
 
-    out = Path(args.out)
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    params_file = Path(args.params) if args.params else scene_params_file(args.scene)
-    scene = tr.scene_experiments(args.scene)
+    scene_name = scene
+    params_file = Path(params_file) if params_file else scene_params_file(scene_name)
+    scene = tr.scene_experiments(scene_name)
     # the node resolves the same file and -p contact_model through the same front door
-    cfg = resolve_config({"contact_model": args.contact_model}, params_file=params_file, source="--contact-model")
+    cfg = resolve_config({"contact_model": contact_model}, params_file=params_file, source="--contact-model")
     params, tool = cfg.sim, cfg.tool
-    spec = args.trajectory
+    spec = trajectory
     if spec not in tr.PRESETS:
         spec = str(Path(spec).resolve())  # the driver runs in another directory
-    n_steps = tr.resolve_trajectory(spec, tool, params.dt, args.scene).n_steps(params.dt)
-    domain = args.domain_id if args.domain_id is not None else free_domain_id(120)
+    n_steps = tr.resolve_trajectory(spec, tool, params.dt, scene_name).n_steps(params.dt)
+    domain = domain_id if domain_id is not None else free_domain_id(120)
     if not 0 <= domain <= 232:
         raise InputError(f"--domain-id {domain}: expected 0..232")
     env = os.environ.copy()
@@ -277,7 +283,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         node = _Process("tissue_sim_node", [_script("tissue_sim_node"), "--ros-args", "--params-file", str(params_file),
                                             "-p", "lock_step:=true", "-p", "points_rate:=1000.0",
-                                            "-p", "marker_rate:=1000.0", "-p", f"contact_model:={args.contact_model}"],
+                                            "-p", "marker_rate:=1000.0", "-p", f"contact_model:={contact_model}"],
                             env, out / "node.log")
         procs.append(node)
         recorder = _Process("recorder", [_script("tissue-sim"), "record", "--output", str(bag_path)], env,
@@ -293,14 +299,14 @@ def run(args: argparse.Namespace) -> int:
                 seen.add(parts[1])
             return wanted <= seen
 
-        recorder.wait_for_line(ready, timeout=args.timeout)
+        recorder.wait_for_line(ready, timeout=timeout)
         monitor = _Monitor(domain)
         # the recorder's and this monitor's subscriptions are matched before the first pose is sent
         monitor.wait_for_subscribers({"/tissue/energy": 2, "/tissue/energy/bodies": 1, "/tissue/contact": 1,
                                       "/tissue/points": 1, "/tissue/markers": 1, "/tool/pose": 2, "/tool/twist": 2},
-                                     timeout=args.timeout)
+                                     timeout=timeout)
         driver = _Process("tool_driver", [_script("tool_driver"), "--ros-args", "-p", f"trajectory:={spec}",
-                                          "-p", f"scene:={args.scene}", "-p", f"dt:={params.dt!r}",
+                                          "-p", f"scene:={scene_name}", "-p", f"dt:={params.dt!r}",
                                           "-p", f"tool_shape:={tool.kind}", "-p", f"tool_length:={tool.length!r}",
                                           "-p", f"tool_width:={tool.width!r}", "-p", f"tool_radius:={tool.radius!r}",
                                           "-p", "lock_step:=true", "-p", "exit_when_done:=true",
@@ -309,17 +315,17 @@ def run(args: argparse.Namespace) -> int:
         procs.append(driver)
         try:
             with tqdm(total=n_steps, desc="experiment a through ROS", unit="step") as bar:
-                got = monitor.spin(n_steps, lambda: driver.proc.poll() is not None, 3.0, args.timeout, bar)
+                got = monitor.spin(n_steps, lambda: driver.proc.poll() is not None, 3.0, timeout, bar)
             # the node reports its step times on /diagnostics once a second: take the last window too
             monitor.spin(10**9, lambda: monitor.steps_reported >= got, 0.0, 2.5)
             node_ms = monitor.node_step_ms()
         finally:
             monitor.close()
-        driver.proc.wait(timeout=args.timeout)
+        driver.proc.wait(timeout=timeout)
         # the recorder prints its message count every second: stop it once two fresh counts agree
         recorder.drain()
         last = None
-        deadline = time.monotonic() + args.timeout
+        deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             line = recorder.wait_for_line(lambda s: s.strip().endswith("messages"), timeout=5.0)
             count = int(line.split()[-2])
@@ -346,7 +352,7 @@ def run(args: argparse.Namespace) -> int:
         snaps.append((s, x, None if p is None else ToolPose(*map(float, p))))
     files = [
         save_snapshots(out / "demo_snapshots.png", model, snaps, tool=tool,
-                       title=f"Demo (through ROS): trajectory {Path(args.trajectory).name} ({args.contact_model} contact)"),
+                       title=f"Demo (through ROS): trajectory {Path(trajectory).name} ({contact_model} contact)"),
         plot_energy(out / "demo_energy.png", run_["steps"],
                     {"inertial": run_["inertial"], "spring": run_["spring"], "area": run_["area"]},
                     body_names=model.body_names,
@@ -364,7 +370,7 @@ def run(args: argparse.Namespace) -> int:
     # "8.21 ms on average (1x real time)" read as a contradiction: say the share of the step period it used
     node_time = (f"took {node_ms:.2f} ms on average, {100 * node_ms / (params.dt * 1e3):.0f}% of the "
                  f"{params.dt * 1e3:g} ms step period" if node_ms else "was not reported")
-    print(f"Ran trajectory {args.trajectory} through ROS: {len(run_['steps'])} steps ({sim_time:.2f} s simulated) in {wall:.2f} s "
+    print(f"Ran trajectory {trajectory} through ROS: {len(run_['steps'])} steps ({sim_time:.2f} s simulated) in {wall:.2f} s "
           f"wall (real-time factor {sim_time / wall:.2f}: the driver paces the lock-step node at 1/dt so the recorder "
           f"keeps every message); the node's own step, simulation and messages, {node_time}. "
           f"Driver, node and recorder ran as separate processes on ROS domain {domain}. "
@@ -373,7 +379,7 @@ def run(args: argparse.Namespace) -> int:
           + f" at steps {', '.join(str(int(run_['steps'][i])) for i in total.argmax(axis=0))}; the tool touched "
           f"the tissue in {int(touched.sum())} steps (first at step "
           f"{int(np.argmax(touched)) + 1 if touched.any() else '-'}). "
-          f"Contact model: {args.contact_model}. Setup and shutdown took {time.monotonic() - t_start - wall:.1f} s.")
+          f"Contact model: {contact_model}. Setup and shutdown took {time.monotonic() - t_start - wall:.1f} s.")
     print()
     print("wrote:")
     for f in [bag_path, *files, out / "node.log", out / "record.log", out / "driver.log"]:

@@ -15,41 +15,23 @@ replans every ``--replan-every`` steps (:mod:`~tissue_sim_ros.experiments.plan_l
 """
 from __future__ import annotations
 
-import argparse
 import math
 import os
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 from tqdm import tqdm
 
-from ..cli.config import add_config_arguments, config_from_args
 from ..core.config import Config
 from ..core.errors import InputError, output_dir
 from ..core.timing import trajectories as tr
-from .plan_live import add_live_arguments, run_live
 
-HELP = "rank insertion angles/speeds toward a target by implicit Euler energy"
-DESCRIPTION = __doc__
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..core.sim.backends import add_backend_arguments  # noqa: PLC0415
-    parser.add_argument("--target", type=float, nargs=2, default=list(tr.B_TARGET), metavar=("X", "Y"),
-                        help="target of the tool tip [m], a point inside the tissue (default: experiment b's, %(default)s)")
-    parser.add_argument("--angles", type=float, nargs=3, default=[-5.0, -40.0, 5.0], metavar=("FROM", "TO", "STEP"),
-                        help="insertion angles [deg], direction of the tip's motion (default: -5 to -40 every 5)")
-    parser.add_argument("--speeds", type=float, nargs="+", default=[0.001, 0.002],
-                        help="tip speeds [m per step] (default: 0.001 0.002)")
-    parser.add_argument("--distance", type=float, default=tr.B_DISTANCE, help="insertion distance [m]")
-    add_backend_arguments(parser, jobs_default=os.cpu_count() or 1,
-                          jobs_help="warm worker processes (default: all cores; 1: serially in this process)")
-    add_config_arguments(parser)
-    parser.add_argument("--out", default="out/plan", help="output directory (default: out/plan)")
-    add_live_arguments(parser)
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+#: (FROM, TO, STEP) of the insertion angles [deg], the direction of the tip's motion: -5 to -40 every 5
+ANGLES = (-5.0, -40.0, 5.0)
+#: tip speeds [m per step]
+SPEEDS = (0.001, 0.002)
 
 
 def angle_grid(start: float, stop: float, step: float) -> list[float]:
@@ -158,18 +140,44 @@ def chart(path: Path, rows: list[dict[str, Any]], target: tuple[float, float]) -
     return path
 
 
-def run(args: argparse.Namespace) -> int:
-    from .paper import B_TOOL_VALUES  # noqa: PLC0415
+def run(config: Config, out: str | Path, *, target: Sequence[float] = tr.B_TARGET,
+        angles: Sequence[float] = ANGLES, speeds: Sequence[float] = SPEEDS, distance: float = tr.B_DISTANCE,
+        jobs: int | None = None, backend: str = "local", address: str | None = None, progress: bool = True) -> int:
+    """Plan, print the ranked table and write plan.csv and plan.png into ``out``; the exit status (0).
 
-    if args.live:
-        return run_live(args)
-    values = config_from_args(args, defaults=B_TOOL_VALUES)
-    angles = angle_grid(*args.angles)
-    target = (float(args.target[0]), float(args.target[1]))
-    out = output_dir(args.out, "--out")
+    Parameters
+    ----------
+    config : Config
+        The scene (``tissue-sim plan`` resolves it over experiment b's tool, ``paper.B_TOOL_VALUES``).
+    out : str or Path
+        Output directory, created once the input is checked.
+    target : (x, y)
+        The tip's target [m], inside the tissue.
+    angles : (from, to, step)
+        Insertion angles [deg] (:func:`angle_grid`).
+    speeds : sequence of float
+        Tip speeds [m per step].
+    distance : float
+        Insertion distance [m].
+    jobs : int, optional
+        Warm workers (default: all cores; 1: serially in this process).
+    backend, address : str
+        ``"local"`` or ``"ray"`` and the Ray cluster (:func:`plan`).
+    progress : bool
+        Show a progress bar.
+
+    Raises
+    ------
+    InputError
+        Bad angles, speeds, distance, jobs, backend, a target outside the tissue, or ``out`` a file.
+    """
+    jobs = (os.cpu_count() or 1) if jobs is None else jobs
+    angles = angle_grid(*angles)
+    target = (float(target[0]), float(target[1]))
+    out = output_dir(out, "--out")
     t0 = time.perf_counter()
-    rows = plan(values, angles, list(args.speeds), target, args.distance, args.jobs, progress=not args.no_progress,
-                backend=args.backend, address=args.address)
+    rows = plan(config, angles, list(speeds), target, distance, jobs, progress=progress,
+                backend=backend, address=address)
     wall = time.perf_counter() - t0
     out.mkdir(parents=True, exist_ok=True)  # after the input is checked: bad input creates nothing
     cols = list(rows[0])
@@ -178,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
         for r in rows:
             fh.write(",".join(repr(r[c]) if isinstance(r[c], float) else str(r[c]) for c in cols) + "\n")
     chart(out / "plan.png", rows, target)
-    print(f"{len(rows)} insertions toward {target} in {wall:.1f} s on {args.jobs} {'Ray actors' if args.backend == 'ray' else 'processes'}, ranked by cost "
+    print(f"{len(rows)} insertions toward {target} in {wall:.1f} s on {jobs} {'Ray actors' if backend == 'ray' else 'processes'}, ranked by cost "
           f"(energy the insertion adds, summed over its steps):")
     print(f"{'rank':>4} {'angle':>7} {'speed':>11} {'cost':>11} {'peak added':>11} {'contact':>8} {'max force':>10}")
     for i, r in enumerate(rows, 1):

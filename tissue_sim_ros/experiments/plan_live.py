@@ -26,32 +26,23 @@ prints a summary.
 """
 from __future__ import annotations
 
-import argparse
 import csv
 import math
 import time
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
 from ..core.errors import InputError
 
 
-def add_live_arguments(parser: argparse.ArgumentParser) -> None:
+def default_entry() -> tuple[float, float]:
+    """Where the tip enters by default [m]: 0.2 m from experiment b's target, approaching it at -30 deg."""
     from ..core.timing import trajectories as tr  # noqa: PLC0415
 
     a = math.radians(-30.0)
-    entry = [tr.B_TARGET[0] - 0.2 * math.cos(a), tr.B_TARGET[1] - 0.2 * math.sin(a)]
-    g = parser.add_argument_group("live planning (--live)")
-    g.add_argument("--live", action="store_true",
-                   help="plan on a running tissue_sim_node through ~/plan_insertion and carry the plan out")
-    g.add_argument("--entry", type=float, nargs=2, default=entry, metavar=("X", "Y"),
-                   help="--live: where the tip enters [m] (default: 0.2 m from the target at -30 deg)")
-    g.add_argument("--replan-every", type=int, default=25, metavar="N",
-                   help="--live: replan every N steps (0: never; default 25)")
-    g.add_argument("--node", default="/tissue_sim_node", help="--live: the simulation node's name (default %(default)s)")
-    g.add_argument("--frame", default="world", help="--live: frame of the request and the poses (default world)")
-    g.add_argument("--timeout", type=float, default=60.0, help="--live: seconds to wait for the service and each plan")
+    return (tr.B_TARGET[0] - 0.2 * math.cos(a), tr.B_TARGET[1] - 0.2 * math.sin(a))
 
 
 def _wait(executor, predicate, timeout: float, what: str):
@@ -63,7 +54,33 @@ def _wait(executor, predicate, timeout: float, what: str):
     return predicate()
 
 
-def run_live(args: argparse.Namespace) -> int:
+def run_live(out: str | Path, *, target: Sequence[float], entry: Sequence[float] | None = None,
+             replan_every: int = 25, node_name: str = "/tissue_sim_node", frame: str = "world",
+             timeout: float = 60.0) -> int:
+    """Plan on the running node, carry the plan out, replan; write the CSVs and the figure into ``out``.
+
+    Parameters
+    ----------
+    out : str or Path
+        Output directory (created).
+    target : (x, y)
+        The tip's target [m].
+    entry : (x, y), optional
+        Where the tip enters [m] (default :func:`default_entry`).
+    replan_every : int
+        Replan every this many steps (0: never).
+    node_name : str
+        The simulation node's name; its namespace is the tool topics'.
+    frame : str
+        Frame of the request and the poses.
+    timeout : float
+        Seconds to wait for the service, the subscribers and each plan.
+
+    Returns
+    -------
+    int
+        0, or 1 when the node answers the first request with no plan.
+    """
     import rclpy  # noqa: PLC0415
     from geometry_msgs.msg import PoseStamped, TwistStamped  # noqa: PLC0415
     from nav_msgs.srv import GetPlan  # noqa: PLC0415
@@ -73,20 +90,21 @@ def run_live(args: argparse.Namespace) -> int:
 
     from ..ros import qos  # noqa: PLC0415
 
-    if args.replan_every < 0:
-        raise InputError(f"--replan-every={args.replan_every}: expected N >= 0 steps (0: never)")
-    if not (math.isfinite(args.timeout) and args.timeout > 0):
-        raise InputError(f"--timeout={args.timeout}: expected seconds > 0")
-    out = Path(args.out)
+    if replan_every < 0:
+        raise InputError(f"--replan-every={replan_every}: expected N >= 0 steps (0: never)")
+    if not (math.isfinite(timeout) and timeout > 0):
+        raise InputError(f"--timeout={timeout}: expected seconds > 0")
+    entry = default_entry() if entry is None else entry
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rclpy.init(args=[])  # rcl must not parse tissue-sim's own command line
     node = rclpy.create_node("plan_live")
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    ns = args.node.rsplit("/", 1)[0]
+    ns = node_name.rsplit("/", 1)[0]
     pub_pose = node.create_publisher(PoseStamped, f"{ns}/tool/pose", qos.tool_output())
     pub_twist = node.create_publisher(TwistStamped, f"{ns}/tool/twist", qos.tool_output())
-    client = node.create_client(GetPlan, f"{args.node}/plan_insertion")
+    client = node.create_client(GetPlan, f"{node_name}/plan_insertion")
     seen: dict[str, object] = {}
     node.create_subscription(MarkerArray, f"{ns}/plan/candidates", lambda m: seen.setdefault("candidates", m),
                              qos.latched())
@@ -94,13 +112,13 @@ def run_live(args: argparse.Namespace) -> int:
                              qos.latched(), raw=True)
     node.create_subscription(MarkerArray, f"{ns}/tissue/markers", lambda m: seen.__setitem__("tissue", m),
                              qos.state_stream())
-    target = (float(args.target[0]), float(args.target[1]))
+    target = (float(target[0]), float(target[1]))
     sent: list[tuple[float, float, float, float, int]] = []
     requests: list[dict] = []
 
     def pose_msg(x: float, y: float, yaw: float = 0.0) -> PoseStamped:
         ps = PoseStamped()
-        ps.header.frame_id = args.frame
+        ps.header.frame_id = frame
         ps.header.stamp = node.get_clock().now().to_msg()
         ps.pose.position.x, ps.pose.position.y = float(x), float(y)
         ps.pose.orientation.z, ps.pose.orientation.w = math.sin(yaw / 2.0), math.cos(yaw / 2.0)
@@ -111,7 +129,7 @@ def run_live(args: argparse.Namespace) -> int:
     def ask(start: tuple[float, float], step: int) -> list[tuple[float, float, float]]:
         t0 = time.perf_counter()
         future = client.call_async(GetPlan.Request(start=pose_msg(*start), goal=pose_msg(*target)))
-        _wait(executor, future.done, args.timeout, "a plan")
+        _wait(executor, future.done, timeout, "a plan")
         plan = future.result().plan
         poses = [(p.pose.position.x, p.pose.position.y, 2.0 * math.atan2(p.pose.orientation.z, p.pose.orientation.w))
                  for p in plan.poses]
@@ -123,17 +141,17 @@ def run_live(args: argparse.Namespace) -> int:
         return poses
 
     try:
-        _wait(executor, client.service_is_ready, args.timeout, f"the service {args.node}/plan_insertion")
-        _wait(executor, lambda: pub_pose.get_subscription_count() > 0, args.timeout, f"{ns}/tool/pose's subscriber")
-        _wait(executor, lambda: "tissue" in seen, args.timeout, f"{ns}/tissue/markers")
+        _wait(executor, client.service_is_ready, timeout, f"the service {node_name}/plan_insertion")
+        _wait(executor, lambda: pub_pose.get_subscription_count() > 0, timeout, f"{ns}/tool/pose's subscriber")
+        _wait(executor, lambda: "tissue" in seen, timeout, f"{ns}/tissue/markers")
         tissue_at_request = seen["tissue"]
-        path = ask(tuple(args.entry), 0)
+        path = ask(tuple(entry), 0)
         if not path:
-            print(f"no plan from {tuple(args.entry)} to {target}: the node's log says why")
+            print(f"no plan from {tuple(entry)} to {target}: the node's log says why")
             return 1
-        _wait(executor, lambda: "candidates" in seen and "costs" in seen, args.timeout, "the plan's candidates")
+        _wait(executor, lambda: "candidates" in seen and "costs" in seen, timeout, "the plan's candidates")
         figure = draw_plan(out / "live_plan.png", tissue_at_request, seen["candidates"], seen["costs"],
-                           tuple(args.entry), target)
+                           tuple(entry), target)
         dt = stamp_dt["dt"]
         # the tip is at the target at the path's end: its offset from the tool's centre follows
         tip_offset = math.hypot(target[0] - path[-1][0], target[1] - path[-1][1])
@@ -157,7 +175,7 @@ def run_live(args: argparse.Namespace) -> int:
             next_t += dt
             while time.monotonic() < next_t:
                 executor.spin_once(timeout_sec=max(0.0, min(0.005, next_t - time.monotonic())))
-            if args.replan_every and step % args.replan_every == 0 and k < len(path):
+            if replan_every and step % replan_every == 0 and k < len(path):
                 tip = (x + tip_offset * math.cos(yaw), y + tip_offset * math.sin(yaw))
                 new = ask(tip, step)  # the tool holds its last pose meanwhile
                 next_t = time.monotonic()

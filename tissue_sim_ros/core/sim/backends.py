@@ -52,29 +52,17 @@ BACKENDS = ("local", "ray")
 
 
 def check_backend(backend: str) -> str:
+    """``backend`` if it is one of :data:`BACKENDS`, or InputError naming it."""
     if backend not in BACKENDS:
         raise InputError(f"--backend {backend!r}: expected one of {', '.join(BACKENDS)}")
     return backend
 
 
-def add_backend_arguments(parser: Any, *, jobs_default: int, jobs_help: str) -> None:
-    """``--jobs``, ``--backend`` and ``--address``: declared once for every sweep command (plan, bench stability,
-    tune, fit, bench fit), checked by :func:`check_backend_arguments`."""
-    parser.add_argument("--jobs", type=int, default=jobs_default,
-                        help=f"{jobs_help}; with --backend ray: Ray workers at a time")
-    parser.add_argument("--backend", choices=BACKENDS, default="local",
-                        help="local: this machine's cores; ray: a Ray cluster (pip install '.[ray]'); the same "
-                             "results")
-    parser.add_argument("--address", default=None,
-                        help="--backend ray: the cluster (HOST:6379, ray://HOST:10001; default RAY_ADDRESS or a "
-                             "private single-node cluster on 127.0.0.1)")
-
-
-def check_backend_arguments(args: Any) -> tuple[int, str, str | None]:
-    """``(jobs, backend, address)`` of :func:`add_backend_arguments`'s options, or InputError naming the bad one."""
-    if args.jobs < 1:
-        raise InputError(f"--jobs {args.jobs}: expected at least 1 worker")
-    return int(args.jobs), check_backend(args.backend), args.address
+def check_jobs(jobs: int) -> int:
+    """``jobs`` as a worker count, or InputError: a sweep needs at least one worker."""
+    if jobs < 1:
+        raise InputError(f"--jobs {jobs}: expected at least 1 worker")
+    return int(jobs)
 
 
 def import_ray() -> Any:

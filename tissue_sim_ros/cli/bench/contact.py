@@ -1,0 +1,19 @@
+"""``tissue-sim bench contact``: the command line of bench/contact.py."""
+from __future__ import annotations
+
+import argparse
+
+from ...bench import contact
+
+HELP = "contact detection cost per step: culled vs full per-step python-fcl BVH rebuild"
+DESCRIPTION = contact.__doc__
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", default="bench_out/contact", help="output directory (CSV, PNG)")
+    parser.add_argument("--steps", type=int, default=None, help="steps of each trajectory (default 300; quick 160)")
+    parser.add_argument("--quick", action="store_true", help="the paper scene only, 160 steps (smoke test)")
+
+
+def run(args: argparse.Namespace) -> int:
+    return contact.run(args.out, steps=args.steps, quick=args.quick)
