@@ -383,9 +383,9 @@ if __name__ == "__main__":  # pragma: no cover
 
 def test_tool_driver_trajectory_parameter(tmp_path):
     pytest.importorskip("rclpy")
-    from tissue_sim_ros.ros.tool_driver import DRIVER_PARAMETERS, _trajectory
+    from tissue_sim_ros.ros.tool_driver import _trajectory, default_values
 
-    values = {name: default for name, (default, _) in DRIVER_PARAMETERS.items()}
+    values = default_values()
     assert _trajectory({**values, "trajectory": "authors"}).n_steps(values["dt"]) == 276
     path = tr.write_trajectory_csv(tmp_path / "t.csv", tr.preset("experiment_b_steep", ToolShape(), 0.01), 0.01)
     assert _trajectory({**values, "trajectory": str(path)}).n_steps(0.01) == \

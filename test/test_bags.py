@@ -194,6 +194,39 @@ def test_flushed_data_survives_a_writer_that_never_closes(tmp_path, storage):
     assert vals == [(100 + i, float(i)) for i in range(10)]
 
 
+@pytest.mark.parametrize("storage", STORAGES)
+def test_durable_custom_data_survives_a_writer_that_never_closes(tmp_path, storage):
+    """custom_data set durably is in the storage file at once (MCAP: a Metadata record; sqlite3: a table): a
+    recording killed before its close keeps it, and record --recover carries it into metadata.yaml; plain
+    custom_data is written at close only."""
+    from tissue_sim_ros.ros.bags import durable_custom_data  # noqa: PLC0415
+
+    path = tmp_path / "bag"
+    w = BagWriter(path, storage, flush_period=3600.0)
+    w.add_topic("/e", "std_msgs/msg/Float64")
+    w.set_custom_data("tissue_sim.params", '{"dt": 0.01, "pin_y_top": null}', durable=True)
+    w.set_custom_data("at_close", "only")
+    for i in range(10):
+        w.write("/e", m.encode_float64(float(i)), 100 + i)
+    w.flush()
+    crashed = tmp_path / "crashed"
+    shutil.copytree(path, crashed)  # the files as a SIGKILL leaves them
+    w.close()
+    stored = next(crashed.glob("*.mcap" if storage == "mcap" else "*.db3"))
+    assert durable_custom_data(stored) == {"tissue_sim.params": '{"dt": 0.01, "pin_y_top": null}'}
+    from tissue_sim_ros.cli import main as cli  # noqa: PLC0415
+
+    assert cli(["record", "--recover", str(crashed), "-o", str(tmp_path / "fixed")]) == 0
+    with Bag(tmp_path / "fixed") as b:
+        assert b.custom_data == {"tissue_sim.params": '{"dt": 0.01, "pin_y_top": null}'}
+        assert b.message_count == 10
+    assert "tissue_sim.params" in (tmp_path / "fixed" / "metadata.yaml").read_text()
+    # the closed bag: both, in metadata.yaml; its storage file still reads (the extra record or table is ignored)
+    with Bag(path) as b:
+        assert b.custom_data == {"tissue_sim.params": '{"dt": 0.01, "pin_y_top": null}', "at_close": "only"}
+        assert [b.decode(raw, ty).data for _, ty, _, raw in b.messages()] == [float(i) for i in range(10)]
+
+
 def test_recover_mcap_keeps_complete_chunks_of_a_cut_file(tmp_path):
     path = tmp_path / "bag"
     with BagWriter(path, flush_period=0.0) as w:  # one chunk per message

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from tissue_sim_ros.bench.node import _memory_parts_kib, _rss_kib
+from tissue_sim_ros.bench.node_memory import memory_parts_kib as _memory_parts_kib
+from tissue_sim_ros.bench.node_memory import rss_kib as _rss_kib
 
 SMAPS = """\
 55d0c0000000-55d0c0021000 r--p 00000000 08:01 1234  /usr/bin/python3.11

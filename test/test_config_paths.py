@@ -98,7 +98,7 @@ def test_lock_step_node_and_experiment_a_take_identical_steps(ros_env: dict[str,
         traj = experiment_a(node.sim.tool, node.sim.params.dt, steps=STEPS)
         energies = []
         for k, (pose, _twist) in enumerate(traj.steps(node.sim.params.dt)):
-            node._on_pose(_pose_msg(k, pose.x, pose.y, pose.yaw))
+            node.inputs.on_pose(_pose_msg(k, pose.x, pose.y, pose.yaw))
             energies.append(node.last_report.energy.scene_total)
         assert node.sim.step_count == STEPS
         np.testing.assert_array_equal(np.array(energies), cli_energy)

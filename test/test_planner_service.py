@@ -101,6 +101,40 @@ def test_service_answers_with_the_librarys_plan(ros_client: RosClient, start_pro
     assert ros_client.spin_until(lambda: cands.messages, TIMEOUT, proc)
 
 
+def test_the_answer_names_the_candidates_it_skipped_and_why(ros_client: RosClient, start_process: Any) -> None:
+    """Of the 10 candidates the two steepest angles (offsets -20 and -10 deg) at both speeds are not rolled out (the tool at their entry lies
+    through the upper tissue): plan/candidates (latched) holds a text for each in namespace plan_skipped, id = its
+    index in the sweep, naming its angle, speed and reason, beside the lines of the 6 rolled out, and the log lists
+    them. (Before: only the 6 rows and lines; nothing said which 4 were left out, or why.)"""
+    from rclpy.serialization import deserialize_message  # noqa: PLC0415
+
+    proc = start_process(["tissue_sim_node", "--ros-args", "-r", "__ns:=/skips", *NODE_ARGS, "-p", "plan_workers:=0",
+                          "-p", "lock_step:=true"], name="skips")
+    client = ros_client.node.create_client(GetPlan, "/skips/tissue_sim_node/plan_insertion")
+    cands = ros_client.raw_subscription(MarkerArray, "/skips/plan/candidates", qos.latched())
+    costs = ros_client.raw_subscription(Float64MultiArray, "/skips/plan/costs", qos.latched())
+    assert len(ros_client.call(client, _request(), TIMEOUT, proc).plan.poses) > 0
+    ros_client.spin_until(lambda: cands.messages and costs.messages, TIMEOUT, proc, "the latched candidates")
+    markers = deserialize_message(cands.messages[-1], MarkerArray).markers
+    rolled = sorted(m.id for m in markers if m.ns == "plan_candidates")
+    skipped = {m.id: m for m in markers if m.ns == "plan_skipped"}
+    rows, _ = M.decode_float64_multiarray(costs.messages[-1])
+    assert len(rolled) == rows.shape[0] == 6 and sorted(skipped) == [0, 1, 5, 6], (rolled, sorted(skipped))
+    speeds, angles = [0.1, 0.2], sweep_values(-20.0, 20.0, 10.0)  # the sweep's order: speeds outer, angles inner
+    out = proc.output()
+    assert "plan_insertion: 4 of 10 candidates not rolled out:" in out, out[-3000:]
+    assert "plan_insertion: 6 of 10 candidates rolled out" in out, out[-3000:]
+    for i, m in skipped.items():
+        assert m.type == m.TEXT_VIEW_FACING and m.header.frame_id == "world"
+        angle = math.degrees(math.atan2(TARGET[1] - ENTRY[1], TARGET[0] - ENTRY[0])) + angles[i % 5]
+        assert m.text.startswith(f"{angle:+.1f} deg (offset {angles[i % 5]:+g}) at {speeds[i // 5]:g} m/s: "), m.text
+        assert "overlaps the tissue" in m.text, m.text
+        # at the candidate's entry: the goal's distance from the start, along its angle
+        d = math.hypot(TARGET[0] - ENTRY[0], TARGET[1] - ENTRY[1])
+        assert math.isclose(m.pose.position.x, TARGET[0] - d * math.cos(math.radians(angle)), abs_tol=1e-9)
+        assert m.text in out  # the same line in the log
+
+
 def test_node_steps_while_it_plans_and_survives_bad_requests(ros_client: RosClient, start_process: Any) -> None:
     proc, client = _start(start_process, ros_client, "-p", "plan_angle_step:=5.0")
     points = ros_client.raw_subscription(PointCloud2, "tissue/points", qos.state_stream())

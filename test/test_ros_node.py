@@ -642,7 +642,7 @@ def test_an_interrupt_while_the_node_starts_ends_it_cleanly(ros_env: dict[str, s
             "from tissue_sim_ros.ros import node\n"
             "def interrupted(self):\n"
             "    raise KeyboardInterrupt\n"
-            "node.TissueSimNode._publish_rest_mesh = interrupted\n"
+            "node.outputs.Outputs.publish_rest_mesh = interrupted\n"
             "code = node.main()\n"
             "import threading\n"
             "print('threads left:', sorted(t.name for t in threading.enumerate() if t is not threading.main_thread()))\n"
@@ -656,6 +656,74 @@ def test_an_interrupt_while_the_node_starts_ends_it_cleanly(ros_env: dict[str, s
     # the marker and planner threads were ended, not left to the interpreter's exit (which aborted on them)
     assert "threads left: []" in run.stdout, run.stdout
     assert (bag / "metadata.yaml").exists()  # closed, not left to --recover
+
+
+#: A step's outputs (relative topics): each step publishes every one of them once (points at the default points_rate
+#: = 1/dt; the tool-free steps of a node without poses publish no tool/applied_pose).
+STEP_OUTPUTS = ("tissue/energy", *(f"tissue/energy/{t}" for t in ("inertial", "spring", "area", "strain", "potential",
+                                                                   "bodies")),
+                "tool/wrench", "tissue/points", "tool/applied_twist")
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_inside_a_step_ends_the_node_after_the_whole_step(ros_env: dict[str, str],
+                                                                   scene_files: dict[str, Any], tmp_path: Path,
+                                                                   sig: int) -> None:
+    """A signal that lands while a step publishes (sent here right after the step's energy went into the node's
+    bag) ends the node after the step's last output, never inside it: the bag holds every output of every step,
+    as many energies as replayable steps. (Before: SIGINT's KeyboardInterrupt or SIGTERM's context shutdown cut
+    the step after its energy, 1 interrupt in 4 when the signal came from outside.)"""
+    import subprocess  # noqa: PLC0415
+
+    from tissue_sim_ros.ros.bags import Bag  # noqa: PLC0415
+
+    code = ("import os, sys, time\n"
+            "from tissue_sim_ros.ros import bags, node\n"
+            "write = bags.BagWriter.write\n"
+            "def write_then_signal(self, name, data, t_ns):\n"
+            "    write(self, name, data, t_ns)\n"
+            "    if name.endswith('/tissue/energy') and self.counts[name] == 20:\n"
+            f"        os.kill(os.getpid(), {int(sig)})\n"
+            "        time.sleep(0.3)  # the signal's handlers run meanwhile, in the middle of the step\n"
+            "bags.BagWriter.write = write_then_signal\n"
+            "sys.exit(node.main())\n")
+    bag = tmp_path / "signalled"
+    run = subprocess.run([sys.executable, "-c", code, "--ros-args", "--params-file", str(scene_files["params"]),
+                          "-r", "__ns:=/signalled", "-p", f"record_path:={bag}"],
+                         env=ros_env, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "Traceback" not in run.stderr, run.stderr
+    with Bag(bag) as b:
+        counts = b.message_counts
+    per_output = {t: counts.get(f"/signalled/{t}", 0) for t in STEP_OUTPUTS}
+    # the signalled step (the 20th) whole, and at most one more step that had begun publishing before the gate
+    # closed (SIGTERM): whole too
+    assert set(per_output.values()) in ({20}, {21}), per_output
+
+
+@pytest.mark.parametrize("script", ["tissue_sim_node", "tool_driver"])
+def test_help_prints_a_usage_and_starts_no_node(ros_env: dict[str, str], script: str) -> None:
+    """``--help`` outside ``--ros-args`` prints a short usage (what it is, -p, --params-file, where msg_docs are)
+    and exits 0 at once, without initialising rclpy. (Before: it started a whole node on the current domain.)"""
+    import subprocess  # noqa: PLC0415
+
+    from ros_env import console_script  # noqa: PLC0415
+
+    run = subprocess.run([console_script(script), "--help"], env=ros_env, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stdout + run.stderr
+    out = run.stdout
+    assert out.startswith(f"usage: {script} ") and "--ros-args" in out, out
+    assert "-p NAME:=VALUE" in out and "--params-file FILE" in out and "msg_docs" in out, out
+    # rclpy is never initialised: the same main, with rclpy.init made to fail, and -h among ROS arguments
+    module = {"tissue_sim_node": "tissue_sim_ros.ros.node", "tool_driver": "tissue_sim_ros.ros.tool_driver"}[script]
+    code = ("import sys, rclpy\n"
+            "def init(*args, **kwargs):\n"
+            "    raise SystemExit('rclpy.init was called')\n"
+            "rclpy.init = init\n"
+            f"from {module} import main\n"
+            f"sys.exit(main([{script!r}, '--ros-args', '-p', 'lock_step:=true', '--', '-h']))\n")
+    run = subprocess.run([sys.executable, "-c", code], env=ros_env, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and run.stdout.startswith(f"usage: {script} "), run.stdout + run.stderr
 
 
 def test_tool_driver_bad_preset_exits_2(start_process: Any) -> None:
@@ -695,12 +763,17 @@ def test_bench_node_command_writes_its_table(ros_env: dict[str, str], tmp_path: 
     if not may and sys.platform.startswith("linux"):
         assert "step_rt_priority=3 not applied" in (out / "node_paper_lock_step.log").read_text()
     assert (out / "node.png").stat().st_size > 0 and (out / "node_latency_paper_lock_step.csv").exists()
+    # bad input creates nothing: run where the default --out (bench_out/node) would land ('make test' left
+    # an empty bench_out/node/ in the checkout when the --set check came after the directory was made)
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
     bad = subprocess.run([console_script("tissue-sim"), "bench", "node", "--seconds", "0"], env=ros_env,
-                         capture_output=True, text=True, timeout=60)
+                         capture_output=True, text=True, timeout=60, cwd=cwd)
     assert bad.returncode == 2 and "--seconds" in bad.stderr and "Traceback" not in bad.stderr
     bad = subprocess.run([console_script("tissue-sim"), "bench", "node", "--set", "step_rt_priority=100"],
-                         env=ros_env, capture_output=True, text=True, timeout=60)
+                         env=ros_env, capture_output=True, text=True, timeout=60, cwd=cwd)
     assert bad.returncode == 2 and "step_rt_priority=100" in bad.stderr and "Traceback" not in bad.stderr
+    assert not any(cwd.iterdir()), sorted(cwd.rglob("*"))
 
 
 @pytest.mark.parametrize("args, expected", [
@@ -792,9 +865,47 @@ def test_replay_of_a_timer_mode_recording_is_bit_for_bit(ros_client: RosClient, 
     assert np.abs(w_live_values).max() > 0
 
 
-def _assert_replay_is_the_live_run(bag_path: Path, ns: str, out: Path) -> np.ndarray:
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_a_node_killed_hard_leaves_its_parameters_for_an_applied_replay(
+        ros_client: RosClient, start_process: Any, scene_files: dict[str, Any], tmp_path: Path, storage: str) -> None:
+    """SIGKILL: the node's bag never closes, yet ``tissue-sim record --recover`` gives a bag that holds the node's
+    parameters (written into the storage file when the recording started), with a ``-p`` override among them, and
+    ``tissue-sim replay --mode applied`` reproduces the run bit for bit from it alone. (Before: the parameters were
+    written at close only; the recovered bag had none and the replay refused it.)"""
+    import json  # noqa: PLC0415
+    import subprocess  # noqa: PLC0415
+
+    from tissue_sim_ros.ros.bags import Bag  # noqa: PLC0415
+
+    from ros_env import console_script  # noqa: PLC0415
+
+    bag_path, ns = tmp_path / "killed", f"/killed_{storage}"
+    proc = start_process(["tissue_sim_node", "--ros-args", "-r", f"__ns:={ns}", "--params-file",
+                          str(scene_files["params"]), "-p", "k_spring:=0.3", "-p", f"record_storage:={storage}",
+                          "-p", f"record_path:={bag_path}"], name=f"killed_{storage}")
+    live = Node(proc, ros_client, ns=ns)
+    live.wait_ready()
+    live.drive(np.stack([np.full(40, 0.2), np.linspace(-0.06, 0.02, 40)], axis=1))
+    # the bag is flushed every second: wait for one after the poses, so the pushed steps are on disk
+    ros_client.spin_for(1.5)
+    assert proc.stop(signal.SIGKILL) == -signal.SIGKILL
+    assert not (bag_path / "metadata.yaml").exists()  # never closed
+    fixed = tmp_path / "recovered"
+    run = subprocess.run([console_script("tissue-sim"), "record", "--recover", str(bag_path), "-o", str(fixed)],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stdout + run.stderr
+    w_live = _assert_replay_is_the_live_run(fixed, ns, tmp_path / "replay", cut=True)
+    assert np.abs(w_live).max() > 0  # the tool pushed the tissue within what was kept
+    assert "custom_data kept: tissue_sim.params" in run.stdout, run.stdout
+    with Bag(fixed) as bag:
+        params = json.loads(bag.custom_data["tissue_sim.params"])
+    assert params["k_spring"] == 0.3 and params["contact_model"] == "projection"  # the -p and the file's
+
+
+def _assert_replay_is_the_live_run(bag_path: Path, ns: str, out: Path, cut: bool = False) -> np.ndarray:
     """``tissue-sim replay BAG --mode applied``: energy, wrench (stamps and values) and the last positions equal the
-    node's own recording, step by step in the order recorded; returns the wrenches."""
+    node's own recording, step by step in the order recorded; returns the wrenches. ``cut``: a recording that
+    ended with a SIGKILL (recovered), whose last flushed chunk may end inside a step."""
     import subprocess  # noqa: PLC0415
 
     from tissue_sim_ros.ros.bags import Bag  # noqa: PLC0415
@@ -816,9 +927,9 @@ def _assert_replay_is_the_live_run(bag_path: Path, ns: str, out: Path) -> np.nda
     e_off, w_off, p_off = series(out / "replay_bag", "")
     with Bag(bag_path) as bag:
         n_live = bag.message_counts[f"{ns}/tissue/energy"]
-    # the signal may end the node inside a step: its outputs may be out without its applied tool (published
-    # last), never the other way round
-    assert len(e_off) > 50 and n_live - len(e_off) in (0, 1), (n_live, len(e_off))
+    # a signal ends the node between two steps' outputs, never inside one: every recorded energy is a replayed step
+    # (a SIGKILL's bag ends where its last flush did: a step's energy may be in it without its applied tool)
+    assert len(e_off) > 50 and n_live - len(e_off) in ((0, 1) if cut else (0,)), (n_live, len(e_off))
     e_live, w_live, p_live = series(bag_path, ns, len(e_off))
     assert e_off == e_live  # float64, every step
 

@@ -27,21 +27,21 @@ error) and the cheapest setting for each error tolerance.
 from __future__ import annotations
 
 import csv
+import functools
 import math
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..core.config import resolve_config
-from ..core.contact.collision import ContactModel, Contacts
-from ..core.contact.tool import ToolPose, ToolShape, twist_from_poses
+from ..core.config import Config, method_options, resolve_config
+from ..core.contact.tool import ToolPose, ToolShape
 from ..core.errors import InputError
 from ..core.mesh import TissueMesh, mesh_rectangle
-from ..core.physics.model import Model, SimParams, State
-from .reference import reference_step, relative_error
+from ..core.physics.model import SimParams
+from ..core.sim.simulation import Simulation
+from .reference import ReferenceSolver, relative_error
 
 #: Method names of the chart, in drawing order.
 METHOD_NAMES = ("pbd", "pbd_jacobi", "xpbd", "xpbd_jacobi", "xpbd_substep", "newton")
@@ -60,13 +60,13 @@ METHOD_LABELS = {
 
 @dataclass
 class Scene:
-    """A mesh, base parameters, a tool and its trajectory: what every method is run on."""
+    """A mesh, a resolved configuration (parameters and tool) and the tool's trajectory: what every method is run on."""
 
     name: str
     mesh: TissueMesh
-    params: SimParams
-    """Base parameters (physics, boundary lines, contact model); method fields are overridden per setting."""
-    tool: ToolShape
+    config: Config
+    """The scene's configuration (physics, boundary lines, contact model, tool); each setting changes only the
+    method's fields (:meth:`Setting.config`)."""
     poses: list[ToolPose]
     """Tool pose at the end of each step; ``poses[0]`` is also the pose before the first step."""
     spacing: float
@@ -74,6 +74,16 @@ class Scene:
     graded: bool = False
     focus: tuple[float, float] = (0.0, 0.0)
     """Where the tool works [m] (the centre of the error measured 'near the tool')."""
+
+    @property
+    def params(self) -> SimParams:
+        """The base parameters (``config.sim``)."""
+        return self.config.sim
+
+    @property
+    def tool(self) -> ToolShape:
+        """The tool (``config.tool``)."""
+        return self.config.tool
 
     @property
     def n_particles(self) -> int:
@@ -89,14 +99,15 @@ class Setting:
     count: int
     """Iterations per step (substeps for ``xpbd_substep``; Newton iterations for ``newton``)."""
 
-    def params(self, base: SimParams) -> SimParams:
-        """The base parameters with this method and count."""
-        if self.method == "xpbd_substep":
-            return base.with_(method="xpbd", scheme="gauss_seidel", iterations=1, substeps=self.count)
-        method, scheme = {"pbd": ("pbd", "gauss_seidel"), "pbd_jacobi": ("pbd", "jacobi"),
-                          "xpbd": ("xpbd", "gauss_seidel"), "xpbd_jacobi": ("xpbd", "jacobi"),
-                          "newton": ("xpbd", "gauss_seidel")}[self.method]
-        return base.with_(method=method, scheme=scheme, iterations=self.count, substeps=1)
+    def values(self) -> dict[str, Any]:
+        """The method's fields as explicit overrides (``core/config.py``'s one alias rule, :func:`method_options`):
+        the count is iterations, or substeps of 1 iteration for ``xpbd_substep``. Newton's model is XPBD
+        Gauss-Seidel's (its physical stiffnesses), the count then Newton's iterations."""
+        return method_options("xpbd" if self.method == "newton" else self.method, self.count)
+
+    def config(self, base: Config) -> Config:
+        """The base configuration with this method and count."""
+        return base.replace(**self.values())
 
     @property
     def label(self) -> str:
@@ -184,65 +195,48 @@ def default_scene(spacing: float = 0.05, dt: float = 0.01, n_steps: int = 40, sp
         mesh = mesh_from_image(cfg.image or str(config_path(DEFAULT_IMAGE)), spacing=spacing, scale=cfg.scale,
                                origin=(cfg.origin_x, cfg.origin_y),
                                threshold=None if cfg.threshold < 0 else cfg.threshold, grading=grading)
-    params = resolved.sim
-    tool = resolved.tool
     if like is not None:
         poses, focus = list(like.poses), like.focus
     else:
-        poses, focus = experiment_a_poses(tool, params.dt, n_steps)
-    return Scene("tissue image", mesh, params, tool, poses, spacing, graded=grading is not None, focus=focus)
+        poses, focus = experiment_a_poses(resolved.tool, resolved.sim.dt, n_steps)
+    return Scene("tissue image", mesh, resolved, poses, spacing, graded=grading is not None, focus=focus)
 
 
 def strip_scene(spacing: float = 0.05, dt: float = 0.01, n_steps: int = 20, speed: float = 0.002,
                 width: float = 1.0, height: float = 0.3, overrides: dict[str, Any] | None = None) -> Scene:
-    """A structured strip pinned along its bottom, pushed down from above by a box tool (small, for tests)."""
+    """A structured strip pinned along its bottom, pushed down from above by a box tool (small, for tests).
+
+    The shipped parameters with the strip's own: its bottom line, no top line, the paper's contact and a
+    box tool of 0.4 x its width.
+    """
     mesh = mesh_rectangle(width, height, spacing)
-    values: dict[str, Any] = {"dt": dt, "boundary_y_bottom": 0.5 * spacing, "contact_model": "paper"}
+    values: dict[str, Any] = {"dt": dt, "boundary_y_bottom": 0.5 * spacing, "boundary_y_top": math.nan,
+                              "contact_model": "paper", "tool_shape": "box", "tool_length": 0.4 * width,
+                              "tool_width": 0.005}
     values.update(overrides or {})
-    params = resolve_config(values, base={}, source="the strip scene").sim  # the code's defaults, no shipped scene
-    tool = ToolShape("box", length=0.4 * width, width=0.005)
+    cfg = resolve_config(values, source="the strip scene")
     # a single body: push its top surface (push_poses picks the bottom body, which here is the only one)
-    poses, focus = push_poses(mesh, tool, n_steps, speed)
-    return Scene("strip", mesh, params, tool, poses, spacing, focus=focus)
+    poses, focus = push_poses(mesh, cfg.tool, n_steps, speed)
+    return Scene("strip", mesh, cfg, poses, spacing, focus=focus)
 
 
 # ----------------------------------------------------------------------------- stepping
 
 
-class Stepper:
-    """One method on one scene: contact detection and a step, with the solve timed."""
+def simulation(scene: Scene, setting: Setting, solver_options: dict[str, Any] | None = None) -> Simulation:
+    """The scene with one setting: a Simulation (serial :class:`~tissue_sim_ros.core.physics.solvers.Solver`,
+    or for ``newton`` the exact reference capped at ``count`` Newton iterations), the tool at the trajectory's
+    start. ``solver_options`` go to the Solver (e.g. ``{"parallel": False}``)."""
+    from ..core.physics.solvers import Solver  # noqa: PLC0415
 
-    def __init__(self, scene: Scene, setting: Setting, solver_options: dict[str, Any] | None = None) -> None:
-        from ..core.physics.solvers import Solver  # noqa: PLC0415
-
-        self.scene = scene
-        self.setting = setting
-        self.model = Model.from_mesh(scene.mesh, setting.params(scene.params))
-        self.contact = ContactModel(self.model, scene.tool) if scene.params.contact_model != "none" else None
-        self.newton = setting.method == "newton"
-        self.solver = None if self.newton else Solver(self.model, **(solver_options or {}))
-        self._out = self.model.state()
-
-    def detect(self, state: State, pose0: ToolPose, pose1: ToolPose) -> Contacts:
-        """The scene's contacts for a step from ``state`` moving the tool from pose0 to pose1."""
-        if self.contact is None:
-            return Contacts.empty(self.model.n_bodies)
-        dt = self.model.params.dt
-        return self.contact.detect(state, pose0, pose1, twist_from_poses(pose0, pose1, dt), dt)
-
-    def step(self, state: State, contacts: Contacts) -> tuple[State, float]:
-        """One step from ``state``; returns the new state (a fresh copy) and the solve's wall time [s]."""
-        dt = self.model.params.dt
-        if self.newton:
-            t0 = time.perf_counter()
-            ref = reference_step(self.model, state, contacts, dt, max_iterations=self.setting.count)
-            elapsed = time.perf_counter() - t0
-            return State(ref.particle_q, ref.particle_qd), elapsed
-        t0 = time.perf_counter()
-        with np.errstate(all="ignore"):
-            self.solver.step(state, self._out, contacts, dt)
-        elapsed = time.perf_counter() - t0
-        return self._out.copy(), elapsed
+    if setting.method == "newton":
+        solver = functools.partial(ReferenceSolver, max_iterations=setting.count)
+    else:
+        solver = functools.partial(Solver, **(solver_options or {}))
+    sim = Simulation.from_config(setting.config(scene.config), mesh=scene.mesh, solver=solver)
+    sim.report_tool_checks = False  # measured here: the solve alone
+    sim.place_tool(scene.poses[0])
+    return sim
 
 
 def reference_run(scene: Scene, progress: Callable[[], None] | None = None) -> tuple[list[np.ndarray], float]:
@@ -253,15 +247,12 @@ def reference_run(scene: Scene, progress: Callable[[], None] | None = None) -> t
     positions : list of (N, 2) arrays, [x(0), x(1), ..., x(n)]
     ms_per_step : float, median wall time of one exact Newton step [ms]
     """
-    stepper = Stepper(scene, Setting("newton", 200))
-    state = stepper.model.state()
-    out = [state.particle_q.copy()]
+    sim = simulation(scene, Setting("newton", 200))
+    out = [sim.state.particle_q.copy()]
     times = []
-    for k in range(1, len(scene.poses)):
-        contacts = stepper.detect(state, scene.poses[k - 1], scene.poses[k])
-        state, elapsed = stepper.step(state, contacts)
-        times.append(elapsed)
-        out.append(state.particle_q.copy())
+    for pose in scene.poses[1:]:
+        times.append(sim.step(pose).timings["solve"])
+        out.append(sim.state.particle_q.copy())
         if progress:
             progress()
     return out, 1e3 * float(np.median(times)) if times else math.nan
@@ -291,39 +282,41 @@ def measure_setting(scene: Scene, setting: Setting, ref_positions: Sequence[np.n
     dict: one CSV row (scene, spacing, particles, dt, method, count, ms_per_step, err_step_median,
     err_step_max, err_accum_final, err_accum_max, diverged).
     """
-    stepper = Stepper(scene, setting, solver_options)
-    model = stepper.model
-    dt = model.params.dt
-    state = model.state()
-    x0 = state.particle_q.copy()
+    sim = simulation(scene, setting, solver_options)
+    dt = sim.params.dt
+    exact_solver = functools.partial(ReferenceSolver, max_iterations=max_newton)
+    x0 = sim.state.particle_q.copy()
     times: list[float] = []
     ref_solves = ref_converged = 0
     err_step: list[float] = []
     err_accum: list[float] = []
     diverged = False
     for k in range(1, len(scene.poses)):
-        contacts = stepper.detect(state, scene.poses[k - 1], scene.poses[k])
-        new_state, elapsed = stepper.step(state, contacts)
-        times.append(elapsed)
-        if not np.isfinite(new_state.particle_q).all():
+        per_step = per_step_every > 0 and (k % per_step_every == 0 or k == 1)
+        with np.errstate(all="ignore"):
+            report = sim.step(scene.poses[k], detail=per_step)
+        times.append(report.timings["solve"])
+        if report.diverged:
             diverged = True
             err_step.append(math.inf)
             err_accum.append(math.inf)
             if progress:
                 progress()
             break
-        if per_step_every > 0 and (k % per_step_every == 0 or k == 1):
-            exact = reference_step(model, state, contacts, dt, max_iterations=max_newton)
+        x = sim.state.particle_q
+        if per_step:
+            # the exact solve of the same step: the method's start state and contacts (report.detail)
+            _, info = sim.solve(report.detail, solver=exact_solver)
+            exact = info.result
             ref_solves += 1
             if exact.relative_grad <= 1e-6:  # a per-step error needs a converged reference
                 ref_converged += 1
-                err_step.append(relative_error(new_state.particle_q, exact.particle_q, state.particle_q))
+                err_step.append(relative_error(x, exact.particle_q, report.detail.state_in.particle_q))
         if ref_positions is not None:
-            err_accum.append(relative_error(new_state.particle_q, ref_positions[k], x0))
-        state = new_state
+            err_accum.append(relative_error(x, ref_positions[k], x0))
         if progress:
             progress()
-    p = setting.params(scene.params)
+    p = sim.params
     return {
         "scene": scene.name + (" graded" if scene.graded else ""), "spacing": scene.spacing,
         "particles": scene.n_particles, "dt": dt, "method": setting.method, "count": setting.count,
@@ -358,19 +351,17 @@ def measure_sleeping(scene: Scene, setting: Setting, sleep_settings: Sequence[di
 
     runs = []
     for cfg in (None, *sleep_settings):
-        stepper = Stepper(scene, setting, {"parallel": False})
+        sim = simulation(scene, setting, {"parallel": False})
         if cfg is not None:
-            stepper.solver = SleepingSolver(stepper.model, **cfg)
-        state = stepper.model.state()
+            sim.use_solver(functools.partial(SleepingSolver, **cfg))
         times, awake = [], []
-        for k in range(1, len(scene.poses)):
-            contacts = stepper.detect(state, scene.poses[k - 1], scene.poses[k])
-            state, elapsed = stepper.step(state, contacts)
-            times.append(elapsed)
-            awake.append(stepper.solver.awake_constraint_fraction if cfg is not None else 1.0)
+        for pose in scene.poses[1:]:
+            with np.errstate(all="ignore"):
+                times.append(sim.step(pose).timings["solve"])
+            awake.append(sim.solver.awake_constraint_fraction if cfg is not None else 1.0)
             if progress:
                 progress()
-        runs.append((cfg, state.particle_q.copy(), times, awake))
+        runs.append((cfg, sim.state.particle_q.copy(), times, awake))
     x0 = np.asarray(scene.mesh.vertices)
     x_awake = runs[0][1]
     rows = []

@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import math
 import sys
+from typing import Any, Mapping
 
 import numpy as np
 
+from ..core.config import method_options, resolve_config
 from ..core.mesh import mesh_rectangle
-from ..core.physics.model import Model, SimParams
 from ..core.sim.simulation import Simulation
 
 #: stiffness_area [N/m^3] per stiffness_spring [N/m] kept during calibration (the issue's 1e5 / 1e2).
@@ -29,15 +30,22 @@ STEPS = 300
 AVERAGE_LAST = 50
 
 
-def strip_sag(params: SimParams, steps: int = STEPS, average_last: int = AVERAGE_LAST) -> tuple[float, float, bool]:
+#: The reference strip's parameters (module docstring): Table I, top and bottom rows pinned (no lines).
+STRIP = {"mass": 1e-4, "mass_per_area": 0.0, "gravity": -9.8, "dt": 0.01, "damping": 0.0, "k_spring": 0.15,
+         "k_area": 1.0, "pin_y_bottom": 1e-9, "pin_y_top": 0.5 - 1e-9, "boundary_y_bottom": math.nan,
+         "boundary_y_top": math.nan}
+
+
+def strip_sag(values: Mapping[str, Any], steps: int = STEPS,
+              average_last: int = AVERAGE_LAST) -> tuple[float, float, bool]:
     """(mean sag [m], max sag [m], diverged) of the reference strip after ``steps`` steps.
 
-    Mean and max over the free particles, averaged over the last ``average_last`` steps.
+    ``values``: the method's parameters (:func:`~tissue_sim_ros.core.config.method_options`, stiffnesses) over
+    :data:`STRIP`. Mean and max over the free particles, averaged over the last ``average_last`` steps.
     """
     mesh = mesh_rectangle(1.0, 0.5, 0.05)
-    y = mesh.vertices[:, 1]
-    model = Model.from_mesh(mesh, params, pinned=(y <= 1e-9) | (y >= 0.5 - 1e-9))
-    sim = Simulation(model)
+    sim = Simulation.from_config(resolve_config({**STRIP, **values}, source="the calibration strip"), mesh=mesh)
+    model = sim.model
     free = ~model.particle_pinned
     means, maxes = [], []
     for k in range(steps):
@@ -53,11 +61,11 @@ def strip_sag(params: SimParams, steps: int = STEPS, average_last: int = AVERAGE
 
 def calibrate(iterations: int = 30, rounds: int = 30) -> dict[str, float]:
     """Bisection on log(stiffness_spring) for XPBD's mean sag = PBD's at ``iterations``."""
-    target, target_max, _ = strip_sag(SimParams(method="pbd", iterations=iterations))
+    target, target_max, _ = strip_sag(method_options("pbd", iterations))
 
     def sag(ks: float) -> float:
-        return strip_sag(SimParams(method="xpbd", iterations=iterations, stiffness_spring=ks,
-                                   stiffness_area=AREA_TO_SPRING * ks))[0]
+        return strip_sag({**method_options("xpbd", iterations), "stiffness_spring": ks,
+                          "stiffness_area": AREA_TO_SPRING * ks})[0]
 
     lo, hi = 0.1, 1.0e4  # sag(lo) > target > sag(hi)
     for _ in range(rounds):
@@ -74,12 +82,11 @@ def calibrate(iterations: int = 30, rounds: int = 30) -> dict[str, float]:
 def main() -> int:
     print("PBD (Table I) mean / max sag of the reference strip by iteration count:")
     for it in (5, 30, 100):
-        mean, mx, div = strip_sag(SimParams(method="pbd", iterations=it))
+        mean, mx, div = strip_sag(method_options("pbd", it))
         print(f"  {it:>3} iterations: {1e3 * mean:.4f} / {1e3 * mx:.4f} mm")
     print("XPBD at Table I's k read as stiffnesses (0.15 N/m, 1 N/m^3):")
     for it in (5, 30, 100):
-        params = SimParams(method="xpbd", iterations=it, stiffness_spring=0.15, stiffness_area=1.0)
-        mean, mx, div = strip_sag(params)
+        mean, mx, div = strip_sag({**method_options("xpbd", it), "stiffness_spring": 0.15, "stiffness_area": 1.0})
         print(f"  {it:>3} iterations: {1e3 * mean:.1f} / {1e3 * mx:.1f} mm" + (" (diverged)" if div else ""))
     result = calibrate()
     print(f"calibrated: stiffness_spring = {result['stiffness_spring']:.4g} N/m, "
@@ -88,11 +95,11 @@ def main() -> int:
     ks = float(f"{result['stiffness_spring']:.2g}")
     print(f"rounded defaults {ks:g} / {AREA_TO_SPRING * ks:g}, sag by iteration count (XPBD mean / max):")
     for it in (5, 30, 100, 1000):
-        mean, mx, _ = strip_sag(SimParams(method="xpbd", iterations=it, stiffness_spring=ks,
-                                          stiffness_area=AREA_TO_SPRING * ks))
+        mean, mx, _ = strip_sag({**method_options("xpbd", it), "stiffness_spring": ks,
+                                 "stiffness_area": AREA_TO_SPRING * ks})
         print(f"  {it:>4} iterations: {1e3 * mean:.4f} / {1e3 * mx:.4f} mm")
-    mean, mx, _ = strip_sag(SimParams(method="xpbd", iterations=1, substeps=30, stiffness_spring=ks,
-                                      stiffness_area=AREA_TO_SPRING * ks))
+    mean, mx, _ = strip_sag({**method_options("xpbd_substep", 30), "stiffness_spring": ks,
+                             "stiffness_area": AREA_TO_SPRING * ks})
     print(f"  30 substeps x 1 iteration: {1e3 * mean:.4f} / {1e3 * mx:.4f} mm")
     return 0
 

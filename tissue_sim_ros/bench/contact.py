@@ -30,11 +30,11 @@ from typing import Any
 
 import numpy as np
 
+from ..core.config import resolve_config
 from ..core.contact.collision import ContactModel
-from ..core.contact.tool import StraightInsertion, ToolShape
+from ..core.contact.tool import StraightInsertion
 from ..core.errors import InputError
 from ..core.mesh import mesh_rectangle
-from ..core.physics.model import Model, SimParams
 from ..core.sim.simulation import Simulation
 
 
@@ -48,10 +48,12 @@ def _scenes(kind: str, quick: bool = False) -> list[tuple[str, Simulation, Strai
         return scenes
     # ~5,000 triangles: 71 x 35 cells of two triangles
     strip = mesh_rectangle(1.0, 0.5, 1.0 / 71)
-    params = SimParams(contact_model=kind, boundary_y_bottom=0.001)
-    big = Simulation(Model.from_mesh(strip, params), ToolShape())
+    # the shipped parameters and tool; the strip pinned along its bottom row, no top line
+    cfg = resolve_config({"contact_model": kind, "boundary_y_bottom": 0.001, "boundary_y_top": math.nan},
+                         source="bench contact strip")
+    big = Simulation.from_config(cfg, mesh=strip)
     traj = StraightInsertion.from_angle(big.tool, target=(0.6, 0.42), angle=math.radians(-30), distance=0.2,
-                                        speed=0.001, dt=params.dt)
+                                        speed=0.001, dt=big.params.dt)
     scenes.append((f"strip {strip.triangles.shape[0]} tris", big, traj))
     return scenes
 

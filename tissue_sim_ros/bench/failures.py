@@ -15,7 +15,7 @@ that applies them step by step and keeps the first failure of a run:
   right through the tool within one step (the tool passed through tissue);
   how deep particles sit inside the tool is recorded too, as a metric;
 * ``no_convergence``: the constraint residual not falling as the iteration
-  count grows (measured on one state by :func:`iteration_residuals`, judged
+  count grows (measured on one step by :func:`iteration_residuals`, judged
   by :func:`residual_falls`; the stability bench fails a residual that rises
   by more than 10% from 1 to 64 iterations or turns non-finite).
 """
@@ -30,8 +30,8 @@ import numpy as np
 from ..core.contact.tool import ToolPose, ToolShape
 
 if TYPE_CHECKING:
-    from ..core.contact.collision import Contacts
-    from ..core.physics.model import Model, State
+    from ..core.physics.model import Model
+    from ..core.sim.simulation import Simulation, StepDetail
 
 FAILURE_KINDS = ("nonfinite", "energy_growth", "inverted", "tunnelling", "no_convergence")
 
@@ -178,23 +178,30 @@ def residual_falls(residuals: Sequence[float], min_drop: float = 0.5) -> bool:
     return bool(r[-1] <= min_drop * r[0])
 
 
-def iteration_residuals(model: "Model", state: "State", contacts: "Contacts", dt: float,
-                        counts: Sequence[int] = (1, 4, 16, 64),
-                        solver_options: dict | None = None) -> list[float]:
-    """The solver's residual after one step from ``state`` with each iteration count in ``counts``.
+def iteration_residuals(sim: "Simulation", detail: "StepDetail", counts: Sequence[int] = (1, 4, 16, 64),
+                        field: str = "iterations") -> list[float]:
+    """The solver's residual after one step solved again with each count in ``counts``.
 
-    Each count solves the same step from the same state with a fresh Solver
-    (``iterations`` changed, everything else as in ``model.params``;
-    ``solver_options`` are passed to the Solver). A non-finite result counts as inf.
+    Parameters
+    ----------
+    sim : Simulation
+        The run's simulation: its solver kind (and options) solves each count, made afresh
+        (:meth:`~tissue_sim_ros.core.sim.simulation.Simulation.solve`); the simulation is not changed.
+    detail : StepDetail
+        The step (``sim.step(..., detail=True).detail``): its start state and contacts.
+    counts : sequence of int
+        Values of ``field`` to solve with, everything else as in ``sim.params``.
+    field : str
+        ``iterations`` (default) or ``substeps``.
+
+    Returns
+    -------
+    list of float: the residual of each count; a non-finite result counts as inf.
     """
-    from ..core.physics.solvers import Solver  # noqa: PLC0415  (the checks above need no solver)
-
     out = []
     for n in counts:
-        m = model.with_params(model.params.with_(iterations=int(n)))
-        state_out = m.state()
         with np.errstate(all="ignore"):
-            info = Solver(m, **(solver_options or {})).step(state.copy(), state_out, contacts, dt)
+            state_out, info = sim.solve(detail, **{field: int(n)})
         r = float(info.residual)
         if has_nonfinite(state_out.particle_q) or not math.isfinite(r):
             r = math.inf

@@ -78,7 +78,7 @@ def run_one(dt: float, young: float, speed: float, quality: str, scheme: str, me
     sim = Simulation.from_config(cfg, mesh=mesh if mesh is not None else make_mesh(quality))
     monitor = FailureMonitor(sim.model, TOOL)
     ps = poses(dt, speed)
-    sim.tool_pose = ps[0]
+    sim.place_tool(ps[0])
     outcome, step_failed, detail = "stable", 0, ""
     max_pen = 0.0
     max_inverted = 0

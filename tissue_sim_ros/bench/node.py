@@ -1,5 +1,9 @@
 """``tissue-sim bench node``: sustained rate, overruns and pose-to-mesh latency of the ROS node.
 
+One piece past 700 lines: one harness around one node process (its start, warm-up, the measuring
+loop of :func:`bench_scene` and the latency pairing share that process's state); the soak's memory
+readers and report are :mod:`~tissue_sim_ros.bench.node_memory`.
+
 For each scene (the paper's: the default image at spacing 0.05 and Table I;
 and the same image meshed to ~5,000 triangles) the benchmark starts
 ``tissue_sim_node`` as a separate process on a private ROS domain (localhost
@@ -74,6 +78,8 @@ import numpy as np
 from ..core.errors import InputError
 from ..core.timing.stamps import stamp_from_ns, stamp_to_seconds
 from ..ros.domain import free_domain_id
+from . import node_memory
+from .node_memory import soak_row, write_soak_report
 
 SCENES: dict[str, dict[str, Any]] = {
     "paper": {},
@@ -158,10 +164,9 @@ class SceneResult:
         }
 
 
-def _write_params(path: Path, values: dict[str, Any]) -> None:
-    import yaml  # noqa: PLC0415
-
-    path.write_text(yaml.safe_dump({"/**": {"ros__parameters": values}}, sort_keys=False))
+def _write_params(path: Path, cfg: Any) -> None:
+    """Every parameter of ``cfg`` (a resolved Config) as the node's ``--params-file``, in its ``/**`` section."""
+    path.write_text(cfg.to_yaml(node_name="/**"))
 
 
 def _isolated_env(domain_id: int) -> dict[str, str]:
@@ -209,46 +214,12 @@ def _tool_y(t: float) -> float:
     return 0.43 + 0.07 * math.cos(2.0 * math.pi * t / 3.0)
 
 
-def _rss_kib(pid: int) -> int:
-    """Resident set size of a process [KiB] (Linux /proc)."""
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1])
-    raise InputError(f"no VmRSS for process {pid}")
-
-
-def _memory_parts_kib(pid: int, proc: Path = Path("/proc")) -> dict[str, int]:
-    """Where the resident memory is [KiB]: anonymous and file-backed (``/proc/PID/status``), and glibc's
-    main heap (the ``[heap]`` mapping in ``/proc/PID/smaps``); -1 where not readable.
-
-    A soak's growth that lands in ``[heap]`` is Python's and glibc's small allocations; anonymous memory
-    outside it is mmap'd: thread arenas, numba/LLVM, DDS's pools.
-    """
-    parts = {"rss_anon_kib": -1, "rss_file_kib": -1, "heap_kib": -1}
-    try:
-        for line in (proc / str(pid) / "status").read_text().splitlines():
-            if line.startswith("RssAnon:"):
-                parts["rss_anon_kib"] = int(line.split()[1])
-            elif line.startswith("RssFile:"):
-                parts["rss_file_kib"] = int(line.split()[1])
-        in_heap = False
-        for line in (proc / str(pid) / "smaps").read_text().splitlines():
-            if line[:1] in "0123456789abcdef" and "-" in line.split(" ", 1)[0]:
-                in_heap = line.rstrip().endswith("[heap]")
-            elif in_heap and line.startswith("Rss:"):
-                parts["heap_kib"] = int(line.split()[1])
-                in_heap = False
-    except (OSError, ValueError):
-        pass
-    return parts
-
-
 #: Seconds between memory samples of a soak.
 SOAK_SAMPLE_PERIOD = 5.0
 
 #: Seconds the soak's warm-up keeps its second reader stopped: longer than the deepest reliable history
 #: (100 steps at 100 Hz) lasts, so every history fills to its depth.
-STALL_SECONDS = 3.0
+STALL_SECONDS = node_memory.STALL_SECONDS
 
 
 def _fill_histories(env: dict[str, str], log: Path, spin_until: Any, spin_for: Any, timeout: float) -> None:
@@ -307,14 +278,15 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
     from ..ros import messages, qos  # noqa: PLC0415
 
     extra = {"marker_rate": marker_rate} if marker_rate is not None else {}
-    params = resolve_config({**overrides, "points_rate": 1000.0,
-                             "markers_wireframe": True, "diagnostics_rate": 1.0, "max_tool_jump": 1.0,
-                             "lock_step": mode == "lock_step", "phase_lock": phase_locks[0], **extra},
-                            source="bench node").flat()
+    cfg = resolve_config({**overrides, "points_rate": 1000.0,
+                          "markers_wireframe": True, "diagnostics_rate": 1.0, "max_tool_jump": 1.0,
+                          "lock_step": mode == "lock_step", "phase_lock": phase_locks[0], **extra},
+                         source="bench node")
+    params = cfg.flat()
     dt = float(params["dt"])
     tag = f"{name}_{mode}"
     params_file = out / f"node_{tag}.yaml"
-    _write_params(params_file, params)
+    _write_params(params_file, cfg)
     log_path = out / f"node_{tag}.log"
     period_ns = int(round(dt * 1e9))
     step_stamps: deque[int] = deque(maxlen=200)  # the newest steps' stamps: the node's tick phase
@@ -464,7 +436,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
                         bar.update(1)
                         last += 1.0
                     if soak and now >= next_sample and diagnostics:
-                        soak_rows.append(_soak_row(now - t0, proc.pid, d0, diagnostics[-1]))
+                        soak_rows.append(soak_row(now - t0, proc.pid, d0, diagnostics[-1]))
                         next_sample += SOAK_SAMPLE_PERIOD
                     if soak:  # keep the collected series small over an hour: only counts are needed
                         markers.clear()
@@ -480,7 +452,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
             spin_until(lambda: diagnostics, 5.0, "diagnostics")
             d1, t1 = diagnostics[-1], time.monotonic()
             if soak:
-                soak_rows.append(_soak_row(t1 - t0, proc.pid, d0, d1))
+                soak_rows.append(soak_row(t1 - t0, proc.pid, d0, d1))
             _fill(result, d0, d1, t1 - t0, params, sizes, counts, markers, points, applied, sent, by_x)
             result.soak = soak_rows
 
@@ -537,15 +509,6 @@ def _tick_phase(stamps_ns: np.ndarray, period_ns: int) -> int:
     centre = math.atan2(float(np.sin(angle).mean()), float(np.cos(angle).mean())) * period_ns / (2.0 * math.pi)
     unwrapped = centre + (phase - centre + period_ns / 2.0) % period_ns - period_ns / 2.0
     return int(np.percentile(unwrapped, 10.0)) % period_ns
-
-
-def _soak_row(t: float, pid: int, d0: dict[str, str], d: dict[str, str]) -> dict[str, Any]:
-    return {"t_s": round(t, 2), "rss_kib": _rss_kib(pid), **_memory_parts_kib(pid),
-            "steps": int(d["steps"]) - int(d0["steps"]),
-            "overruns": int(d["overruns"]) - int(d0["overruns"]),
-            "missed_ticks": int(d["missed_ticks"]) - int(d0["missed_ticks"]),
-            "markers_published": int(d.get("markers_published", 0)),
-            "load1": os.getloadavg()[0]}  # the machine's load beside the soak
 
 
 def _fill(result: SceneResult, d0: dict[str, str], d1: dict[str, str], seconds: float, params: dict[str, Any],
@@ -699,8 +662,6 @@ def run(out: str | Path, *, seconds: float = 10.0, warmup: float = 2.0, scenes: 
     domain_id = domain_id if domain_id is not None else free_domain_id()
     if not 0 <= domain_id <= 101:
         raise InputError(f"--domain-id={domain_id}: expected 0..101")
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     from ..core.config import resolve_config  # noqa: PLC0415
 
     dt = resolve_config().sim.dt
@@ -712,6 +673,8 @@ def run(out: str | Path, *, seconds: float = 10.0, warmup: float = 2.0, scenes: 
         raise InputError(f"--settle={settle}: expected a time >= 0 s")
     node_params = dict(node_params or {})
     resolve_config(node_params, source="--set")  # a bad name or value: one line, exit 2, before any node starts
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)  # once every input is checked: bad input creates nothing
     if soak is not None:
         return _run_soak(out, domain_id, node_params, soak=soak, scenes=scenes, modes=modes, warmup=warmup,
                          marker_rate=marker_rate, phase_lock=phase_lock)
@@ -774,45 +737,5 @@ def _run_soak(out: Path, domain_id: int, node_params: dict[str, Any], *, soak: f
         raise InputError("--soak runs one scene in one mode: give at most one --scene and one --mode")
     r = bench_scene(scenes[0], {**SCENES[scenes[0]], **node_params}, soak, max(warmup, 5.0), out, domain_id, modes[0],
                     marker_rate=marker_rate, soak=True, phase_locks=(phase_lock != "off",))[0]
-    rows = r.soak
-    with open(out / "node_soak.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    rss = np.array([row["rss_kib"] for row in rows], dtype=float) / 1024.0
-    t = np.array([row["t_s"] for row in rows], dtype=float)
-    growth = float(rss[-1] - rss[0])
-    # the trend, robust to one allocation burst: least-squares slope over the run
-    slope = float(np.polyfit(t, rss, 1)[0]) * 3600.0 if len(t) > 2 else math.nan
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    fig, ax = plt.subplots(figsize=(8, 4))
-    ax.plot(t / 60.0, rss, label="node RSS [MiB]")
-    ax.set_xlabel("time since warm-up [min]")
-    ax.set_ylabel("RSS [MiB]")
-    ax2 = ax.twinx()
-    ax2.plot(t / 60.0, [row["overruns"] + row["missed_ticks"] for row in rows], color="tab:red",
-             label="overruns + missed ticks")
-    ax2.set_ylabel("missed deadlines (cumulative)")
-    ax.set_title(f"soak: {r.scene} {r.mode}, {r.triangles} triangles, markers at {r.marker_rate:g} Hz: "
-                 f"RSS {growth:+.2f} MiB")
-    fig.legend(loc="lower right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "node_soak.png", dpi=120)
-    plt.close(fig)
-    print(f"soak {r.scene} {r.mode}: {r.seconds:.0f} s, {r.steps} steps at {r.rate_hz:.2f} Hz, {r.triangles} triangles, "
-          f"markers at {r.marker_rate:g} Hz ({r.markers_received} received, {r.markers_skipped} skipped by the node)")
-    print(f"RSS {rss[0]:.2f} MiB after warm-up -> {rss[-1]:.2f} MiB at the end: growth {growth:+.2f} MiB "
-          f"(max {rss.max():.2f} MiB; trend {slope:+.2f} MiB/h); target < 5 MiB: "
-          f"{'met' if growth < 5.0 else 'MISSED'}; the reliable histories were filled to their depth in the "
-          f"warm-up (a second reader stopped {STALL_SECONDS:g} s)")
-    load = np.array([row["load1"] for row in rows], dtype=float)
-    print(f"load average (1 min) beside it: median {np.median(load):.2f}, min {load.min():.2f}, max {load.max():.2f}")
-    print(f"overruns {r.overruns}, missed ticks {r.missed_ticks} of {r.steps + r.missed_ticks} ticks "
-          f"({100 * r.missed_fraction:.3f} %), divergences {r.divergences}; phase lock "
-          f"{'on' if r.phase_lock else 'off'} ({r.phase_shifts} shifts while measuring)")
-    print(f"wrote {out / 'node_soak.csv'}, {out / 'node_soak.png'}")
+    write_soak_report(out, r)
     return 0

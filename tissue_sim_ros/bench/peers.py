@@ -6,7 +6,9 @@ row, falling under gravity from rest, 30 iterations, XPBD stiffnesses of
 
 * **ours**: :class:`~tissue_sim_ros.core.physics.solvers.Solver`, XPBD Gauss-Seidel
   as it runs by default (serial), and with ``parallel=True`` (partitioned on
-  all threads: an explicit option, see ``PARALLEL_MIN_PARTICLES``);
+  all threads: an explicit option, see ``PARALLEL_MIN_PARTICLES``), stepped by a
+  :class:`~tissue_sim_ros.core.sim.simulation.Simulation` and timed by its
+  report's ``timings["solve"]`` (the solver's step alone);
 * **NumPy**: the vectorised Jacobi baseline (:mod:`~tissue_sim_ros.bench.numpy_baseline`);
 * **Taichi** (optional, ``pip install taichi``): the identical algorithm
   (prediction, per-step multipliers, serial Gauss-Seidel over all edges then
@@ -27,6 +29,7 @@ skipped. Writes ``peers.csv`` and ``peers.png`` and prints ms per step and
 each peer's time relative to ours (> 1: ours is faster), all from this run.
 """
 # no "from __future__ import annotations": Taichi reads kernel argument annotations as objects
+import functools
 import importlib.util
 import math
 import time
@@ -35,20 +38,27 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..core.contact.collision import Contacts
+from ..core.config import Config, method_options, resolve_config
 from ..core.mesh import TissueMesh, mesh_rectangle
-from ..core.physics.model import Model, SimParams
+from ..core.physics.model import Model
+from ..core.sim.simulation import Simulation
 from .accuracy import format_table, write_csv
 
 #: strip spacing -> 496 / 2016 / 8064 / 20301 particles on a 1 m x 0.5 m strip
 SIZES = {"500": 1 / 30, "2k": 1 / 62, "8k": 1 / 125, "20k": 1 / 200}
 
 
+def strip_config() -> Config:
+    """The benchmark's parameters: the shipped ones with XPBD Gauss-Seidel, 30 iterations of one substep, the
+    bottom row pinned (a line at y = 1e-9 m) and no top line."""
+    return resolve_config({**method_options("xpbd", 30), "boundary_y_bottom": 1e-9, "boundary_y_top": math.nan},
+                          source="bench peers")
+
+
 def strip(spacing: float) -> tuple[TissueMesh, Model]:
-    """The benchmark strip and its XPBD model (bottom row pinned)."""
+    """The benchmark strip and its XPBD model (bottom row pinned, :func:`strip_config`)."""
     mesh = mesh_rectangle(1.0, 0.5, spacing)
-    params = SimParams(method="xpbd", scheme="gauss_seidel", iterations=30, boundary_y_bottom=1e-9)
-    return mesh, Model.from_mesh(mesh, params)
+    return mesh, Model.from_mesh(mesh, strip_config().sim)
 
 
 def _median_ms(step: Callable[[], None], n_steps: int, warmup: int = 2) -> float:
@@ -65,37 +75,30 @@ def _median_ms(step: Callable[[], None], n_steps: int, warmup: int = 2) -> float
 # ----------------------------------------------------------------------------- ours and NumPy
 
 
+def _median_solve_ms(sim: Simulation, n_steps: int, warmup: int = 2) -> float:
+    """Median of the solver's time per step [ms] (``timings["solve"]``) over ``n_steps`` tool-free steps of ``sim``,
+    after ``warmup`` untimed ones."""
+    for _ in range(warmup):
+        sim.step()
+    return 1e3 * float(np.median([sim.step().timings["solve"] for _ in range(n_steps)]))
+
+
 def time_ours(model: Model, n_steps: int, parallel: bool | None) -> tuple[float, np.ndarray]:
     """Median ms per step of our XPBD Gauss-Seidel, and the positions after the first step."""
     from ..core.physics.solvers import Solver  # noqa: PLC0415
 
-    solver = Solver(model, parallel=parallel)
-    states = [model.state(), model.state()]
-    contacts = Contacts.empty(model.n_bodies)
-    solver.step(states[0], states[1], contacts, model.params.dt)
-    first = states[1].particle_q.copy()
-
-    def step() -> None:
-        solver.step(states[0], states[1], contacts, model.params.dt)
-        states.reverse()
-
-    return _median_ms(step, n_steps), first
+    sim = Simulation(model, solver=functools.partial(Solver, parallel=parallel))
+    sim.step()
+    first = sim.state.particle_q.copy()
+    return _median_solve_ms(sim, n_steps), first
 
 
 def time_numpy(model: Model, n_steps: int) -> float:
     """Median ms per step of the vectorised NumPy Jacobi baseline (XPBD, same iterations)."""
     from .numpy_baseline import NumpyJacobiSolver  # noqa: PLC0415
 
-    jac = Model.from_mesh(model.mesh, model.params.with_(scheme="jacobi"), pinned=model.particle_pinned)
-    solver = NumpyJacobiSolver(jac)
-    states = [jac.state(), jac.state()]
-    contacts = Contacts.empty(jac.n_bodies)
-
-    def step() -> None:
-        solver.step(states[0], states[1], contacts, jac.params.dt)
-        states.reverse()
-
-    return _median_ms(step, n_steps, warmup=1)
+    sim = Simulation(model.with_params(model.params.with_(scheme="jacobi")), solver=NumpyJacobiSolver)
+    return _median_solve_ms(sim, n_steps, warmup=1)
 
 
 # ----------------------------------------------------------------------------- Taichi

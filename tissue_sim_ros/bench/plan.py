@@ -150,15 +150,16 @@ def bench_node(cfg: Config, seconds: float, out: Path, domain_id: int, workers: 
     from ..ros import messages, qos  # noqa: PLC0415
     from .node import _isolated_env, _node_command, _stop_node, _write_params, end_with_parent  # noqa: PLC0415
 
-    params = cfg.replace(**{"marker_rate": 100.0, "points_rate": 100.0, "diagnostics_rate": 1.0,
-                             # 16 offsets from the request's -30 deg to -5 deg: every entry clear of the tissue,
-                             # so all 64 candidates are rolled out (steeper or flatter, the 0.3 m tool would lie
-                             # through the upper or the lower tissue and the planner would skip them)
-                             "plan_angle_min": 0.0, "plan_angle_max": 25.0, "plan_angle_step": 25.0 / 15.0,
-                             "plan_speed_min": 0.15, "plan_speed_max": 0.3, "plan_speed_count": 4,
-                             "plan_workers": workers}).flat()
+    node_cfg = cfg.replace(**{"marker_rate": 100.0, "points_rate": 100.0, "diagnostics_rate": 1.0,
+                               # 16 offsets from the request's -30 deg to -5 deg: every entry clear of the tissue,
+                               # so all 64 candidates are rolled out (steeper or flatter, the 0.3 m tool would lie
+                               # through the upper or the lower tissue and the planner would skip them)
+                               "plan_angle_min": 0.0, "plan_angle_max": 25.0, "plan_angle_step": 25.0 / 15.0,
+                               "plan_speed_min": 0.15, "plan_speed_max": 0.3, "plan_speed_count": 4,
+                               "plan_workers": workers})
+    params = node_cfg.flat()
     params_file = out / "plan_node.yaml"
-    _write_params(params_file, params)
+    _write_params(params_file, node_cfg)
     log_path = out / "plan_node.log"
     env = _isolated_env(domain_id)
     with open(log_path, "wb") as log:

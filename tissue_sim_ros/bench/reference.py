@@ -14,7 +14,9 @@ contact rule stay at their predicted positions.
 This module is written in plain NumPy/SciPy, independent of the numba kernels
 (it must not import ``core.kernels``), so it doubles as a check on them. It is
 used only by benchmarks and tests: it is slow (a sparse factorisation per
-Newton iteration) and exact to a tight gradient norm.
+Newton iteration) and exact to a tight gradient norm. :class:`ReferenceSolver`
+makes it a Simulation's solver, so that it receives each step (start state,
+contacts) from the Simulation's path, as the methods it is compared with do.
 
 Newton details: the exact sparse Hessian ``M + dt^2 sum_c k_c (grad C grad C^T
 + C hess C)`` is tried first; where it is indefinite (compressed springs,
@@ -328,6 +330,70 @@ def reference_step(model: Model, state_in: State, contacts: Contacts | None = No
                            grad_norm=info["grad_norm"], grad_norm0=info["grad_norm0"],
                            newton_iterations=info["iterations"], projected_iterations=info["projected"],
                            converged=info["converged"])
+
+
+def constraint_residual(model: Model, x: np.ndarray) -> float:
+    """RMS over all constraints of C / l0 (edges) and C / |A0| (triangles) at ``x``, as the solvers report it
+    (``core/physics/kernels.constraint_residual``, written again here in NumPy); 0 without constraints."""
+    signed = model.params.area_mode == "signed"
+    e, t = np.asarray(model.edge_indices), np.asarray(model.tri_indices)
+    rest, area0 = np.asarray(model.edge_rest_length), np.asarray(model.tri_rest_area)
+    d = x[e[:, 0]] - x[e[:, 1]]
+    c_e = np.sqrt((d * d).sum(axis=1)) - rest
+    c_e = np.where(rest > 0.0, c_e / np.where(rest > 0.0, rest, 1.0), c_e)
+    a, b, c = x[t[:, 0]], x[t[:, 1]], x[t[:, 2]]
+    area = 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+    c_t = area - area0 if signed else np.abs(area) - np.abs(area0)
+    c_t = np.where(area0 != 0.0, c_t / np.where(area0 != 0.0, np.abs(area0), 1.0), c_t)
+    n = c_e.size + c_t.size
+    return math.sqrt(float((c_e @ c_e + c_t @ c_t) / n)) if n else 0.0
+
+
+@dataclass
+class ReferenceInfo:
+    """What :class:`ReferenceSolver` hands the Simulation: the fields of a solver's ``SolveInfo``, and the result."""
+
+    x_pred: np.ndarray
+    """Predicted positions x* [m], shape (N, 2) (the paper contact's held displacements included)."""
+    contact_dx: None
+    """None: projection contact is not modelled (no contact corrections)."""
+    residual: float
+    """RMS constraint violation at the minimiser (:func:`constraint_residual`)."""
+    result: ReferenceResult
+    """The exact step: minimiser, energy, convergence."""
+
+
+class ReferenceSolver:
+    """The exact reference as a Simulation's solver: every step is :func:`reference_step`.
+
+    So the reference gets its step (start state, contacts) from the Simulation's own path, as every method
+    does: ``Simulation.from_config(cfg, mesh=mesh, solver=ReferenceSolver)`` runs the exact run, and
+    ``sim.solve(report.detail, solver=ReferenceSolver)`` solves one step of another method's run exactly
+    (``functools.partial(ReferenceSolver, max_iterations=...)`` to cap Newton).
+
+    Parameters
+    ----------
+    model : Model
+    rtol : float
+        Relative gradient-norm tolerance of Newton.
+    max_iterations : int
+        Newton iterations at most per step.
+    """
+
+    def __init__(self, model: Model, rtol: float = 1e-10, max_iterations: int = 200) -> None:
+        self.model = model
+        self.rtol = float(rtol)
+        self.max_iterations = int(max_iterations)
+
+    def step(self, state_in: State, state_out: State, contacts: Contacts, dt: float) -> ReferenceInfo:
+        """One exact step from ``state_in`` into ``state_out`` (the solver's protocol; ``contacts.touched`` set to
+        the held particles)."""
+        ref = reference_step(self.model, state_in, contacts, dt, rtol=self.rtol, max_iterations=self.max_iterations)
+        np.copyto(state_out.particle_q, ref.particle_q)
+        np.copyto(state_out.particle_qd, ref.particle_qd)
+        if contacts is not None and contacts.held_idx.size:
+            contacts.touched = np.asarray(contacts.held_idx, dtype=np.int32).copy()
+        return ReferenceInfo(ref.x_pred, None, constraint_residual(self.model, ref.particle_q), ref)
 
 
 def relative_error(x: np.ndarray, x_ref: np.ndarray, x_start: np.ndarray) -> float:

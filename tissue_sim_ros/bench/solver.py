@@ -3,7 +3,8 @@
 For each mesh (a 1 m x 0.5 m strip, ``mesh_rectangle``, pinned along its top
 and bottom rows, sagging under gravity) and each method it times single solver
 steps (``Solver.step``: prediction, constraint solve, velocity, boundary,
-residual; 30 iterations unless ``--iterations``) and reports the median:
+residual; 30 iterations unless ``--iterations``; stepped by a ``Simulation``,
+timed by its report's ``timings["solve"]``) and reports the median:
 
 * ms per step and steps per second;
 * ns per constraint projection (step time / (constraints x iterations x substeps)); for the
@@ -42,11 +43,10 @@ from typing import Any, Sequence
 import numba
 import numpy as np
 
-from ..core.config import resolve_config
-from ..core.contact.collision import Contacts
+from ..core.config import Config, method_options, resolve_config
 from ..core.errors import InputError
 from ..core.mesh import TissueMesh, mesh_rectangle
-from ..core.physics.model import Model, SimParams
+from ..core.physics.model import Model
 from ..core.physics.solvers import Solver
 from ..core.sim.simulation import Simulation
 from .numpy_baseline import NumpyJacobiSolver
@@ -58,8 +58,8 @@ DT = 0.01
 
 #: The material rows' tissue: a stiff membrane (1 MPa) so the 1 m strip sags little under gravity;
 #: one substep, so that its iterations equal the constraint rows' (the cost comparison of issue 16).
-MATERIAL = dict(method="xpbd", material="neo_hookean", young_modulus=1e6, poisson_ratio=0.45, thickness=0.005,
-                density=1000.0)
+MATERIAL = dict(method_options("xpbd"), material="neo_hookean", young_modulus=1e6, poisson_ratio=0.45,
+                thickness=0.005, density=1000.0)
 
 
 @dataclass(frozen=True)
@@ -73,27 +73,27 @@ class Method:
     numpy: bool = False
 
 
+# the method fields by core/config.py's one alias rule (method_options: xpbd_substep = 30 substeps x 1 iteration);
+# a row without iterations gets --iterations
+PBD, PBD_JACOBI, XPBD, XPBD_JACOBI = (method_options(m) for m in ("pbd", "pbd_jacobi", "xpbd", "xpbd_jacobi"))
 METHODS = (
-    Method("pbd_gs", "paper PBD, Gauss-Seidel, serial", dict(method="pbd"), dict(parallel=False)),
-    Method("pbd_jacobi", "paper PBD, Jacobi (averaged)", dict(method="pbd", scheme="jacobi")),
-    Method("xpbd_gs", "XPBD Gauss-Seidel, serial (mesh order, wavefront schedule)", dict(method="xpbd"),
-           dict(parallel=False)),
-    Method("xpbd_gs_stored", "XPBD Gauss-Seidel, serial, plain mesh-order loop", dict(method="xpbd"),
+    Method("pbd_gs", "paper PBD, Gauss-Seidel, serial", PBD, dict(parallel=False)),
+    Method("pbd_jacobi", "paper PBD, Jacobi (averaged)", PBD_JACOBI),
+    Method("xpbd_gs", "XPBD Gauss-Seidel, serial (mesh order, wavefront schedule)", XPBD, dict(parallel=False)),
+    Method("xpbd_gs_stored", "XPBD Gauss-Seidel, serial, plain mesh-order loop", XPBD,
            dict(parallel=False, order="stored")),
-    Method("xpbd_gs_colour", "XPBD Gauss-Seidel, colour order, 1 thread", dict(method="xpbd"),
-           dict(parallel=False, order="colour")),
-    Method("xpbd_gs_parallel", "XPBD Gauss-Seidel, partitioned, all threads", dict(method="xpbd"),
-           dict(parallel=True)),
-    Method("xpbd_gs_par_colour", "XPBD Gauss-Seidel, coloured, all threads", dict(method="xpbd"),
+    Method("xpbd_gs_colour", "XPBD Gauss-Seidel, colour order, 1 thread", XPBD, dict(parallel=False, order="colour")),
+    Method("xpbd_gs_parallel", "XPBD Gauss-Seidel, partitioned, all threads", XPBD, dict(parallel=True)),
+    Method("xpbd_gs_par_colour", "XPBD Gauss-Seidel, coloured, all threads", XPBD,
            dict(parallel=True, parallel_mode="colour")),
-    Method("xpbd_gs_auto", "XPBD Gauss-Seidel, default choice", dict(method="xpbd")),
-    Method("xpbd_jacobi", "XPBD Jacobi (stiffness-aware relaxation)", dict(method="xpbd", scheme="jacobi")),
-    Method("xpbd_substep", "XPBD, 30 substeps x 1 iteration", dict(method="xpbd", substeps=30, iterations=1)),
-    Method("numpy_jacobi", "NumPy XPBD Jacobi (baseline)", dict(method="xpbd", scheme="jacobi"), numpy=True),
+    Method("xpbd_gs_auto", "XPBD Gauss-Seidel, default choice", XPBD),
+    Method("xpbd_jacobi", "XPBD Jacobi (stiffness-aware relaxation)", XPBD_JACOBI),
+    Method("xpbd_substep", "XPBD, 30 substeps x 1 iteration", method_options("xpbd_substep")),
+    Method("numpy_jacobi", "NumPy XPBD Jacobi (baseline)", XPBD_JACOBI, numpy=True),
     # each kernel on its own (the other constraint type off), and the material's elements
-    Method("xpbd_distance", "XPBD GS serial, distance constraints only", dict(method="xpbd", stiffness_area=0.0),
+    Method("xpbd_distance", "XPBD GS serial, distance constraints only", dict(XPBD, stiffness_area=0.0),
            dict(parallel=False)),
-    Method("xpbd_area", "XPBD GS serial, area constraints only", dict(method="xpbd", stiffness_spring=0.0),
+    Method("xpbd_area", "XPBD GS serial, area constraints only", dict(XPBD, stiffness_spring=0.0),
            dict(parallel=False)),
     Method("material_gs", "neo-Hookean elements, GS serial (one projection = 3 rows of an element)",
            dict(MATERIAL, substeps=1), dict(parallel=False)),
@@ -114,28 +114,36 @@ def strip_for(n_target: int) -> TissueMesh:
     return mesh_rectangle(1.0, 0.5, 1.0 / nx)
 
 
-def strip_model(mesh: TissueMesh, params: SimParams) -> Model:
+def strip_config(mesh: TissueMesh, values: dict[str, Any]) -> Config:
+    """The strip's configuration: the shipped parameters with ``values`` (a row's, iterations included), one
+    substep unless given, dt :data:`DT`, and the strip's top and bottom rows pinned (pin lines at its rest
+    extremes, no boundary lines)."""
     y = mesh.vertices[:, 1]
-    return Model.from_mesh(mesh, params, pinned=(y <= y.min() + 1e-9) | (y >= y.max() - 1e-9))
+    return resolve_config({"substeps": 1, **values, "dt": DT, "pin_y_bottom": float(y.min()) + 1e-9,
+                           "pin_y_top": float(y.max()) - 1e-9, "boundary_y_bottom": math.nan,
+                           "boundary_y_top": math.nan}, source="bench solver strip")
+
+
+def strip_model(mesh: TissueMesh, values: dict[str, Any]) -> Model:
+    """The strip's Model (:func:`strip_config`)."""
+    return Model.from_mesh(mesh, strip_config(mesh, values).sim)
 
 
 def time_solver(model: Model, method: Method, steps: int) -> tuple[float, int, int]:
-    """Median seconds of one ``step``, projections per step and threads used, stepping the strip from rest."""
-    solver = NumpyJacobiSolver(model) if method.numpy else Solver(model, **method.solver)
-    a, b = model.state(), model.state()
-    contacts = Contacts.empty(model.n_bodies)
+    """Median seconds of one solver step, projections per step and threads used, stepping the strip from rest
+    (a Simulation without a tool; each step's ``timings["solve"]``)."""
+    sim = Simulation(model, solver=NumpyJacobiSolver if method.numpy else functools.partial(Solver, **method.solver))
     for _ in range(2):  # compile / load the cache, touch the workspaces
-        solver.step(a, b, contacts, DT)
-        a, b = b, a
+        sim.step()
     times = np.empty(steps)
+    diverged = False
     for k in range(steps):
-        t0 = time.perf_counter()
-        solver.step(a, b, contacts, DT)
-        times[k] = time.perf_counter() - t0
-        a, b = b, a
-    if not np.isfinite(a.particle_q).all():
+        report = sim.step()
+        times[k] = report.timings["solve"]
+        diverged |= report.diverged
+    if diverged:
         raise RuntimeError(f"{method.name} diverged on {model.n_particles} particles")
-    return float(np.median(times)), solver.n_projections_per_step, _threads(solver)
+    return float(np.median(times)), sim.solver.n_projections_per_step, _threads(sim.solver)
 
 
 def _threads(solver: Any) -> int:
@@ -148,10 +156,7 @@ def paper_scene_rows(methods: list[Method], iterations: int, steps: int, progres
 
     rows = []
     for method in methods:
-        flat = dict(method.params)
-        flat.setdefault("iterations", iterations)
-        for key in ("scheme", "substeps"):
-            flat.setdefault(key, SimParams.__dataclass_fields__[key].default)
+        flat = {"substeps": 1, "iterations": iterations, **method.params}
         cfg = resolve_config(flat, source=f"bench solver method {method.name}")
         sim = Simulation.from_config(cfg, solver=NumpyJacobiSolver if method.numpy
                                      else functools.partial(Solver, **method.solver))
@@ -332,7 +337,7 @@ def run(out: str | Path, *, sizes: Sequence[int] | None = None, steps: int | Non
         for method in METHODS:
             params = dict(method.params)
             params.setdefault("iterations", iterations)
-            model = strip_model(mesh, SimParams(**params))
+            model = strip_model(mesh, params)
             # the NumPy baseline is ~20x slower: fewer steps keep the run short, the median stays robust
             n_steps = max(3, steps // 4) if method.numpy else steps
             progress.set_postfix_str(f"{model.n_particles} particles, {method.name}")

@@ -33,25 +33,24 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..core.contact.tool import ToolPose, ToolShape, twist_from_poses
+from ..core.config import BY_NAME, Config, method_options, resolve_config
+from ..core.contact.tool import ToolPose, ToolShape
 from ..core.errors import InputError
 from ..core.mesh import TissueMesh, mesh_from_arrays, mesh_rectangle
-from ..core.physics.model import Model, SimParams
 from ..core.physics.solvers import Solver
-from ..core.sim.simulation import Simulation
+from ..core.sim.simulation import Simulation, StepDetail
 from .accuracy import format_table, push_poses, write_csv
 from .failures import FAILURE_KINDS, Failure, FailureMonitor, iteration_residuals, residual_falls
 
-#: method name -> (SimParams changes, Solver options)
-METHODS: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
-    "pbd": ({"method": "pbd", "scheme": "gauss_seidel"}, {}),
-    "pbd_jacobi": ({"method": "pbd", "scheme": "jacobi"}, {}),
-    "xpbd": ({"method": "xpbd", "scheme": "gauss_seidel"}, {}),
-    "xpbd_jacobi": ({"method": "xpbd", "scheme": "jacobi"}, {}),
-    "xpbd_substep": ({"method": "xpbd", "scheme": "gauss_seidel", "substeps": 30, "iterations": 1}, {}),
-    "xpbd_jacobi_unrelaxed": ({"method": "xpbd", "scheme": "jacobi", "relaxation": 1.0},
-                              {"jacobi_relaxation": "uniform"}),
-    "pbd_jacobi_summed": ({"method": "pbd", "scheme": "jacobi"}, {"jacobi_average": False}),
+#: method name -> (its method by core/config.py's alias rule, further parameter changes, Solver options)
+METHODS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
+    "pbd": ("pbd", {}, {}),
+    "pbd_jacobi": ("pbd_jacobi", {}, {}),
+    "xpbd": ("xpbd", {}, {}),
+    "xpbd_jacobi": ("xpbd_jacobi", {}, {}),
+    "xpbd_substep": ("xpbd_substep", {}, {}),
+    "xpbd_jacobi_unrelaxed": ("xpbd_jacobi", {"relaxation": 1.0}, {"jacobi_relaxation": "uniform"}),
+    "pbd_jacobi_summed": ("pbd_jacobi", {}, {"jacobi_average": False}),
 }
 CONTACT_MODELS = ("paper", "projection")
 MESH_QUALITIES = ("regular", "slivers")
@@ -126,21 +125,33 @@ def make_mesh(quality: str) -> TissueMesh:
     raise InputError(f"mesh quality {quality!r}: expected one of {', '.join(MESH_QUALITIES)}")
 
 
-def run_params(cfg: RunConfig) -> tuple[SimParams, dict[str, Any]]:
-    """SimParams and Solver options of a run."""
+#: The sweep's tool: a 0.4 m x 5 mm box.
+TOOL = {"tool_shape": "box", "tool_length": 0.4, "tool_width": 0.005}
+
+
+def run_config(cfg: RunConfig) -> tuple[Config, dict[str, Any]]:
+    """The configuration and Solver options of a run: the shipped parameters with every value the sweep sets.
+
+    The strip is pinned along its bottom line (no top line), the tool is :data:`TOOL`, and the stiffness
+    scale multiplies the parameter table's (Table I's and the calibrated XPBD) stiffnesses.
+    """
     if cfg.method not in METHODS:
         raise InputError(f"method {cfg.method!r}: expected one of {', '.join(METHODS)}")
-    changes, solver_options = METHODS[cfg.method]
-    base = SimParams()
+    method, changes, solver_options = METHODS[cfg.method]
     s = cfg.stiffness_scale
+
+    def table(name: str) -> float:
+        return float(BY_NAME[name].default)
+
     values: dict[str, Any] = dict(
         dt=cfg.dt, contact_model=cfg.contact_model, area_mode=cfg.area_mode, iterations=cfg.iterations,
-        boundary_y_bottom=0.5 * STRIP["spacing"],
-        k_spring=min(1.0, base.k_spring * s), k_area=min(1.0, base.k_area * s),
-        stiffness_spring=base.stiffness_spring * s, stiffness_area=base.stiffness_area * s,
+        substeps=1, boundary_y_bottom=0.5 * STRIP["spacing"], boundary_y_top=math.nan,
+        k_spring=min(1.0, table("k_spring") * s), k_area=min(1.0, table("k_area") * s),
+        stiffness_spring=table("stiffness_spring") * s, stiffness_area=table("stiffness_area") * s, **TOOL,
     )
+    values.update(method_options(method))  # xpbd_substep: 30 substeps of 1 iteration
     values.update(changes)
-    return SimParams(**values), solver_options
+    return resolve_config(values, source=f"bench stability run {cfg.method}"), solver_options
 
 
 def tool_poses(mesh: TissueMesh, tool: ToolShape, speed: float, n_steps: int, travel: float = 0.1) -> list[ToolPose]:
@@ -163,10 +174,10 @@ def run_one(cfg: RunConfig, mesh: TissueMesh | None = None, flip: Sequence[int] 
     edge at the start (an inverted start, for the area-mode check).
     """
     mesh = mesh if mesh is not None else make_mesh(cfg.mesh_quality)
-    params, solver_options = run_params(cfg)
-    model = Model.from_mesh(mesh, params)
-    tool = ToolShape("box", length=0.4, width=0.005)
-    sim = Simulation(model, tool, solver=functools.partial(Solver, **solver_options) if solver_options else None)
+    config, solver_options = run_config(cfg)
+    sim = Simulation.from_config(config, mesh=mesh,
+                                 solver=functools.partial(Solver, **solver_options) if solver_options else None)
+    model, tool = sim.model, sim.tool
     state = sim.state
     for t in flip:
         i, j, k = model.tri_indices[t]
@@ -179,12 +190,12 @@ def run_one(cfg: RunConfig, mesh: TissueMesh | None = None, flip: Sequence[int] 
     # the residual check on the state where the tool first pushes (the hardest solve of the run)
     residuals: list[float] = []
     pose_prev = poses[0]
-    sim.tool_pose = pose_prev
+    sim.place_tool(pose_prev)
     for k in range(1, len(poses)):
         pose = poses[k]
         x_prev = sim.state.particle_q.copy()
         with np.errstate(all="ignore"):
-            report = sim.step(pose)
+            report = sim.step(pose, detail=not residuals)  # the step's start state and contacts, until checked
         speed = math.hypot(pose.x - pose_prev.x, pose.y - pose_prev.y) / cfg.dt
         if report.n_contact_particles and not report.diverged:
             # what drives the tissue is the contact rule: the paper's eq. (3) moves particles by up to alpha
@@ -196,9 +207,7 @@ def run_one(cfg: RunConfig, mesh: TissueMesh | None = None, flip: Sequence[int] 
                                   diverged=report.diverged, pose0=pose_prev if touching else None,
                                   pose1=pose if touching else None, tool_speed=speed if touching else 0.0)
         if not residuals and report.n_contact_particles > 0 and failure is None:
-            state_before = sim.state.copy()
-            state_before.particle_q[:] = x_prev
-            residuals = _residual_check(model, sim, state_before, pose_prev, pose, solver_options)
+            residuals = _residual_check(sim, report.detail)
             # a residual held up by the contact (held particles make the constraints infeasible) stays flat;
             # a failing solver makes it rise with iterations
             if residuals and not residual_falls(residuals, min_drop=1.1):
@@ -220,24 +229,10 @@ def run_one(cfg: RunConfig, mesh: TissueMesh | None = None, flip: Sequence[int] 
     }
 
 
-def _residual_check(model: Model, sim: Simulation, state, pose0: ToolPose, pose1: ToolPose,
-                    solver_options: dict[str, Any]) -> list[float]:
-    """Residuals of one step from ``state`` at 1, 4, 16, 64 iterations (substeps for the substep method)."""
-    dt = model.params.dt
-    twist = twist_from_poses(pose0, pose1, dt)
-    contacts = sim.contact.detect(state, pose0, pose1, twist, dt)
-    if model.params.substeps > 1:
-        from ..core.physics.solvers import Solver  # noqa: PLC0415
-
-        out = []
-        for n in (1, 4, 16, 64):
-            m = model.with_params(model.params.with_(substeps=n))
-            so = m.state()
-            with np.errstate(all="ignore"):
-                info = Solver(m, **solver_options).step(state.copy(), so, contacts, dt)
-            out.append(float(info.residual) if np.isfinite(so.particle_q).all() else math.inf)
-        return out
-    return iteration_residuals(model, state, contacts, dt, (1, 4, 16, 64), solver_options=solver_options)
+def _residual_check(sim: Simulation, detail: StepDetail) -> list[float]:
+    """Residuals of the step ``detail`` (its start state and contacts) solved again at 1, 4, 16, 64 iterations
+    (substeps for the substep method) with the run's solver."""
+    return iteration_residuals(sim, detail, (1, 4, 16, 64), "substeps" if sim.params.substeps > 1 else "iterations")
 
 
 # ----------------------------------------------------------------------------- the sweep

@@ -33,11 +33,9 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
-import yaml
 
 from ..core.config import Config
 from ..core.errors import InputError
-from ..core.physics.model import SimParams
 from .accuracy import (
     Setting,
     default_scene,
@@ -117,13 +115,9 @@ def tune(values: dict[str, Any], tolerance: float, budget_ms: float, spacings: l
     return (min(ok, key=lambda r: r["ms_per_step"]) if ok else None), rows
 
 
-def params_for(values: dict[str, Any], row: dict[str, Any]) -> dict[str, Any]:
-    """The scene's flat parameters with the chosen spacing, method, scheme, iterations and substeps."""
-    out = dict(values)
-    p = Setting(row["method"], int(row["count"])).params(SimParams())
-    out.update(spacing=float(row["spacing"]), method=p.method, scheme=p.scheme, iterations=int(p.iterations),
-               substeps=int(p.substeps))
-    return out
+def params_for(cfg: Config, row: dict[str, Any]) -> Config:
+    """The scene's configuration with the chosen spacing, method, scheme, iterations and substeps."""
+    return cfg.replace(spacing=float(row["spacing"]), **Setting(row["method"], int(row["count"])).values())
 
 
 def run(config: Config, *, tolerance: float, budget_ms: float, spacings: Sequence[float] = SPACINGS, steps: int = 30,
@@ -226,12 +220,10 @@ def run(config: Config, *, tolerance: float, budget_ms: float, spacings: Sequenc
           f"{best['count']}: {best['ms_per_step']:.3g} ms per step, error {best['error']:.3g} "
           f"(method {best['err_accum_final']:.3g} + mesh {best['err_discretisation']:.3g})")
     if out:
-        chosen = params_for(values, best)
-        doc = {"tissue_sim_node": {"ros__parameters": chosen}}
         path = Path(out)
         path.parent.mkdir(parents=True, exist_ok=True)
         header = (f"# written by tissue-sim tune --tolerance {tolerance:g} --budget-ms {budget_ms:g}\n"
                   f"# measured: {best['ms_per_step']:.3g} ms per step, error {best['error']:.3g} on experiment a (steps 175-205)\n")
-        path.write_text(header + yaml.safe_dump(doc, sort_keys=False))
+        path.write_text(header + params_for(config, best).to_yaml())
         print(f"wrote {path}")
     return 0

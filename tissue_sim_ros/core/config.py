@@ -31,6 +31,9 @@ value that differs from it was chosen by the user and wins. So ``method:
 xpbd_substep`` gives 30 substeps of 1 iteration; with ``substeps: 10``, 10 of 1.
 To ask for 30 iterations per substep, use ``method: xpbd`` with ``substeps`` and
 ``iterations``. The resolved configuration holds only ``pbd`` or ``xpbd``.
+Code that means a method exactly, whatever the files say (a benchmark's
+setting: ``xpbd_substep`` at 5 substeps), takes its options from
+:func:`method_options`, the same table, and passes them as overrides.
 """
 from __future__ import annotations
 
@@ -557,6 +560,43 @@ def resolve_method_alias(values: dict[str, Any], shipped: Mapping[str, Any]) -> 
             values[key] = value
 
 
+def method_options(method: str, count: int | None = None) -> dict[str, Any]:
+    """The orthogonal options a method name stands for, by the one alias rule's table (:data:`METHOD_ALIASES`).
+
+    For callers that mean a method exactly, whatever a parameter file or the shipped file holds (a
+    benchmark's setting): pass the result as explicit overrides to :func:`resolve_config` or
+    :meth:`Config.replace`. ``method`` is always resolved to ``pbd`` or ``xpbd``, so the alias rule (which sets
+    only what still holds its shipped value) has nothing left to decide.
+
+    Parameters
+    ----------
+    method : str
+        ``pbd``, ``pbd_jacobi``, ``xpbd``, ``xpbd_jacobi`` or ``xpbd_substep``.
+    count : int, optional
+        How often the method's unit repeats in a step: iterations of one substep, or for an alias made of
+        substeps (``xpbd_substep``: substeps of 1 iteration) the substeps. None: the alias's own values
+        (``xpbd_substep``: 30 substeps of 1 iteration; the others set no count).
+
+    Examples
+    --------
+    >>> method_options("xpbd_substep", 5)
+    {'method': 'xpbd', 'scheme': 'gauss_seidel', 'substeps': 5, 'iterations': 1}
+    >>> method_options("pbd_jacobi", 10)
+    {'method': 'pbd', 'scheme': 'jacobi', 'iterations': 10, 'substeps': 1}
+    """
+    if method not in METHOD_ALIASES:
+        raise InputError(f"method {method!r}: expected one of {', '.join(METHOD_ALIASES)}")
+    values = dict(METHOD_ALIASES[method])
+    if count is not None:
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 1:
+            raise InputError(f"method {method} count={count!r}: expected an integer >= 1")
+        if "substeps" in values:
+            values["substeps"] = int(count)
+        else:
+            values.update(iterations=int(count), substeps=1)
+    return values
+
+
 def resolve_material_defaults(values: dict[str, Any], shipped: Mapping[str, Any], chosen: Iterable[str]) -> None:
     """A material's own solver settings (:data:`~tissue_sim_ros.core.physics.model.MATERIAL_DEFAULTS`), in place.
 
@@ -628,14 +668,31 @@ class Config:
         a, b = self.flat(), other.flat()
         return [n for n in a if not _same(a[n], b[n])]
 
-    def to_yaml(self, node_name: str = NODE_NAME) -> str:
-        """The configuration as a ROS 2 parameter file that the node and every command load identically."""
+    def to_yaml(self, node_name: str = NODE_NAME, names: Iterable[str] | None = None) -> str:
+        """The configuration as a ROS 2 parameter file that the node and every command load identically.
+
+        Parameters
+        ----------
+        node_name : str
+            The file's section: the node's name, or ``"/**"`` for every node.
+        names : iterable of str, optional
+            Write only these parameters (their resolved values): a partial file, as a scene's own file is,
+            over which the shipped ``config/tissue_sim.yaml`` fills the rest when it is loaded (and a
+            material's solver settings apply to what it leaves out). Default: every parameter.
+        """
         flat = self.flat()
-        lines = [f"# resolved by tissue-sim config: every parameter of {node_name} (msg_docs/parameters.md)",
+        only = None if names is None else set(names)
+        if only is not None and only - set(flat):
+            raise InputError(f"to_yaml: unknown parameter(s) {', '.join(sorted(only - set(flat)))}")
+        what = "every parameter" if only is None else f"{len(only)} parameters (the others: the shipped file)"
+        lines = [f"# resolved by tissue-sim config: {what} of {node_name} (msg_docs/parameters.md)",
                  f"{node_name}:", "  ros__parameters:"]
         for group in GROUPS:
+            specs = [p for p in PARAMETERS if p.group == group and (only is None or p.name in only)]
+            if not specs:
+                continue
             lines.append(f"    # {group}")
-            for spec in (p for p in PARAMETERS if p.group == group):
+            for spec in specs:
                 value = _yaml_scalar(flat[spec.name])
                 unit = f"  # [{spec.unit}]" if spec.unit and spec.unit not in ("path",) else ""
                 lines.append(f"    {spec.name}: {value}{unit}")

@@ -360,12 +360,13 @@ def make_demo_recording(directory: Path, seed: int = 0) -> tuple[Path, Path, dic
     rec = fs.synthesize(truth_values, n_points=20, noise=5e-4, seed=seed)
     bag = write_recording(directory / "bag", rec.t_ns, rec.points, rec.tool_t_ns, rec.tool_pose,
                           points_topic=POINTS_TOPIC, tool_topic=TOOL_TOPIC)
-    import yaml  # noqa: PLC0415
+    from ..core.config import resolve_config  # noqa: PLC0415
 
     scene = fs.scene_params("scene.png", spacing=fs.FIT_SPACING)
     params = directory / "scene.yaml"
+    # the scene's own values only (a partial file, as the shipped scenes): the shipped file fills the rest
     params.write_text("# the demo's scene (experiments/fit_scene.py); image relative to this file\n"
-                      + yaml.safe_dump({"tissue_sim_node": {"ros__parameters": scene}}, sort_keys=False))
+                      + resolve_config(scene, source="the demo scene").to_yaml(names=scene))
     return bag, params, dict(fs.TRUTH)
 
 

@@ -18,7 +18,11 @@ Writing
     ``flush_period`` seconds (MCAP: closes the pending chunk; sqlite3:
     commits), so a crash loses at most that much, and :func:`recover_bag`
     (``tissue-sim record --recover``) turns what an interrupted recording
-    wrote into a closed bag. ``close()`` is idempotent, serialised by a lock,
+    wrote into a closed bag. ``custom_data`` goes into ``metadata.yaml`` when
+    the bag closes; a value set with ``durable=True`` is also written into the
+    storage file at once (MCAP: a Metadata record named ``tissue_sim``;
+    sqlite3: the table ``tissue_sim_custom_data``), so a killed recording keeps
+    it and ``recover_bag`` carries it over. ``close()`` is idempotent, serialised by a lock,
     and SIGINT/SIGTERM are held back while a record or the bag's index is
     being written, so an interrupt never leaves a half-written record.
 
@@ -40,6 +44,10 @@ Timestamp policy of :func:`read_tool_track` (documented, never silent):
     ``on_bad_time="error"`` (times) and ``on_bad_pose="error"`` (positions,
     quaternions) raise :class:`BadSampleError` instead. The counts travel with
     the track (:attr:`ToolTrack.skipped`) and ``tissue-sim replay`` prints them.
+
+One module for all three (about 900 lines): writing, recovering and reading
+share the storage formats' details (MCAP records, the sqlite3 schema, the
+custom data kept in both), which are kept in one place.
 """
 from __future__ import annotations
 
@@ -249,13 +257,32 @@ class BagWriter:
     def closed(self) -> bool:
         return self._closed
 
-    def set_custom_data(self, key: str, value: str) -> None:
-        """A string in the bag's ``metadata.yaml`` ``custom_data`` (rosbag2's own field; written at close)."""
-        if not isinstance(value, str):
-            raise InputError(f"custom_data {key!r}: expected a string value, got {type(value).__name__}")
+    def set_custom_data(self, key: str, value: str, *, durable: bool = False) -> None:
+        """A string in the bag's ``metadata.yaml`` ``custom_data`` (rosbag2's own field; written at close).
+
+        ``durable``: also written into the storage file now and put on disk (MCAP: a Metadata record named
+        ``tissue_sim`` in the data section; sqlite3: a row of the table ``tissue_sim_custom_data``), so a
+        recording killed before its close still holds it: :class:`Bag` reads it from there, and
+        :func:`recover_bag` copies it into the bag it writes.
+        """
+        if not isinstance(key, str) or not isinstance(value, str):
+            raise InputError(f"custom_data {key!r}: expected a string key and value, got {type(value).__name__}")
         with self._lock:
             self._check_open()
             self._writer.set_custom_data(key, value)
+            if durable:
+                with self._hold():
+                    self._write_durable(key, value)
+
+    def _write_durable(self, key: str, value: str) -> None:
+        st = self._writer.storage
+        if hasattr(st, "close_chunk"):  # MCAP: a top-level record (pending chunks stay in memory until closed)
+            st.bio.write(_mcap_metadata_record(CUSTOM_DATA_RECORD, {key: value}))
+            st.bio.flush()
+        else:  # sqlite3
+            st.conn.execute(f"CREATE TABLE IF NOT EXISTS {CUSTOM_DATA_TABLE}(key TEXT PRIMARY KEY, value TEXT NOT NULL)")
+            st.conn.execute(f"INSERT OR REPLACE INTO {CUSTOM_DATA_TABLE}(key, value) VALUES(?, ?)", (key, value))
+            st.conn.commit()
 
     # -- messages
     def write(self, name: str, data: bytes | bytearray | memoryview | np.ndarray, t_ns: int) -> None:
@@ -367,6 +394,77 @@ def _qos_profile(reliable: bool, transient_local: bool, depth: int) -> Any:
                avoid_ros_namespace_conventions=False)
 
 
+CUSTOM_DATA_RECORD = "tissue_sim"
+"""Name of the MCAP Metadata records that hold a bag's durable custom data (:meth:`BagWriter.set_custom_data`)."""
+
+CUSTOM_DATA_TABLE = "tissue_sim_custom_data"
+"""The sqlite3 table (key, value) that holds a bag's durable custom data."""
+
+
+def _mcap_string(text: str) -> bytes:
+    data = text.encode()
+    return struct.pack("<I", len(data)) + data
+
+
+def _mcap_metadata_record(name: str, values: dict[str, str]) -> bytes:
+    """An MCAP Metadata record (opcode 0x0C): the name, then a map of strings prefixed by its byte length."""
+    entries = b"".join(_mcap_string(k) + _mcap_string(v) for k, v in values.items())
+    body = _mcap_string(name) + struct.pack("<I", len(entries)) + entries
+    return b"\x0c" + struct.pack("<Q", len(body)) + body
+
+
+def _read_mcap_string(data: bytes, pos: int) -> tuple[str, int]:
+    (n,) = struct.unpack_from("<I", data, pos)
+    return data[pos + 4:pos + 4 + n].decode(), pos + 4 + n
+
+
+def durable_custom_data(path: str | Path) -> dict[str, str]:
+    """The durable custom data a storage file (``.mcap`` or ``.db3``) holds, also when its writer never closed it.
+
+    MCAP: the Metadata records named :data:`CUSTOM_DATA_RECORD` among the top-level records, later ones winning
+    (a record cut short at the end of a killed recording is ignored); sqlite3: the table
+    :data:`CUSTOM_DATA_TABLE`. Anything unreadable gives what could be read (empty at worst).
+    """
+    path = Path(path)
+    out: dict[str, str] = {}
+    if path.suffix == ".db3":
+        import sqlite3  # noqa: PLC0415
+
+        with contextlib.suppress(sqlite3.Error):
+            conn = sqlite3.connect(f"file:{path}?immutable=1", uri=True)
+            try:
+                if conn.execute("SELECT 1 FROM sqlite_master WHERE type='table' AND name=?",
+                                (CUSTOM_DATA_TABLE,)).fetchone():
+                    out.update(conn.execute(f"SELECT key, value FROM {CUSTOM_DATA_TABLE}").fetchall())
+            finally:
+                conn.close()
+        return out
+    if path.suffix != ".mcap":
+        return out
+    with contextlib.suppress(OSError, struct.error, UnicodeDecodeError), path.open("rb") as f:
+        size = path.stat().st_size
+        if f.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
+            return out
+        pos = len(_MCAP_MAGIC)
+        while pos + 9 <= size:
+            f.seek(pos)
+            op, length = struct.unpack("<BQ", f.read(9))
+            if op in (0x0F, 0x02) or pos + 9 + length > size:  # data end / footer, or a record cut short
+                break
+            if op == 0x0C:
+                body = f.read(length)
+                name, p = _read_mcap_string(body, 0)
+                if name == CUSTOM_DATA_RECORD:
+                    (n,) = struct.unpack_from("<I", body, p)
+                    p, end = p + 4, p + 4 + n
+                    while p < end:
+                        key, p = _read_mcap_string(body, p)
+                        value, p = _read_mcap_string(body, p)
+                        out[key] = value
+            pos += 9 + length
+    return out
+
+
 def recover_mcap(src: str | Path, dst: str | Path) -> int:
     """Salvage an MCAP file whose writer died before its summary and footer were written.
 
@@ -418,7 +516,9 @@ def recover_bag(src: str | Path, dst: str | Path, storage: str = "mcap") -> dict
     ``src`` is a bag directory (or storage file) whose writer never closed: an
     MCAP without summary/footer (its complete chunks are salvaged, see
     :func:`recover_mcap`) or a sqlite3 file without ``metadata.yaml``. Every
-    message is copied as serialized bytes with its receive time.
+    message is copied as serialized bytes with its receive time, and the
+    custom data the recording wrote durably (the node's parameters,
+    ``tissue_sim.params``) into the new bag's ``metadata.yaml`` (and durably).
 
     Returns
     -------
@@ -439,6 +539,8 @@ def recover_bag(src: str | Path, dst: str | Path, storage: str = "mcap") -> dict
             recover_mcap(target, Path(tmp) / "salvaged.mcap")
             target = Path(tmp) / "salvaged.mcap"
         with Bag(target) as bag, BagWriter(dst, storage) as out:
+            for key, value in bag.custom_data.items():
+                out.set_custom_data(key, value, durable=True)
             for conn in bag.connections:
                 out.add_topic(conn.topic, conn.msgtype)
             for topic, _, t_ns, raw in bag.messages():
@@ -478,6 +580,8 @@ class Bag:
             raise InputError(f"{str(p)!r} is not a rosbag2 bag: expected a bag directory or a .mcap/.db3 file")
         if target.is_file() and target.stat().st_size == 0:
             raise InputError(f"bag {str(p)!r} is empty: {target.name} has 0 bytes")
+        self._storage_files = [target] if target.is_file() else sorted(target.glob("*.mcap")) + sorted(
+            target.glob("*.db3"))
         try:
             self._reader = Reader(target)
             self._reader.open()
@@ -524,9 +628,14 @@ class Bag:
 
     @property
     def custom_data(self) -> dict[str, str]:
-        """The ``custom_data`` of ``metadata.yaml`` (empty for a bare storage file)."""
+        """The ``custom_data`` of ``metadata.yaml``, over what the storage file holds durably
+        (:func:`durable_custom_data`: all there is for a bare storage file or a recording that never closed)."""
+        out: dict[str, str] = {}
+        for f in self._storage_files:
+            out.update(durable_custom_data(f))
         meta = getattr(self._reader.storage, "metadata", None)
-        return dict(getattr(meta, "custom", None) or {})
+        out.update(getattr(meta, "custom", None) or {})
+        return out
 
     def describe_topics(self) -> str:
         """The bag's topics with types and counts, for error messages."""

@@ -20,6 +20,9 @@ read the same bytes back into NumPy for tests, benchmarks and controllers that
 subscribe with ``raw=True``.
 
 This module imports no rclpy and no message package: it only writes bytes.
+It is one piece (about 780 lines) because every encoder, its decoder and the
+step's encoding (:class:`StepEncoder`) share one CDR writer and reader and
+are checked together against rclpy.
 """
 from __future__ import annotations
 

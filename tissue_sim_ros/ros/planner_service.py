@@ -16,9 +16,13 @@ helpers do) and serves, for it:
   answer gets an empty path (header stamped and framed) and a logged reason;
 * ``plan/candidates`` (visualization_msgs/MarkerArray, latched): each
   rolled-out candidate's tip path coloured by cost (green cheapest, red
-  dearest, grey not feasible), the plan wider, the target as a sphere;
+  dearest, grey not feasible), the plan wider, the target as a sphere, and
+  each candidate that was not rolled out as a text at its entry naming its
+  angle, speed and the reason (namespace ``plan_skipped``);
 * ``plan/costs`` (std_msgs/Float64MultiArray, latched): one row per
   rolled-out candidate, columns :data:`COST_FIELDS`.
+
+The log names the skipped candidates with their reasons too.
 
 Threading: the service and publishers belong to a second node,
 ``<node name>_planner`` in the same namespace and process, spun by its own
@@ -66,6 +70,26 @@ def _stamp_plus(stamp: Any, seconds: float) -> Any:
     out = type(stamp)()
     out.sec, out.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
     return out
+
+
+#: Height of the texts of ``plan/candidates`` that name a skipped candidate and its reason [m].
+SKIPPED_TEXT_HEIGHT = 0.01
+
+
+def skipped_candidates(plan: InsertionPlan) -> list[tuple[int, Any]]:
+    """The candidates of ``plan`` that were not rolled out (each has its reason), with their index in the sweep."""
+    return [(i, c) for i, c in enumerate(plan.candidates) if c.result is None]
+
+
+def describe(candidate: Any) -> str:
+    """A candidate as the log and ``plan/candidates`` name it: its angle (and offset) and speed."""
+    return (f"{math.degrees(candidate.angle):+.1f} deg (offset {candidate.angle_offset_deg:+g}) at "
+            f"{candidate.speed:g} m/s")
+
+
+def _rolled(plan: InsertionPlan) -> list[tuple[int, Any]]:
+    return [(i, c) for i, c in enumerate(plan.candidates)
+            if c.result is not None and math.isfinite(c.cost) and math.isfinite(c.target_error)]
 
 
 def cost_colour(cost: float, lo: float, hi: float) -> tuple[float, float, float]:
@@ -120,7 +144,8 @@ class PlannerService:
                 raise
 
     def _param(self, name: str) -> Any:
-        return self.node.get_parameter(name).value
+        """A ``plan_*`` setting of the node, typed, as it is now (a request reads them when it comes)."""
+        return getattr(self.node.config.node, name)
 
     # ------------------------------------------------------------------ the request
 
@@ -182,13 +207,21 @@ class PlannerService:
             # stamped at the answer: a client that publishes the poses at their stamps starts now, not in the past
             now = self.node.get_clock().now().to_msg()
             response.plan.header.stamp = now
+            skipped = [] if plan is None else skipped_candidates(plan)
+            if skipped:
+                log.info(f"plan_insertion: {len(skipped)} of {len(plan.candidates)} candidates not rolled out:\n"
+                         + "\n".join(f"  {describe(c)}: {c.reason}" for _, c in skipped))
+            if plan is not None and plan.candidates:
+                # a sweep was made: its candidates, rolled out or skipped, replace the latched ones
+                self._publish_candidates(plan, now)
             if plan is not None and plan.batch is not None:
-                self._publish(plan, now)  # only what was rolled out replaces the latched candidates
+                self._publish_costs(plan)  # only what was rolled out replaces the latched costs
             if plan is not None and plan.ok:
                 self._fill_path(response.plan, plan, now, sim.params.dt)
                 best = plan.candidates[plan.best]
                 n = sum(c.result is not None for c in plan.candidates)
-                log.info(f"plan_insertion: {n} candidates in {time.perf_counter() - t0:.2f} s; cheapest "
+                log.info(f"plan_insertion: {n} of {len(plan.candidates)} candidates rolled out in "
+                         f"{time.perf_counter() - t0:.2f} s; cheapest "
                          f"{math.degrees(best.angle):+.1f} deg at {best.speed:g} m/s, cost {best.cost:.4g}, "
                          f"{len(response.plan.poses)} poses; the target moved {best.target_error * 1e3:.1f} mm")
                 self.answered += 1
@@ -214,9 +247,8 @@ class PlannerService:
             ps.pose.orientation.z, ps.pose.orientation.w = math.sin(yaw / 2.0), math.cos(yaw / 2.0)
             path.poses.append(ps)
 
-    def _publish(self, plan: InsertionPlan, stamp: Any) -> None:
-        rolled = [(i, c) for i, c in enumerate(plan.candidates)
-                  if c.result is not None and math.isfinite(c.cost) and math.isfinite(c.target_error)]
+    def _publish_candidates(self, plan: InsertionPlan, stamp: Any) -> None:
+        rolled = _rolled(plan)
         frame = self.node.frame_id
         markers = MarkerArray()
         clear = Marker()
@@ -245,7 +277,21 @@ class PlannerService:
         target.scale.x = target.scale.y = target.scale.z = 0.02
         target.color = ColorRGBA(r=1.0, g=0.84, b=0.0, a=1.0)
         markers.markers.append(target)
+        for i, c in skipped_candidates(plan):
+            m = Marker()
+            m.header.frame_id, m.header.stamp = frame, stamp
+            m.ns, m.id, m.type, m.action = "plan_skipped", i, Marker.TEXT_VIEW_FACING, Marker.ADD
+            m.pose.position.x, m.pose.position.y = float(c.entry[0]), float(c.entry[1])
+            m.pose.orientation.w = 1.0
+            m.scale.z = SKIPPED_TEXT_HEIGHT
+            m.color = ColorRGBA(r=0.6, g=0.6, b=0.6, a=1.0)
+            m.text = f"{describe(c)}: {c.reason}"
+            m.lifetime = DurationMsg()
+            markers.markers.append(m)
         self.pub_candidates.publish(markers)
+
+    def _publish_costs(self, plan: InsertionPlan) -> None:
+        rolled = _rolled(plan)
         rows = np.array([[math.degrees(c.angle), c.angle_offset_deg, c.speed, c.cost, c.result.peak_energy,
                           c.result.peak_force, c.result.max_displacement, c.result.max_penetration, c.target_error,
                           c.result.steps, float(c.feasible), float(i == plan.best)] for i, c in rolled],

@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.errors import InputError
-from .bags import BagWriter, recover_bag, typestore
+from .bags import Bag, BagWriter, recover_bag, typestore
 
 #: The node's topics (relative to its namespace): tool input, then outputs (msg_docs/).
 DEFAULT_TOPICS = (
@@ -386,8 +386,11 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
     output = Path(output or time.strftime("tissue_sim_%Y%m%d_%H%M%S"))
     if recover:
         counts = recover_bag(recover, output, storage)
+        with Bag(output) as bag:
+            kept = sorted(bag.custom_data)
         print(f"recovered {sum(counts.values())} messages from {recover} into {output}: "
-              + (", ".join(f"{t} {n}" for t, n in sorted(counts.items())) or "no topics"))
+              + (", ".join(f"{t} {n}" for t, n in sorted(counts.items())) or "no topics")
+              + (f"; custom_data kept: {', '.join(kept)}" if kept else ""))
         return counts
     # names are checked before the bag directory exists: bad input creates nothing
     check_namespace(namespace)

@@ -65,30 +65,30 @@ class FrameInput:
     ----------
     node : Node
         Creates the /tf subscriptions and the /tf_static publisher on it.
-    values : mapping
-        The node's flat parameters (frame_id, world_frame, plane_*, static_transforms, tool_frame, tf_tolerance).
+    settings : NodeConfig
+        The node's typed settings (``Config.node``: frame_id, world_frame, plane_*, static_transforms, tool_frame,
+        tf_tolerance).
     on_tool_transform : callable, optional
         Called with every /tf transform whose child is ``tool_frame``.
     on_bad : callable, optional
         Called with (kind, message) for a /tf transform that cannot be used (counted by the node).
     """
 
-    def __init__(self, node: Node, values: dict[str, Any], on_tool_transform: ToolTransformCallback | None = None,
+    def __init__(self, node: Node, settings: Any, on_tool_transform: ToolTransformCallback | None = None,
                  on_bad: Callable[[str, str], None] | None = None) -> None:
-        self.plane = values["frame_id"]
-        self.tool_frame = values["tool_frame"]
-        self.buffer = TransformBuffer(cache_time=10.0, tolerance=values["tf_tolerance"])
+        self.plane = settings.frame_id
+        self.tool_frame = settings.tool_frame
+        self.buffer = TransformBuffer(cache_time=10.0, tolerance=settings.tf_tolerance)
         self._on_tool = on_tool_transform
         self._on_bad = on_bad
-        self.world = values["world_frame"]
+        self.world = settings.world_frame
         self.plane_in_world: Transform | None = None
         if self.world:
             self.check_plane(self.plane)
-            self.plane_in_world = Transform.from_xyz_rpy(values["plane_x"], values["plane_y"], values["plane_z"],
-                                                         values["plane_roll"], values["plane_pitch"],
-                                                         values["plane_yaw"])
+            self.plane_in_world = Transform.from_xyz_rpy(settings.plane_x, settings.plane_y, settings.plane_z,
+                                                         settings.plane_roll, settings.plane_pitch, settings.plane_yaw)
             self.buffer.set_static(self.world, self.plane, self.plane_in_world)
-        for parent, child, t in parse_static_transforms(values["static_transforms"]):
+        for parent, child, t in parse_static_transforms(settings.static_transforms):
             self.buffer.set_static(parent, child, t)
         self.tf_received = 0
         self.record: Callable[[str, Any], None] | None = None

@@ -37,17 +37,18 @@ from rclpy.task import Future
 from rclpy.time import Time
 from std_msgs.msg import Float64
 
-from ..core.config import resolve_config
+from ..core.config import BY_NAME, Config, ParamSpec, coerce, resolve_config
 from ..core.contact.tool import StraightInsertion, Trajectory
 from ..core.errors import InputError
 from ..core.sim.scene import tool_from_mapping
 from ..core.timing.stamps import ns_from_seconds, stamp_from_ns
 from ..core.timing.trajectories import preset, resolve_trajectory
 from . import messages, qos
+from .usage import msg_docs_dir, ros_arguments, wants_help
 
-#: name -> (default, description); defaults of the tool and dt come from config/tissue_sim.yaml.
+#: The driver's own parameters, name -> (default, description); the simulation's it shares are :data:`SIM_PARAMETERS`.
 DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
-    "scene": ("paper", "Shipped scene (tissue_sim_ros.core.timing.trajectories.SCENE_EXPERIMENTS: paper, liver_probe) whose experiments the presets play; its parameter file (config/scenes/NAME.yaml) gives the defaults of dt and the tool."),
+    "scene": ("paper", "Shipped scene (tissue_sim_ros.core.timing.trajectories.SCENE_EXPERIMENTS: paper, liver_probe) whose experiments the presets play; its parameter file (config/scenes/NAME.yaml) gives the defaults of dt, frame_id and the tool."),
     "trajectory": ("", "A trajectory preset (experiment_a, experiment_b_shallow, experiment_b_steep, authors) or a trajectory file (.csv of time,x,y,yaw; .yaml waypoints or a straight motion); set, it replaces preset."),
     "preset": ("experiment_a", "A trajectory preset (tissue_sim_ros.core.timing.trajectories.PRESETS: experiment_a, experiment_b_shallow, experiment_b_steep, authors), or 'straight' for the straight insertion the parameters below describe."),
     "target_x": (0.5, "Tip position at the end of the insertion, x [m]."),
@@ -56,12 +57,6 @@ DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
     "distance": (0.3, "Distance the tip travels [m]."),
     "speed": (0.1, "Tip speed [m/s]."),
     "hold": (0.5, "Time held at the target after arriving [s]."),
-    "dt": (0.01, "Publishing period [s] (default: dt of the scene's parameter file, config/tissue_sim.yaml for the paper's)."),
-    "frame_id": ("world", "frame_id of the published messages."),
-    "tool_shape": ("box", "Tool shape (the tip is length/2 ahead of the centre for box and capsule)."),
-    "tool_length": (0.8, "Tool length [m]."),
-    "tool_width": (0.005, "Box tool width [m]."),
-    "tool_radius": (0.0025, "Capsule or sphere radius [m]."),
     "wait_for_subscriber": (True, "Wait until a subscriber of tool/pose matches before starting."),
     "min_subscribers": (1, "Start once this many tool/pose subscribers match (e.g. 2: the node and a recorder)."),
     "wait_timeout": (30.0, "Give up waiting for a subscriber after this long [s]; 0 = forever."),
@@ -71,6 +66,35 @@ DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
     "lock_step_realtime": (True, "Lock-step: send at most one pose per dt (real-time pace, e.g. for recording); false: as fast as the node steps."),
     "publish_twist": (True, "Also publish tool/twist (false: the node derives velocity from poses)."),
 }
+
+#: The simulation's parameters the driver shares with the node: name, type, unit and description are the one
+#: table's (:data:`tissue_sim_ros.core.config.PARAMETERS`), the default is the scene's resolved value (its
+#: parameter file: config/tissue_sim.yaml for ``paper``, config/scenes/NAME.yaml), so the driver publishes
+#: at the simulation's dt, in its frame, with its tool.
+SIM_PARAMETERS = ("dt", "frame_id", "tool_shape", "tool_length", "tool_width", "tool_radius")
+
+
+def _sim_descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    """The descriptor of a shared parameter: the table's description and unit; read-only, as all the driver's."""
+    unit = f" [{spec.unit}]" if spec.unit else ""
+    return ParameterDescriptor(description=f"{spec.description}{unit} Default: the scene's parameter file.",
+                               read_only=True, dynamic_typing=True)
+
+
+def _scene_config(scene: str) -> Config:
+    """The simulation's configuration of a shipped scene, as the node resolves it from the scene's file."""
+    if scene == "paper":
+        return resolve_config()
+    from ..core.resources import scene_params_file  # noqa: PLC0415
+
+    return resolve_config(params_file=scene_params_file(scene))
+
+
+def default_values(scene: str = "paper") -> dict[str, Any]:
+    """Every parameter's default for a shipped ``scene``: the driver's own and the scene's simulation values."""
+    sim = _scene_config(scene).flat()
+    return {**{name: default for name, (default, _) in DRIVER_PARAMETERS.items()},
+            **{name: sim[name] for name in SIM_PARAMETERS}, "scene": scene}
 
 
 def _trajectory(values: dict[str, Any]) -> Trajectory:
@@ -95,22 +119,22 @@ class ToolDriver(Node):
 
     def __init__(self, node_name: str = "tool_driver", **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        shipped = resolve_config().flat()  # the simulation's dt and tool, as the node resolves them
         self.values: dict[str, Any] = {}
         for name, (default, description) in DRIVER_PARAMETERS.items():
-            if name == "trajectory" and self.values["scene"] != "paper":  # "scene" is declared first
-                from ..core.resources import scene_params_file  # noqa: PLC0415
-
-                shipped = resolve_config(params_file=scene_params_file(self.values["scene"])).flat()
-            default = shipped.get(name, default) if name == "dt" or name.startswith("tool_") else default
-            if isinstance(default, float):
-                default = float(default)
             value = self.declare_parameter(name, default, ParameterDescriptor(description=description, read_only=True,
                                                                               dynamic_typing=True)).value
             if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
                 value = float(value)
             if type(value) is not type(default):
                 raise InputError(f"parameter {name}={value!r}: expected a {type(default).__name__}")
+            if isinstance(value, float) and not math.isfinite(value):
+                raise InputError(f"parameter {name}={value!r}: expected a finite number")
+            self.values[name] = value
+        # the simulation's own: declared from the one table, defaulting to the scene's resolved values
+        sim = _scene_config(self.values["scene"]).flat()
+        for name in SIM_PARAMETERS:
+            spec = BY_NAME[name]
+            value = coerce(spec, self.declare_parameter(name, sim[name], _sim_descriptor(spec)).value)
             if isinstance(value, float) and not math.isfinite(value):
                 raise InputError(f"parameter {name}={value!r}: expected a finite number")
             self.values[name] = value
@@ -210,8 +234,37 @@ class ToolDriver(Node):
         self.k += 1
 
 
+def usage() -> str:
+    """What ``tool_driver --help`` prints."""
+    names = [*DRIVER_PARAMETERS, *SIM_PARAMETERS]
+    lines, line = [], " "
+    for name in names:
+        if len(line) + len(name) + 2 > 100:
+            lines.append(line.rstrip())
+            line = " "
+        line += f" {name},"
+    lines.append(line.rstrip(","))
+    return (
+        "usage: tool_driver [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r __ns:=/NS]]\n\n"
+        "Plays a scripted tool trajectory on tool/pose and tool/twist for tissue_sim_node, so the simulation can\n"
+        "be seen working without a robot: by default the paper's experiment a (preset experiment_a), else a\n"
+        "preset, a trajectory file (-p trajectory:=FILE.csv) or a straight insertion (-p preset:=straight).\n"
+        "Exit 0 when the trajectory has played, 1 if no subscriber came, 2 on a bad parameter (named).\n\n"
+        "options:\n"
+        "  -h, --help            show this message and exit (no node is started)\n\n"
+        + ros_arguments("tool_driver", "-p preset:=straight -p angle:=-30.0")
+        + "\nparameters (all read-only):\n" + "\n".join(lines) + "\n\n"
+        f"Its topics and every parameter: {msg_docs_dir()}/tool_driver.md\n")
+
+
 def main(args: list[str] | None = None) -> int:
-    """Console script ``tool_driver``: 0 when the trajectory played, 1 if no subscriber came, 2 on a bad parameter."""
+    """Console script ``tool_driver``: 0 when the trajectory played, 1 if no subscriber came, 2 on a bad parameter.
+
+    ``-h``/``--help`` outside ``--ros-args`` prints :func:`usage` and returns 0 before rclpy is initialised.
+    """
+    if wants_help(args):
+        print(usage(), end="")
+        return 0
     try:
         rclpy.init(args=args)
     except Exception as exc:  # noqa: BLE001  rcl's argument/parameter-file errors

@@ -279,7 +279,7 @@ def rollout_tracks(sim: Any, binding: PointBinding, schedule: Schedule, n_frames
     track = np.empty((n_steps + 1, binding.n_points, 2))
     track[0] = binding.positions(sim.state.particle_q)
     poses = schedule.tool_pose
-    sim.tool_pose = ToolPose(float(poses[0, 0]), float(poses[0, 1]), float(poses[0, 2]))
+    sim.place_tool(ToolPose(float(poses[0, 0]), float(poses[0, 1]), float(poses[0, 2])))
     contact = 0
     diverged = 0
     for k in range(1, n_steps + 1):

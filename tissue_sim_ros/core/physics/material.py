@@ -128,6 +128,23 @@ def lumped_mass(q0: np.ndarray, tris: np.ndarray, density: float, thickness: flo
 # ----------------------------------------------------------------------------- Gauss-Seidel
 
 
+@njit(cache=True, inline="always")
+def _deformation_gradient(x: np.ndarray, a: int, b: int, c: int, cbx: float, cby: float, ccx: float,
+                          ccy: float):
+    """F = D_s D_m^-1 = (x_b - x_a) c_b^T + (x_c - x_a) c_c^T of element (a, b, c) at ``x``, shared by every
+    element kernel (inlined, as ``kernels._area_constraint``: the same operations in the same order as the
+    block it replaced, so the same bits).
+
+    (cbx, cby), (ccx, ccy) are c_b, c_c: rows of D_m^-1 (``elastic[t, 0:2]``, ``elastic[t, 2:4]``).
+    Returns (F00, F01, F10, F11).
+    """
+    e1x = x[b, 0] - x[a, 0]
+    e1y = x[b, 1] - x[a, 1]
+    e2x = x[c, 0] - x[a, 0]
+    e2y = x[c, 1] - x[a, 1]
+    return e1x * cbx + e2x * ccx, e1x * cby + e2x * ccy, e1y * cbx + e2y * ccx, e1y * cby + e2y * ccy
+
+
 @njit(cache=True, nogil=True)
 def solve_elements_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elastic: np.ndarray,
                          inv_h2: float, lam: np.ndarray, start: int, stop: int) -> None:
@@ -170,14 +187,7 @@ def solve_elements_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, 
         if s_dev <= EPS_DEN:
             continue
         # F = D_s D_m^-1 = (x_b - x_a) c_b^T + (x_c - x_a) c_c^T
-        e1x = x[b, 0] - x[a, 0]
-        e1y = x[b, 1] - x[a, 1]
-        e2x = x[c, 0] - x[a, 0]
-        e2y = x[c, 1] - x[a, 1]
-        f00 = e1x * cbx + e2x * ccx
-        f01 = e1x * cby + e2x * ccy
-        f10 = e1y * cbx + e2y * ccx
-        f11 = e1y * cby + e2y * ccy
+        f00, f01, f10, f11 = _deformation_gradient(x, a, b, c, cbx, cby, ccx, ccy)
         # deviatoric: g_0 = F00 - F11, g_1 = F01 + F10, grad_p g_0 = (c_px, -c_py), grad_p g_1 = (c_py, c_px)
         alpha = elastic[t, 4] * inv_h2
         den = s_dev + alpha
@@ -192,14 +202,7 @@ def solve_elements_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, 
         x[c, 0] += wc * (d0 * ccx + d1 * ccy)
         x[c, 1] += wc * (d1 * ccx - d0 * ccy)
         # hydrostatic: C_H = det F - 1, grad_p = cof(F) c_p = (F11 c_px - F10 c_py, -F01 c_px + F00 c_py)
-        e1x = x[b, 0] - x[a, 0]
-        e1y = x[b, 1] - x[a, 1]
-        e2x = x[c, 0] - x[a, 0]
-        e2y = x[c, 1] - x[a, 1]
-        f00 = e1x * cbx + e2x * ccx
-        f01 = e1x * cby + e2x * ccy
-        f10 = e1y * cbx + e2y * ccx
-        f11 = e1y * cby + e2y * ccy
+        f00, f01, f10, f11 = _deformation_gradient(x, a, b, c, cbx, cby, ccx, ccy)
         gax = f11 * cax - f10 * cay
         gay = -f01 * cax + f00 * cay
         gbx = f11 * cbx - f10 * cby
@@ -285,14 +288,7 @@ def jacobi_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elast
         s_dev = wa * (cax * cax + cay * cay) + wb * (cbx * cbx + cby * cby) + wc * (ccx * ccx + ccy * ccy)
         if s_dev <= EPS_DEN:
             continue
-        e1x = x[b, 0] - x[a, 0]
-        e1y = x[b, 1] - x[a, 1]
-        e2x = x[c, 0] - x[a, 0]
-        e2y = x[c, 1] - x[a, 1]
-        f00 = e1x * cbx + e2x * ccx
-        f01 = e1x * cby + e2x * ccy
-        f10 = e1y * cbx + e2y * ccx
-        f11 = e1y * cby + e2y * ccy
+        f00, f01, f10, f11 = _deformation_gradient(x, a, b, c, cbx, cby, ccx, ccy)
         alpha = elastic[t, 4] * inv_h2
         den = s_dev + alpha
         om = omega[t, 0]
@@ -368,14 +364,7 @@ def jacobi_relaxation_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.nda
         node_sum[a] += 2.0 * la / sd
         node_sum[b] += 2.0 * lb / sd
         node_sum[c] += 2.0 * lc / sd
-        e1x = x[b, 0] - x[a, 0]
-        e1y = x[b, 1] - x[a, 1]
-        e2x = x[c, 0] - x[a, 0]
-        e2y = x[c, 1] - x[a, 1]
-        f00 = e1x * cbx + e2x * ccx
-        f01 = e1x * cby + e2x * ccy
-        f10 = e1y * cbx + e2y * ccx
-        f11 = e1y * cby + e2y * ccy
+        f00, f01, f10, f11 = _deformation_gradient(x, a, b, c, cbx, cby, ccx, ccy)
         ha = math.hypot(f11 * cax - f10 * cay, -f01 * cax + f00 * cay)
         hb = math.hypot(f11 * cbx - f10 * cby, -f01 * cbx + f00 * cby)
         hc = math.hypot(f11 * ccx - f10 * ccy, -f01 * ccx + f00 * ccy)
@@ -409,14 +398,7 @@ def jacobi_relaxation_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.nda
             omega[t, 0] = scale / r if r > 0.0 else scale
         sd = omega[t, 1]
         if sd > 0.0:
-            e1x = x[b, 0] - x[a, 0]
-            e1y = x[b, 1] - x[a, 1]
-            e2x = x[c, 0] - x[a, 0]
-            e2y = x[c, 1] - x[a, 1]
-            f00 = e1x * cbx + e2x * ccx
-            f01 = e1x * cby + e2x * ccy
-            f10 = e1y * cbx + e2y * ccx
-            f11 = e1y * cby + e2y * ccy
+            f00, f01, f10, f11 = _deformation_gradient(x, a, b, c, cbx, cby, ccx, ccy)
             ha = math.hypot(f11 * cax - f10 * cay, -f01 * cax + f00 * cay)
             hb = math.hypot(f11 * cbx - f10 * cby, -f01 * cbx + f00 * cby)
             hc = math.hypot(f11 * ccx - f10 * ccy, -f01 * ccx + f00 * ccy)
@@ -470,14 +452,7 @@ def strain_energy_kernel(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, t
         cby = elastic[t, 1]
         ccx = elastic[t, 2]
         ccy = elastic[t, 3]
-        e1x = x[b, 0] - x[a, 0]
-        e1y = x[b, 1] - x[a, 1]
-        e2x = x[c, 0] - x[a, 0]
-        e2y = x[c, 1] - x[a, 1]
-        f00 = e1x * cbx + e2x * ccx
-        f01 = e1x * cby + e2x * ccy
-        f10 = e1y * cbx + e2y * ccx
-        f11 = e1y * cby + e2y * ccy
+        f00, f01, f10, f11 = _deformation_gradient(x, a, b, c, cbx, cby, ccx, ccy)
         g0 = f00 - f11
         g1 = f01 + f10
         ch = f00 * f11 - f01 * f10 - 1.0
@@ -501,14 +476,7 @@ def elastic_forces(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, out: np
         ccy = elastic[t, 3]
         cax = -cbx - ccx
         cay = -cby - ccy
-        e1x = x[b, 0] - x[a, 0]
-        e1y = x[b, 1] - x[a, 1]
-        e2x = x[c, 0] - x[a, 0]
-        e2y = x[c, 1] - x[a, 1]
-        f00 = e1x * cbx + e2x * ccx
-        f01 = e1x * cby + e2x * ccy
-        f10 = e1y * cbx + e2y * ccx
-        f11 = e1y * cby + e2y * ccy
+        f00, f01, f10, f11 = _deformation_gradient(x, a, b, c, cbx, cby, ccx, ccy)
         kd = (f00 - f11) / ad  # dE/dg_0
         kd1 = (f01 + f10) / ad
         kh = (f00 * f11 - f01 * f10 - 1.0) / ah
@@ -572,14 +540,7 @@ def element_hessians(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, out: 
         ca[2, 1] = elastic[t, 3]
         ca[0, 0] = -ca[1, 0] - ca[2, 0]
         ca[0, 1] = -ca[1, 1] - ca[2, 1]
-        e1x = x[b, 0] - x[a, 0]
-        e1y = x[b, 1] - x[a, 1]
-        e2x = x[c, 0] - x[a, 0]
-        e2y = x[c, 1] - x[a, 1]
-        f00 = e1x * ca[1, 0] + e2x * ca[2, 0]
-        f01 = e1x * ca[1, 1] + e2x * ca[2, 1]
-        f10 = e1y * ca[1, 0] + e2y * ca[2, 0]
-        f11 = e1y * ca[1, 1] + e2y * ca[2, 1]
+        f00, f01, f10, f11 = _deformation_gradient(x, a, b, c, ca[1, 0], ca[1, 1], ca[2, 0], ca[2, 1])
         ch = f00 * f11 - f01 * f10 - 1.0
         for k in range(3):
             gd0[2 * k] = ca[k, 0]

@@ -11,9 +11,9 @@ soon as the contact comes near it or an edge neighbour moves faster than
 awake triangles and their edges, sleepers pinned), rebuilt only when the
 sleeping set changes.
 
-Use it when a scene asks for it::
+A scene asks for it with ``sleep_speed`` > 0 (the Simulation's default solver), or::
 
-    sim.solver = SleepingSolver(sim.model, wake_radius=0.15, sleep_speed=1e-3)
+    sim.use_solver(functools.partial(SleepingSolver, wake_radius=0.15, sleep_speed=1e-3))
 
 The error it costs is measured by ``tissue-sim bench accuracy`` (``accuracy_sleeping.csv``).
 """

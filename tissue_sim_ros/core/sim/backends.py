@@ -22,6 +22,7 @@ every node of the cluster (the same install there, or a ``runtime_env``).
 """
 from __future__ import annotations
 
+import math
 import os
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -245,14 +246,13 @@ def rollout_pool(scene: BatchScene | Simulation, workers: int | None = None, bac
 
 def warm_kernels() -> None:
     """Load (or compile) the solver and contact kernels once in this process: a tiny scene stepped with a tool."""
-    from ..contact.tool import ToolShape  # noqa: PLC0415
+    from ..config import resolve_config  # noqa: PLC0415
     from ..mesh import mesh_rectangle  # noqa: PLC0415
-    from ..physics.model import Model, SimParams  # noqa: PLC0415
 
     for contact in ("paper", "projection"):
-        params = SimParams(contact_model=contact, boundary_y_bottom=0.001)
-        sim = Simulation(Model.from_mesh(mesh_rectangle(0.2, 0.1, 0.05), params), ToolShape(kind="box", length=0.1))
-        warm_up(sim)
+        cfg = resolve_config({"contact_model": contact, "boundary_y_bottom": 0.001, "boundary_y_top": math.nan,
+                              "tool_shape": "box", "tool_length": 0.1}, source="warm_kernels")
+        warm_up(Simulation.from_config(cfg, mesh=mesh_rectangle(0.2, 0.1, 0.05)))
 
 
 def _local_init() -> None:

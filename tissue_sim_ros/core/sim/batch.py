@@ -50,6 +50,7 @@ detection per step, not a solve.
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
 import time
@@ -193,7 +194,7 @@ class BatchScene:
         """A scratch Simulation of this scene with the serial solver (see the module docstring)."""
         sim = Simulation(self.model, self.tool)
         if getattr(sim.solver, "parallel", False):
-            sim.solver = Solver(self.model, parallel=False)
+            sim.use_solver(functools.partial(Solver, parallel=False))
         sim.report_tool_checks = False  # the rollout measures its own penetration (CandidateResult)
         return sim
 
@@ -406,7 +407,7 @@ def rollout_candidate(sim: Simulation, snap: SimSnapshot, path: ToolPath, index:
             k += 1
     skipped = k
     sim.restore(track.states[k] if skipped else snap)
-    sim.tool_pose = prev
+    sim.place_tool(prev)
     for k in range(skipped, n):
         pose = ToolPose(float(poses[k, 0]), float(poses[k, 1]), float(poses[k, 2]))
         twist = None if twists is None else ToolTwist(float(twists[k, 0]), float(twists[k, 1]), float(twists[k, 2]))

@@ -6,9 +6,19 @@ The data flow of one step::
 
 The Simulation owns the Model, the current State, the Solver (workspaces) and
 the contact model; it never imports ROS.
+
+Every caller steps through it, benchmarks included. What a benchmark needs
+beyond the report::
+
+    sim.place_tool(pose0)                      # the tool where the next step starts, no step taken
+    report = sim.step(pose1, detail=True)      # report.detail: StepDetail (start State, Contacts, SolveInfo)
+    state, info = sim.solve(report.detail, iterations=64)      # the same step again, other parameters
+    state, info = sim.solve(report.detail, solver=exact)       # ... or another solver (an exact reference)
+    sim.use_solver(factory)                    # step with another solver from now on (kept by retune)
 """
 from __future__ import annotations
 
+import copy
 import threading
 import time
 from dataclasses import dataclass, field
@@ -24,7 +34,7 @@ from ..errors import InputError
 from ..physics.energy import EnergyTerms, energy_terms
 from ..physics.kernels import count_inverted
 from ..physics.model import Model, State
-from ..physics.solvers import Solver
+from ..physics.solvers import SolveInfo, Solver
 from ..physics.step_kernels import finish_step
 from .snapshot import SimSnapshot, carry_state, restore_carry, scene_key
 
@@ -42,6 +52,42 @@ def default_solver(model: Model) -> Any:
 
         return SleepingSolver(model, wake_radius=model.params.sleep_wake_radius, sleep_speed=model.params.sleep_speed)
     return Solver(model)
+
+
+@dataclass
+class StepDetail:
+    """One step's solve as the solver saw it: kept on the report by ``Simulation.step(..., detail=True)``.
+
+    Everything is a copy (or, for ``contacts``, the step's own object, which no later step touches), so it
+    stays valid after the next steps; :meth:`Simulation.solve` solves the same step again from it.
+    """
+
+    state_in: State
+    """Positions [m] and velocities [m/s] at the start of the step (a copy), (N, 2) each."""
+    contacts: Contacts
+    """The step's contacts as the solver got them (``touched`` filled by the solver; with projection contact
+    ``in_contact`` is set after the solve)."""
+    info: Any
+    """The solver's :class:`~tissue_sim_ros.core.physics.solvers.SolveInfo` of the step (its arrays copied:
+    ``x_pred``, ``contact_dx``), or what another solver's ``step`` returned."""
+    tool_pose0: ToolPose | None
+    """Tool pose at the start of the step (None: no tool)."""
+    tool_pose1: ToolPose | None
+    """Tool pose at the end of the step (None: no tool)."""
+    dt: float
+    """Time step [s]."""
+
+
+def _detached(info: Any) -> Any:
+    """A shallow copy of a solver's info with its arrays copied (they are the solver's workspaces)."""
+    if isinstance(info, SolveInfo):
+        return SolveInfo(x_pred=info.x_pred.copy(), contact_dx=None if info.contact_dx is None else
+                         info.contact_dx.copy(), residual=info.residual)
+    out = copy.copy(info)
+    for name, value in vars(out).items() if hasattr(out, "__dict__") else ():
+        if isinstance(value, np.ndarray):
+            setattr(out, name, value.copy())
+    return out
 
 
 @dataclass
@@ -92,6 +138,8 @@ class StepReport:
     """Particles whose path relative to the tool ran through it within the step (``core/contact/tool_checks.py``)."""
     tool_buried: bool = False
     """True when a point of the tool's axis lies inside a triangle of the deformed tissue (the tool is buried in it)."""
+    detail: StepDetail | None = None
+    """The step's start State, Contacts and solver info when asked (``Simulation.step(..., detail=True)``), else None."""
 
 
 class Simulation:
@@ -251,7 +299,64 @@ class Simulation:
         self.state = state.copy()
         self._last_good = state.copy()
 
-    def step(self, tool_pose: ToolPose | None = None, tool_twist: ToolTwist | None = None) -> StepReport:
+    def place_tool(self, pose: ToolPose | None) -> None:
+        """Put the tool at ``pose`` without stepping: the next step moves it from there (its twist, by default,
+        and the projection contact's sweep start at ``pose``). None: no tool yet (the next step starts where it ends).
+
+        A new insertion starts here (batch rollouts, a benchmark's first pose); the state is unchanged.
+        """
+        with self.lock:
+            self.tool_pose = pose
+
+    def use_solver(self, solver: SolverFactory) -> None:
+        """Step with ``solver(model)`` from now on, instead of the solver made so far (and after :meth:`retune`).
+
+        Parameters
+        ----------
+        solver : callable
+            Makes the solver of a Model, e.g. ``functools.partial(Solver, parallel=False)`` or
+            ``functools.partial(SleepingSolver, sleep_speed=1e-3)``. The old solver's carried state (a
+            sleeping set) is dropped; the State is unchanged.
+        """
+        with self.lock:
+            self._solver_factory = solver
+            self.solver = solver(self.model)
+
+    def solve(self, detail: StepDetail, solver: SolverFactory | None = None, **changes: Any) -> tuple[State, Any]:
+        """Solve a kept step again: from its start state with its contacts, the simulation left unchanged.
+
+        The step's own solve (``detail`` of a report of :meth:`step` with ``detail=True``) with other
+        parameters or another solver: the residual after 1, 4, 16, 64 iterations of the same step, or the
+        exact solve of the step (a benchmark's reference). With neither, the result equals the step's own
+        bit for bit (for a solver that carries nothing between steps).
+
+        Parameters
+        ----------
+        detail : StepDetail
+            The step (its start State and Contacts are copied, not changed).
+        solver : callable, optional
+            ``solver(model)`` makes the solver that solves it (default: this simulation's kind, made afresh:
+            nothing carried over from earlier steps, so a sleeping solver starts awake).
+        **changes
+            SimParams fields to change for this solve (``iterations=16``, ``substeps=4``), validated.
+
+        Returns
+        -------
+        state : State
+            Positions and velocities at the end of the step (not checked for NaN: a diverged solve stays so).
+        info : SolveInfo
+            The solver's info (arrays of the fresh solver, valid as long as they are kept).
+        """
+        model = self.model.with_params(self.params.with_(**changes)) if changes else self.model
+        make = solver or self._solver_factory
+        state_in = detail.state_in.copy()  # a sleeping solver zeroes its sleepers' velocities in place
+        contacts = copy.copy(detail.contacts)  # the solver sets contacts.touched
+        state_out = model.state()
+        info = make(model).step(state_in, state_out, contacts, detail.dt)
+        return state_out, info
+
+    def step(self, tool_pose: ToolPose | None = None, tool_twist: ToolTwist | None = None, *,
+             detail: bool = False) -> StepReport:
         """Advance one time step dt.
 
         Parameters
@@ -260,9 +365,12 @@ class Simulation:
             Tool pose at the end of this step (the commanded pose). None: no tool this step.
         tool_twist : ToolTwist, optional
             Tool velocity. None: derived from the previous and this pose over dt.
+        detail : bool
+            Keep the step's start State, Contacts and solver info on the report (``report.detail``, a
+            :class:`StepDetail`: copies, for :meth:`solve` and benchmarks); the step itself is the same.
         """
         with self.lock:
-            return self._step(tool_pose, tool_twist)
+            return self._step(tool_pose, tool_twist, keep=detail)
 
     def step_reference(self, tool_pose: ToolPose | None = None, tool_twist: ToolTwist | None = None) -> StepReport:
         """:meth:`step` as it was before the compiled calls: the solver's :meth:`~tissue_sim_ros.core.physics.solvers.Solver.step_reference`
@@ -272,7 +380,8 @@ class Simulation:
         with self.lock:
             return self._step(tool_pose, tool_twist, reference=True)
 
-    def _step(self, tool_pose: ToolPose | None, tool_twist: ToolTwist | None, reference: bool = False) -> StepReport:
+    def _step(self, tool_pose: ToolPose | None, tool_twist: ToolTwist | None, reference: bool = False,
+              keep: bool = False) -> StepReport:
         t_start = time.perf_counter()
         p = self.params
         model = self.model
@@ -283,15 +392,18 @@ class Simulation:
             contacts = self.contact.detect(self.state, self.tool_pose or tool_pose, tool_pose, tool_twist, p.dt)
         else:
             contacts = Contacts.empty(nb)
+        state_in = self.state.copy() if keep else None  # before the solve: a sleeping solver writes into it
         t_contact = time.perf_counter()
 
         solve = getattr(self.solver, "step_reference", self.solver.step) if reference else self.solver.step
         info = solve(self.state, self._state_out, contacts, p.dt)
+        t_solve = time.perf_counter()
         if contacts.candidates.size:
             # projection contact: a body is in contact when the solve pushed one of its particles
             contacts.in_contact[:] = False
             contacts.in_contact[model.particle_body[contacts.touched]] = True
-        t_solve = time.perf_counter()
+        detail = StepDetail(state_in, contacts, _detached(info), (self.tool_pose or tool_pose) if tool_pose else None,
+                            tool_pose, p.dt) if keep else None
 
         out = self._state_out
         # one compiled call: finite?, the energy terms (constraints; the material's strain energy after),
@@ -344,7 +456,7 @@ class Simulation:
             x_pred=info.x_pred.copy(), held_idx=np.asarray(contacts.held_idx, dtype=np.int32).copy(),
             held_dx=np.asarray(contacts.held_dx, dtype=np.float64).reshape(-1, 2).copy(),
             n_penetrating=checks[0], penetration_depth=checks[1], deepest_particle=checks[2],
-            n_tunnelled=checks[3], tool_buried=checks[4],
+            n_tunnelled=checks[3], tool_buried=checks[4], detail=detail,
         )
 
     def _tool_checks(self, x0: np.ndarray, x1: np.ndarray, pose0: ToolPose | None,

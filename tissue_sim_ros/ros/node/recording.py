@@ -15,6 +15,7 @@ inputs and stepped. The messages' own header stamps carry the node's clock.
 """
 from __future__ import annotations
 
+import os
 import threading
 import time
 from typing import Any
@@ -24,7 +25,9 @@ from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 
-from .bags import BagWriter
+from ...core.config import params_json
+from ...core.errors import InputError
+from ..bags import BagWriter
 
 
 def _type_name(msg_class: Any) -> str:
@@ -78,3 +81,30 @@ class NodeRecorder:
 
     def close(self) -> None:
         self.writer.close()
+
+
+#: The node's publishers (attributes) whose every message goes into the bag too.
+RECORDED_PUBLISHERS = ("pub_markers", "pub_points", "pub_rest", "pub_wrench", "pub_energy", "pub_energy_bodies",
+                       "pub_diagnostics", "pub_applied_pose", "pub_applied_twist")
+
+
+def start_recording(node: Any, path: str, storage: str) -> NodeRecorder:
+    """Wrap every publisher of ``node`` so what it publishes is also written to the bag; record the tool inputs.
+
+    The bag holds the node's resolved parameters (``tissue_sim.params``), what ``tissue-sim replay --mode
+    applied`` needs to rebuild this very Simulation from the bag alone, written when the recording starts.
+    """
+    if os.path.exists(path):
+        raise InputError(f"parameter record_path={path!r}: that path exists; expected a new bag directory")
+    recorder = NodeRecorder(node, path, storage)
+    # durable: in the storage file from the start, so a node killed hard (SIGKILL, a crash) leaves them too and
+    # `tissue-sim record --recover` carries them into the bag it writes
+    recorder.writer.set_custom_data("tissue_sim.params", params_json(node.config), durable=True)
+    for name in RECORDED_PUBLISHERS:
+        setattr(node, name, recorder.wrap(getattr(node, name)))
+    node.pub_energy_terms = {k: recorder.wrap(p) for k, p in node.pub_energy_terms.items()}
+    for sub in (node.sub_pose, node.sub_twist, *node.frames.subs):
+        recorder.add(sub.topic_name, sub.msg_type, sub.qos_profile)
+    node.frames.record = recorder.write
+    node.get_logger().info(f"recording every message in and out to {path} ({storage})")
+    return recorder

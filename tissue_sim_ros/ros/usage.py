@@ -1,0 +1,57 @@
+"""``--help`` of the ROS executables (``tissue_sim_node``, ``tool_driver``), answered before rclpy is initialised.
+
+rclpy ignores the arguments outside ``--ros-args``, so without this a
+``tissue_sim_node --help`` started a full node on the current domain. A
+``-h``/``--help`` outside the ``--ros-args`` sections prints the executable's
+usage and where its interface is described (``msg_docs/``), and the
+executable exits 0 without touching ROS.
+"""
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+HELP_FLAGS = ("-h", "--help")
+
+
+def user_args(argv: list[str]) -> list[str]:
+    """The arguments of a command line (without the program name) that are not ROS arguments: those outside
+    ``--ros-args ... [--]`` sections."""
+    out, in_ros = [], False
+    for arg in argv:
+        if arg == "--ros-args":
+            in_ros = True
+        elif arg == "--" and in_ros:
+            in_ros = False
+        elif not in_ros:
+            out.append(arg)
+    return out
+
+
+def wants_help(args: list[str] | None) -> bool:
+    """True when the command line (``args`` as given to ``main``, program name first; None: ``sys.argv``) asks
+    for help outside its ROS arguments."""
+    argv = sys.argv if args is None else args
+    return any(a in HELP_FLAGS for a in user_args(list(argv[1:])))
+
+
+def msg_docs_dir() -> str:
+    """Where the interface description (``msg_docs/``) is on this machine: the source checkout's, or an install's
+    ``share/tissue_sim_ros/msg_docs``."""
+    candidates = [Path(__file__).resolve().parents[2] / "msg_docs"]
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p] + [sys.prefix]
+    candidates += [Path(p) / "share" / "tissue_sim_ros" / "msg_docs" for p in prefixes]
+    for d in candidates:
+        if (d / "README.md").is_file():
+            return str(d)
+    return "msg_docs/ in the tissue_sim_ros sources (installed: <prefix>/share/tissue_sim_ros/msg_docs)"
+
+
+def ros_arguments(name: str, example: str) -> str:
+    """The lines of a usage that explain the ROS arguments of the executable ``name``."""
+    return (f"ROS arguments (after --ros-args):\n"
+            f"  -p NAME:=VALUE        set a parameter, e.g. {example}\n"
+            f"  --params-file FILE    parameters from a YAML file (the section `{name}:` or `/**:`,\n"
+            f"                        then `ros__parameters:`)\n"
+            f"  -r __ns:=/NS          run in a namespace\n")
