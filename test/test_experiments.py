@@ -205,6 +205,9 @@ def test_demo_runs_through_ros_and_its_bag_decodes_with_mcap(tmp_path):
         replayed = np.loadtxt(replay_out / "energy.csv", delimiter=",", skiprows=1, usecols=2)  # energy_total
         if mode == "applied":  # the tool the node stepped with: the live run, bit for bit
             np.testing.assert_array_equal(replayed, energy)
+            # contact counted from tissue/contact (every step), not from the markers (a display stream that
+            # skips steps): the demo's count is the replay's, step for step
+            assert int(touched.group(1)) == summary["steps_in_contact"], (touched.group(0), summary)
         else:  # the driver's poses and twists: the same physics (the shipped paper contact was off by ~1000x)
             np.testing.assert_allclose(replayed, energy, rtol=0, atol=1e-3 * energy.max())
 

@@ -466,7 +466,8 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
                 if fetch.params is not None:
                     from ..core.config import params_json_flat  # noqa: PLC0415
 
-                    writer.set_custom_data("tissue_sim.params", params_json_flat(fetch.params))
+                    # durable: in the storage file at once, so a killed recorder's bag keeps them (record --recover)
+                    writer.set_custom_data("tissue_sim.params", params_json_flat(fetch.params), durable=True)
             if not quiet and now >= next_status:
                 next_status = now + 1.0
                 total = sum(writer.counts.values())
