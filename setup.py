@@ -76,7 +76,6 @@ setup(
     maintainer_email="tissue-sim@example.org",
     description="2D soft-tissue simulation under a surgical tool: PBD/XPBD, python-fcl contact, implicit Euler energy, ROS 2 Jazzy.",
     license="BSD-3-Clause",
-    tests_require=["pytest"],
     entry_points={
         "console_scripts": [
             "tissue-sim = tissue_sim_ros.cli:main",

@@ -85,14 +85,19 @@ def irregular_times(n: int, rate_hz: float = 37.0, t0_ns: int = 1_700_000_000_12
     return t0_ns + np.cumsum(dt).astype(np.int64)
 
 
-def write_bag(path: Path, messages: Sequence[tuple[str, str, int, Any]], storage: str = "mcap") -> Path:
-    """Write (topic, msgtype, t_ns, message object or raw bytes) in the given order; returns ``path``."""
+def write_bag(path: Path, messages: Sequence[tuple[str, str, int, Any]], storage: str = "mcap",
+              qos: dict[str, Any] | None = None) -> Path:
+    """Write (topic, msgtype, t_ns, message object or raw bytes) in the given order; returns ``path``.
+
+    ``qos``: topic -> a rosbags ``Qos`` stored as its offered QoS (as rosbag2 records it); others store none.
+    """
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     with Writer(path, version=9, storage_plugin=plugin) as w:
         conns: dict[str, Any] = {}
         for topic, msgtype, _, _ in messages:
             if topic not in conns:
-                conns[topic] = w.add_connection(topic, msgtype, typestore=TS)
+                offered = (qos[topic],) if qos and topic in qos else ()
+                conns[topic] = w.add_connection(topic, msgtype, typestore=TS, offered_qos_profiles=offered)
         for topic, msgtype, t_ns, msg in messages:
             data = msg if isinstance(msg, (bytes, bytearray)) else TS.serialize_cdr(msg, msgtype)
             w.write(conns[topic], int(t_ns), data)

@@ -140,3 +140,19 @@ def test_help_explains_the_command(capsys):
     for word in ("--spacing", "--scale", "--origin", "--threshold", "--color", "--grade", "--out", "--png",
                  "bottom-left", ".msh"):
         assert word in out
+
+
+def test_output_names_are_checked_before_anything_is_written(tmp_path: Path, disc_png: Path, capsys):
+    """--out must name a .npz (mesh.txt was written as mesh.txt.npz after 'wrote mesh.txt'), --png a .png (a .jpg
+    got PNG data): refused in one line before meshing, nothing written; a new directory is made and said."""
+    for option, name in (("--out", "mesh.txt"), ("--png", "mesh.jpg")):
+        assert main(["mesh", str(disc_png), option, str(tmp_path / name)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and name in err and ("expected a .npz" in err or "expected a .png" in err), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["disc.png"]
+    out = tmp_path / "new" / "deeper" / "x.npz"
+    assert main(["mesh", str(disc_png), "--spacing", "0.1", "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert f"created directory {str(out.parent)!r} for --out" in said and out.exists()
+    assert main(["mesh", str(disc_png), "--spacing", "0.1", "--out", str(out)]) == 0  # it exists now: nothing said
+    assert "created directory" not in capsys.readouterr().out

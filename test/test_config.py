@@ -208,3 +208,15 @@ def test_recorded_parameters_are_strict_json_and_read_back() -> None:
         params_from_json("{")
     with pytest.raises(InputError, match="expected an object"):
         params_from_json("[1]")
+
+
+def test_a_binary_parameter_file_is_one_line_naming_it(tmp_path, capsys):
+    """A PNG given to --params used to end in a raw "'utf-8' codec can't decode byte 0x89"."""
+    from tissue_sim_ros.cli import main
+
+    png = tmp_path / "tissue.png"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))
+    assert main(["config", "--params", str(png)]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == (f"tissue-sim: error: parameter file {str(png)!r} is not text (a binary file?): expected "
+                           "a parameter YAML such as config/tissue_sim.yaml")

@@ -186,6 +186,30 @@ def test_demo_runs_through_ros_and_its_bag_decodes_with_mcap(tmp_path):
     assert np.isfinite(energy).all() and (energy >= 0).all()
     assert len(msgs["/tissue/points"]) == steps and len(msgs["/tool/wrench"]) == steps
     assert len(msgs["/tool/pose"]) >= steps
+    # the recording carries the node's parameters, so the plain replay steps with the node's physics
+    # (projection contact here), not the shipped defaults (paper contact): the node's energies again
+    import json
+
+    from tissue_sim_ros.cli import main as cli
+    from tissue_sim_ros.ros.bags import Bag
+
+    with Bag(out / "demo_bag") as bag:
+        recorded = json.loads(bag.custom_data["tissue_sim.params"])
+    assert recorded["contact_model"] == "projection" and recorded["lock_step"] is True
+    for mode in ("per-message", "applied"):
+        replay_out = tmp_path / f"replay_{mode}"
+        assert cli(["replay", str(out / "demo_bag"), "--mode", mode, "--out", str(replay_out), "--no-progress",
+                    "--frame-every", "-1", "--no-bag"]) == 0
+        summary = json.loads((replay_out / "replay.json").read_text())
+        assert summary["params_source"] == "bag" and summary["steps"] == steps
+        replayed = np.loadtxt(replay_out / "energy.csv", delimiter=",", skiprows=1, usecols=2)  # energy_total
+        if mode == "applied":  # the tool the node stepped with: the live run, bit for bit
+            np.testing.assert_array_equal(replayed, energy)
+            # contact counted from tissue/contact (every step), not from the markers (a display stream that
+            # skips steps): the demo's count is the replay's, step for step
+            assert int(touched.group(1)) == summary["steps_in_contact"], (touched.group(0), summary)
+        else:  # the driver's poses and twists: the same physics (the shipped paper contact was off by ~1000x)
+            np.testing.assert_allclose(replayed, energy, rtol=0, atol=1e-3 * energy.max())
 
 
 def test_plan_ranks_insertions_on_two_processes(tmp_path, capsys):
@@ -218,3 +242,19 @@ def test_plan_refuses_a_target_outside_the_tissue(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--target 5 5" in err and "is outside the tissue: expected a target inside it" in err
     assert not out.exists()
+
+
+def test_a_trajectory_shorter_than_one_step_is_refused_everywhere(tmp_path, capsys):
+    """A one-row CSV ran experiment a for 0 steps, exit 0, empty figures (replay refused it): now every command
+    that runs a trajectory refuses it in one line, and writes nothing."""
+    from tissue_sim_ros.cli import main
+
+    one = tmp_path / "one.csv"
+    one.write_text("time,x,y,yaw\n0,0.1,0.5,0\n")
+    for argv in (["experiment", "a", "--trajectory", str(one), "--out", str(tmp_path / "a")],
+                 ["experiment", "b", "--trajectory", str(one), "--out", str(tmp_path / "b")],
+                 ["replay", "--trajectory", str(one), "--out", str(tmp_path / "r")]):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert f"trajectory {str(one)!r} lasts 0.0 s: shorter than one step of dt=0.01 s" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["one.csv"]

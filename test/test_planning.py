@@ -104,3 +104,26 @@ def test_plan_picks_the_cheapest_feasible_and_tracks_the_target(scene):
     loose = plan_insertion(sim.snapshot(), sc, InsertionRequest(ENTRY, TARGET, 0.05, (0.0,), (0.2,),
                                                                 track_target=True))
     assert loose.ok
+
+
+def test_the_plan_chart_keeps_its_legend_off_the_curves(tmp_path, monkeypatch):
+    """plan.png's legend sat inside the axes and hid a curve: it is drawn beside them."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from tissue_sim_ros.experiments import plan
+
+    rows = [{"angle_deg": a, "speed_m_per_step": s, "cost": (1e-8 if s == 0.002 else 3e-8) * (1 + (a + 40) / 5)}
+            for s in (0.001, 0.002) for a in range(-40, 0, 5)]
+    rows.sort(key=lambda r: r["cost"])
+    kept = {}
+    monkeypatch.setattr(plt, "close", lambda fig: kept.setdefault("fig", fig))
+    plan.chart(tmp_path / "plan.png", rows, (0.55, 0.38))
+    fig = kept["fig"]
+    renderer = fig.canvas.get_renderer()
+    ax = fig.axes[0]
+    legend = ax.get_legend().get_window_extent(renderer)
+    assert not legend.overlaps(ax.get_window_extent(renderer)), (legend, ax.get_window_extent(renderer))
+    assert legend.x1 <= fig.bbox.x1 + 1  # and inside the picture

@@ -244,6 +244,15 @@ def test_record_duration_with_nothing_to_record_ends_after_wait(tmp_path, start_
     assert (out / "metadata.yaml").exists()  # a closed, empty bag
 
 
+def test_a_recorder_with_nothing_yet_says_what_it_waits_for(tmp_path, start_process):
+    """Seconds of "0 messages" while a node starts read as a hang: the recorder says what it is waiting for."""
+    out = tmp_path / "waiting"
+    rec = start_process(["tissue-sim", "record", "-o", str(out), "--topics", "/nobody/publishes/this", "--duration",
+                         "1", "--wait", "4"], name="record_waiting")
+    assert rec.wait(timeout=60) == 0, _text(rec)
+    assert "waiting for publishers: none yet on /nobody/publishes/this in ROS domain" in _text(rec), _text(rec)
+
+
 def test_offline_replay_equals_node_in_lock_step(tmp_path, ros_client, start_process):
     """The node stepping once per played pose publishes what the offline replay writes, to the bit.
 
@@ -399,3 +408,79 @@ def test_tool_only_on_tf_played_into_the_node_equals_the_offline_replay(tmp_path
     live = np.array([m.decode_float64(raw) for raw in energy.messages])
     assert live.shape == (40,), f"{len(live)} energy messages for 40 tool transforms"
     np.testing.assert_array_equal(live, offline.rollout.scene_total)
+
+
+@pytest.mark.parametrize("recorded_qos", [True, False], ids=["latched-in-metadata", "no-qos-recorded"])
+def test_play_delivers_a_bags_tf_static_to_the_node(tmp_path, ros_client, start_process, recorded_qos):
+    """A robot bag whose tool frame reaches the node only through /tf_static (world -> robot_base, poses in
+    robot_base): played into a fresh lock-step node, every pose becomes a step, none dropped as dropped_frame.
+
+    The node subscribes to /tf_static TRANSIENT_LOCAL; a VOLATILE publisher never matches it (DDS: "offering
+    incompatible QoS ... DURABILITY"), so play must publish it latched, as its publishers offered it.
+    """
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+    from std_msgs.msg import Float64
+
+    from tissue_sim_ros.ros import play as player
+    from tissue_sim_ros.ros import tf_input
+
+    from bag_fixtures import T, header, irregular_times, pose, trajectory, transform_stamped
+
+    if not tf_input.TF_AVAILABLE:
+        pytest.skip("tf2_msgs is not importable here (scripts/build_tf2_msgs.sh generates it)")
+    n = 30
+    times = irregular_times(n, 40.0)
+    poses = trajectory(times)
+    base = (0.05, -0.02, 0.0)  # world -> robot_base: a pure translation in the plane
+    static = T["tf2_msgs/msg/TFMessage"](transforms=[transform_stamped(int(times[0]) - 1_000_000, "world",
+                                                                       "robot_base", *base)])
+    msgs = [("/tf_static", "tf2_msgs/msg/TFMessage", int(times[0]) - 1_000_000, static)]
+    for t, (x, y, yaw) in zip(times, poses):
+        msgs.append(("/tool/pose", "geometry_msgs/msg/PoseStamped", int(t),
+                     T["geometry_msgs/msg/PoseStamped"](header=header(int(t), "robot_base"),
+                                                        pose=pose(float(x - base[0]), float(y - base[1]), float(yaw)))))
+    zero = QosTime(0, 0)
+    latched = Qos(history=QosHistory.KEEP_LAST, depth=1, reliability=QosReliability.RELIABLE,
+                  durability=QosDurability.TRANSIENT_LOCAL, deadline=zero, lifespan=zero,
+                  liveliness=QosLiveliness.AUTOMATIC, liveliness_lease_duration=zero,
+                  avoid_ros_namespace_conventions=False)
+    src = write_bag(tmp_path / "robot_bag", msgs, qos={"/tf_static": latched} if recorded_qos else None)
+    with Bag(src) as bag:
+        assert bag.offered_qos("/tf_static") == ((True, True, 1) if recorded_qos else None)
+        assert player.play_qos(bag, "/tf_static", 1) == (True, True, 1)
+        assert player.play_qos(bag, "/tool/pose", n) == (True, False, 1000)
+
+    params = write_params(tmp_path, frame_id="world", lock_step=True)
+    energy = ros_client.raw_subscription(Float64, "/tissue/energy", QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+    node = start_process(["tissue_sim_node", "--ros-args", "--params-file", str(params)], name="node")
+    ros_client.wait_for_publisher("/tissue/energy", timeout=120, process=node)
+    ros_client.spin_until(lambda: energy.sub.get_publisher_count() > 0, 30, node, "matching /tissue/energy")
+    play = start_process(["tissue-sim", "play", str(src), "--no-clock", "--wait", "30"], name="play")
+    assert play.wait(timeout=60) == 0, _text(play)
+    ros_client.spin_until(lambda: len(energy.messages) >= n, 60, node,
+                          f"{n} energy messages (every pose in robot_base taken through /tf_static)")
+    ros_client.spin_for(0.3)
+    assert len(energy.messages) == n
+
+
+def test_the_recorders_summary_says_what_a_recording_holds_fewer_of():
+    """The demo's bag held 263 marker arrays for 300 steps and nothing said so: markers are a display stream
+    (the node skipped them while its marker thread was busy), which the summary now says; a per-step topic
+    short of another means messages were lost, which it warns about."""
+    from tissue_sim_ros.ros.record import completeness
+
+    full = {"/tissue/energy": 300, "/tissue/energy/bodies": 300, "/tool/wrench": 300, "/tool/applied_twist": 300,
+            "/tissue/points": 300}
+    assert completeness({**full, "/tissue/markers": 300}) == []
+    lines = completeness({**full, "/tissue/markers": 263})
+    assert len(lines) == 1 and lines[0].startswith("note: /tissue/markers holds 263 arrays for 300 steps: the node "
+                                                   "publishes markers as a display stream")
+    lines = completeness({**full, "/tool/wrench": 290, "/tissue/markers": 300})
+    assert lines == ["WARNING: per-step topics differ (/tool/wrench 290, against 300): messages were lost on the way "
+                     "(a loaded machine, or the recorder started after the node)"]
+    ns = {f"/left{t}": n for t, n in {**full, "/tissue/markers": 10}.items()}
+    assert completeness(ns, "left")[0].startswith("note: /left/tissue/markers holds 10 arrays for 300 steps")
+    assert completeness(full, lost={"/tissue/points": 3}) == [
+        "WARNING: /tissue/points: DDS reported 3 messages lost in transport"]

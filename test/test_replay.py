@@ -318,7 +318,7 @@ def _strict_json(path, text=None):
     return json.loads(path.read_text() if text is None else text, parse_constant=refuse)
 
 
-SUMMARY_KEYS = {"bag", "mode", "params", "params_file", "tool_topic", "tool_type", "child_frame", "twist_topic",
+SUMMARY_KEYS = {"bag", "mode", "params", "params_file", "params_source", "tool_topic", "tool_type", "child_frame", "twist_topic",
                 "time_source", "samples", "samples_read", "skipped", "bodies", "particles", "triangles", "dt",
                 "steps", "wall_s", "real_time_factor", "energy_final"}
 METADATA_KEYS = {"tissue_sim.source_bag", "tissue_sim.mode", "tissue_sim.tool_topic", "tissue_sim.params"}
@@ -386,3 +386,42 @@ def test_applied_replay_writes_what_the_docs_list(tmp_path, capsys):
     assert meta["tissue_sim.tool_topic"] == "/tool/applied_pose"
     assert meta["tissue_sim.twist_topic"] == "/tool/applied_twist"
     assert json.loads(meta["tissue_sim.params"])["mesh_file"] == cfg.flat()["mesh_file"]
+
+
+def test_plain_replay_steps_with_the_bags_own_parameters_or_says_it_falls_back(tmp_path, capsys):
+    """A bag holding its simulator's parameters replays with them (no --params needed); one holding none falls
+    back to the shipped defaults and says so, in one line and in replay.json (it used to be silent)."""
+    import json
+
+    from tissue_sim_ros.core.config import params_json, resolve_config
+    from tissue_sim_ros.ros.bags import BagWriter
+
+    src, _, _ = tool_bag(tmp_path / "plain", n=12)
+    cfg = resolve_config(small_params(tmp_path, contact_model="projection", iterations=7))
+    with_params = tmp_path / "with_params"
+    with Bag(src) as bag, BagWriter(with_params) as w:
+        for topic, msgtype, t, raw in bag.messages(["/tool/pose"]):
+            w.add_topic(topic, msgtype)
+            w.write(topic, bytes(raw), t)
+        w.set_custom_data("tissue_sim.params", params_json(cfg))
+    out = tmp_path / "o1"
+    assert cli(["replay", str(with_params), "--out", str(out), "--no-progress", "--frame-every", "-1"]) == 0
+    said = capsys.readouterr().out
+    assert "parameters: the recording's own" in said
+    summary = json.loads((out / "replay.json").read_text())
+    assert summary["params_source"] == "bag"
+    assert summary["params"]["iterations"] == 7 and summary["params"]["contact_model"] == "projection"
+    assert summary["params"]["mesh_file"] == cfg.flat()["mesh_file"]
+
+    out = tmp_path / "o2"  # a robot's bag: no simulator parameters in it
+    assert cli(["replay", str(src), "--out", str(out), "--no-progress", "--frame-every", "-1", "--no-bag"]) == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("parameters:")]
+    assert lines == ["parameters: the shipped defaults (config/tissue_sim.yaml): the bag holds no simulator "
+                     "parameters, so these may not be the physics it ran with; give --params FILE to choose"]
+    assert json.loads((out / "replay.json").read_text())["params_source"] == "shipped defaults"
+
+    out = tmp_path / "o3"  # the command line wins over what the bag holds
+    assert cli(["replay", str(with_params), "--params", str(write_params(tmp_path)), "--out", str(out),
+                "--no-progress", "--frame-every", "-1", "--no-bag"]) == 0
+    assert json.loads((out / "replay.json").read_text())["params_source"] == "command line"
+    assert json.loads((out / "replay.json").read_text())["params"]["iterations"] == 10

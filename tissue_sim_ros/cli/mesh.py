@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import InputError
+from ..core.errors import InputError, make_parent, output_file
 from ..core.mesh import (
     MAX_PARTICLES,
     MESH_SUFFIXES,
@@ -101,6 +101,10 @@ def run(args: argparse.Namespace) -> int:
         v = getattr(args, name)
         if not np.isfinite(v) or v <= 0:
             raise InputError(f"--{name} {v}: expected a number > 0")
+    # the output names are checked before any work: a wrong suffix used to be written anyway (mesh.txt as
+    # mesh.txt.npz, JPEG-named PNG data)
+    out = output_file(args.out, "--out", suffixes=(".npz",)) if args.out is not None else None
+    png = output_file(args.png, "--png", suffixes=(".png",)) if args.png is not None else None
     image, pixel_area, grading = None, None, None
     t0 = time.perf_counter()
     if source.suffix.lower() in MESH_SUFFIXES:
@@ -127,16 +131,16 @@ def run(args: argparse.Namespace) -> int:
           and (pixel_area is None or abs(q["area_error"]) <= TARGET_AREA_ERROR))
     print(f"targets (>= {TARGET_FRAC_20:.0%} of triangles with min angle >= 20 deg, none < {TARGET_MIN_ANGLE:g} deg"
           + (f", area within {TARGET_AREA_ERROR:.0%}" if pixel_area is not None else "") + f"): {'met' if ok else 'NOT met'}")
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        mesh.save(args.out)
-        print(f"wrote {args.out}")
-    if args.png is not None:
-        args.png.parent.mkdir(parents=True, exist_ok=True)
-        draw_mesh(mesh, args.png, image=image, scale=args.scale, origin=tuple(args.origin), grading=grading,
+    if out is not None:
+        make_parent(out, "--out")
+        mesh.save(out)
+        print(f"wrote {out}")
+    if png is not None:
+        make_parent(png, "--png")
+        draw_mesh(mesh, png, image=image, scale=args.scale, origin=tuple(args.origin), grading=grading,
                   title=f"{source.name}: {q['n_vertices']} vertices, {q['n_triangles']} triangles, "
                         f"min angle {q['min_angle']:.1f} deg")
-        print(f"wrote {args.png}")
+        print(f"wrote {png}")
     return 0
 
 

@@ -126,7 +126,11 @@ def run(args: argparse.Namespace) -> int:
         return _run_applied(args, out, bag_out)
     if (args.bag is None) == (args.trajectory is None):
         raise InputError("replay needs a bag or --trajectory PRESET|FILE: expected exactly one of them")
-    cfg = config_from_args(args)
+    cfg, params_source = _replay_config(args)
+    line = PARAMS_SOURCES[params_source]
+    if params_source == "shipped defaults" and args.bag is None:  # a trajectory file holds no physics to miss
+        line = "parameters: the shipped defaults (config/tissue_sim.yaml)"
+    print(line)
     if args.trajectory is not None:
         dt = cfg.sim.dt
         track = track_from_trajectory(resolve_trajectory(args.trajectory, cfg.tool, dt), dt, args.trajectory)
@@ -182,34 +186,59 @@ def run(args: argparse.Namespace) -> int:
     print(result.speed_line())
     source = Path(args.bag).name if args.bag else f"trajectory {Path(args.trajectory).name}"
     write_outputs(out, sim, result, video=args.video, title=f"replay of {source} ({args.mode})")
-    _write_summary(out / "replay.json", args, _track_info(track), cfg, sim, result)
+    _write_summary(out / "replay.json", args, _track_info(track), cfg, sim, result, params_source)
     print(f"wrote {out}/energy.csv, energy.png, replay.json, frames/ ({len(result.rollout.snapshots)} PNG)"
           + (", replay_bag/" if writer is not None else "") + (", replay.mp4" if args.video else ""))
     return 0
 
 
+#: Where a replay's parameters came from: replay.json's ``params_source`` -> the line printed
+PARAMS_SOURCES = {
+    "command line": "parameters: --params/--set over the shipped config/tissue_sim.yaml",
+    "bag": "parameters: the recording's own (the node's, from the bag's metadata)",
+    "shipped defaults": "parameters: the shipped defaults (config/tissue_sim.yaml): the bag holds no simulator "
+                        "parameters, so these may not be the physics it ran with; give --params FILE to choose",
+}
+
+
+def _recorded_params(bag_path: str | Path) -> str | None:
+    """The simulator's parameters a bag holds (custom data ``tissue_sim.params``), or None."""
+    from ..ros.bags import Bag  # noqa: PLC0415
+
+    with Bag(bag_path) as bag:
+        return bag.custom_data.get("tissue_sim.params")
+
+
+def _replay_config(args: argparse.Namespace) -> tuple[Config, str]:
+    """The Config a replay steps with, and where it came from (a key of :data:`PARAMS_SOURCES`, printed as its
+    line and written as ``params_source`` in replay.json).
+
+    ``--params``/``--set`` win; else the parameters the bag recorded (the node's own ``record_path``
+    recordings, and ``tissue-sim record`` of a running node, hold them); else the shipped defaults,
+    which is said, since they may not be the physics the recording ran with.
+    """
+    from ..core.config import params_from_json, resolve_config  # noqa: PLC0415
+
+    if args.params or getattr(args, "set", None):
+        return config_from_args(args), "command line"
+    recorded = _recorded_params(args.bag) if args.bag is not None else None
+    if recorded is None:
+        return config_from_args(args), "shipped defaults"
+    return resolve_config(overrides=params_from_json(recorded), source=f"the parameters recorded in {args.bag}"), "bag"
+
+
 def _run_applied(args: argparse.Namespace, out: Path, bag_out: Path) -> int:
     """``--mode applied``: the node's own recording, stepped with exactly what the node stepped with."""
-    from ..core.config import params_from_json, resolve_config  # noqa: PLC0415
-    from ..ros.bags import Bag  # noqa: PLC0415
     from ..ros.tool_applied import POSE_TYPE, read_applied_steps  # noqa: PLC0415
 
     steps = read_applied_steps(args.bag)
     print(f"{steps.n} steps from {steps.twist_topic} ({sum(p is not None for p in steps.poses)} with a tool), "
           f"{(steps.t_ns[-1] - steps.t_ns[0]) * 1e-9:.3f} s")
-    if args.params or getattr(args, "set", None):
-        cfg = config_from_args(args)
-    else:
-        bag = Bag(args.bag)
-        try:
-            recorded = bag.custom_data.get("tissue_sim.params")
-        finally:
-            bag.close()
-        if recorded is None:
-            raise InputError(f"bag {str(args.bag)!r} does not hold the node's parameters (custom_data "
-                             "tissue_sim.params): give the node's parameters with --params")
-        cfg = resolve_config(overrides=params_from_json(recorded), source=f"the parameters recorded in {args.bag}")
-        print("parameters: the node's own, from the bag's metadata")
+    if not (args.params or getattr(args, "set", None)) and _recorded_params(args.bag) is None:
+        raise InputError(f"bag {str(args.bag)!r} does not hold the node's parameters (custom_data "
+                         "tissue_sim.params): give the node's parameters with --params")
+    cfg, params_source = _replay_config(args)
+    print(PARAMS_SOURCES[params_source])
     sim = Simulation.from_config(cfg)
     warm = Simulation.from_config(cfg, mesh=sim.model.mesh)
     warm.step(next((p for p in steps.poses if p is not None), None))
@@ -237,7 +266,7 @@ def _run_applied(args: argparse.Namespace, out: Path, bag_out: Path) -> int:
             "samples": steps.n, "samples_read": steps.n, "skipped": dict.fromkeys(SKIP_REASONS, 0),
             "steps_with_tool": with_tool,
             "track_duration_s": float(steps.t_ns[-1] - steps.t_ns[0]) * 1e-9}
-    _write_summary(out / "replay.json", args, info, cfg, sim, result)
+    _write_summary(out / "replay.json", args, info, cfg, sim, result, params_source)
     print(f"wrote {out}/energy.csv, energy.png, replay.json, frames/ ({len(result.rollout.snapshots)} PNG)"
           + (", replay_bag/" if writer is not None else "") + (", replay.mp4" if args.video else ""))
     return 0
@@ -252,7 +281,7 @@ def _track_info(track: ToolTrack) -> dict:
 
 
 def _write_summary(path: Path, args: argparse.Namespace, info: dict, cfg: Config, sim: Simulation,
-                   result: ReplayResult) -> None:
+                   result: ReplayResult, params_source: str) -> None:
     """What was replayed, how, and how fast, as strict JSON (for scripts and reports): the same keys in every
     mode; a non-finite number (an unset parameter such as pin_y_top, a diverged energy) is null."""
     import json  # noqa: PLC0415
@@ -261,7 +290,7 @@ def _write_summary(path: Path, args: argparse.Namespace, info: dict, cfg: Config
     summary = {
         "bag": str(args.bag) if args.bag else None, "trajectory": args.trajectory, "mode": args.mode,
         "params_file": args.params, "set": list(getattr(args, "set", None) or []),
-        "params": cfg.flat(),
+        "params_source": params_source, "params": cfg.flat(),
         **info,
         "bodies": list(sim.model.body_names), "particles": sim.model.n_particles, "triangles": sim.model.n_triangles, "dt": sim.params.dt,
         "steps": result.n_steps, "simulated_s": result.sim_time, "wall_s": result.wall_time,

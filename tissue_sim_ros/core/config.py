@@ -421,7 +421,10 @@ def load_params_file(path: str | Path, node_name: str = NODE_NAME) -> dict[str, 
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or type(exc).__name__
         raise InputError(f"parameter file {str(path)!r} is not valid YAML{where}: {problem}") from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError:
+        raise InputError(f"parameter file {str(path)!r} is not text (a binary file?): expected a parameter "
+                         "YAML such as config/tissue_sim.yaml") from None
+    except OSError as exc:
         raise InputError(f"parameter file {str(path)!r} cannot be read: {exc}") from None
     if data is None:
         return {}
@@ -456,7 +459,12 @@ def strict_json(value: Any) -> Any:
 def params_json(cfg: "Config") -> str:
     """Every resolved parameter as strict JSON (what a bag's ``tissue_sim.params`` holds): a non-finite number
     (an unset bound such as ``pin_y_top``) is written as null, which every JSON parser reads."""
-    return json.dumps(strict_json(cfg.flat()), default=str, allow_nan=False)
+    return params_json_flat(cfg.flat())
+
+
+def params_json_flat(flat: Mapping[str, Any]) -> str:
+    """:func:`params_json` of flat resolved parameters (``Config.flat()``)."""
+    return json.dumps(strict_json(dict(flat)), default=str, allow_nan=False)
 
 
 def params_from_json(text: str) -> dict[str, Any]:

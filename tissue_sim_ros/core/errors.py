@@ -31,13 +31,18 @@ def input_file(path: str | os.PathLike[str], what: str) -> Path:
     return p
 
 
-def output_file(path: str | os.PathLike[str], option: str) -> Path:
+def output_file(path: str | os.PathLike[str], option: str, suffixes: tuple[str, ...] = ()) -> Path:
     """A file ``option`` names to write, checked before anything is created: not a directory, and no
-    existing file where a directory of its path should be. Its parent is created later, by :func:`make_parent`
-    (as every command's ``--out FILE`` does), once the rest of the input has been checked."""
+    existing file where a directory of its path should be; with ``suffixes``, a name ending in one of them
+    (case-insensitive), since the file is written in that format whatever its name says. Its parent is
+    created later, by :func:`make_parent` (as every command's ``--out FILE`` does), once the rest of the
+    input has been checked."""
     p = Path(path)
     if p.is_dir():
         raise InputError(f"{option} {str(p)!r} is a directory: expected a file name")
+    if suffixes and p.suffix.lower() not in suffixes:
+        raise InputError(f"{option} {str(p)!r}: expected a {' or '.join(suffixes)} file name (it is written in that "
+                         "format)")
     for parent in p.parents:
         if parent.exists():
             if not parent.is_dir():
@@ -57,8 +62,14 @@ def output_dir(path: str | os.PathLike[str], option: str) -> Path:
 
 
 def make_parent(path: Path, option: str) -> None:
-    """Create ``path``'s parent directories (as ``mkdir -p``); an OSError becomes one line naming ``option``."""
+    """Create ``path``'s parent directories (as ``mkdir -p``), saying so when it creates one (a mistyped
+    ``--out /nonexistent_dir/x.npz`` should not leave a directory behind silently); an OSError becomes one
+    line naming ``option``."""
+    parent = path.parent
+    missing = next((p for p in reversed([parent, *parent.parents]) if not p.exists()), None)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(f"{option} {str(path)!r}: cannot create its directory: {exc.strerror or exc}") from None
+    if missing is not None:
+        print(f"created directory {str(parent)!r} for {option}")

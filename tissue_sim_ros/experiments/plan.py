@@ -119,7 +119,7 @@ def chart(path: Path, rows: list[dict[str, Any]], target: tuple[float, float]) -
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    fig, ax = plt.subplots(figsize=(8.4, 4.0))
     for speed in sorted({r["speed_m_per_step"] for r in rows}):
         sel = sorted((r for r in rows if r["speed_m_per_step"] == speed), key=lambda r: r["angle_deg"])
         ax.plot([r["angle_deg"] for r in sel], [r["cost"] for r in sel], "o-", label=f"{speed * 1e3:g} mm per step")
@@ -132,7 +132,8 @@ def chart(path: Path, rows: list[dict[str, Any]], target: tuple[float, float]) -
         r["cost"] != 0 for r in rows) else 1e-15))
     ax.set_title(f"Insertions toward ({target[0]:.3f}, {target[1]:.3f}) m", fontsize=10)
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=8)
+    # beside the axes, never over them: inside, "best" still covered a curve whichever corner it chose
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

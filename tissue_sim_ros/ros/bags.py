@@ -598,6 +598,23 @@ class Bag:
         """Topic name -> message type."""
         return {c.topic: c.msgtype for c in self.connections}
 
+    def offered_qos(self, topic: str) -> tuple[bool, bool, int] | None:
+        """(reliable, transient_local, depth) the bag recorded as ``topic``'s offered QoS; None when it recorded none.
+
+        rosbag2 (and :class:`BagWriter`) store the QoS the recorded publishers offered; with several, a
+        topic is taken as reliable / transient local only when every one of them was (what a subscriber
+        matching them all would have used), and the deepest history.
+        """
+        profiles = [q for c in self.connections if c.topic == topic
+                    for q in (getattr(c.ext, "offered_qos_profiles", None) or [])]
+        if not profiles:
+            return None
+        from rosbags.interfaces import QosDurability, QosReliability  # noqa: PLC0415
+
+        reliable = all(q.reliability == QosReliability.RELIABLE for q in profiles)
+        latched = all(q.durability == QosDurability.TRANSIENT_LOCAL for q in profiles)
+        return reliable, latched, max(int(q.depth) for q in profiles)
+
     @property
     def message_counts(self) -> dict[str, int]:
         counts: dict[str, int] = {}

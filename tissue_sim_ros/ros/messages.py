@@ -668,6 +668,8 @@ def body_label(names) -> str:
 
 #: The energy terms of ``tissue/energy/bodies``' columns, in order.
 ENERGY_TERMS = ("inertial", "spring", "area", "total")
+#: Columns of ``tissue/contact`` per body: touched (1/0), d* [m] (inf: beyond reach), particles moved by the contact
+CONTACT_FIELDS = ("in_contact", "distance", "moved")
 
 #: The outputs of a step (topic relative to the node's namespace -> type), as the node publishes them.
 STEP_TOPICS: dict[str, str] = {
@@ -678,6 +680,7 @@ STEP_TOPICS: dict[str, str] = {
     "tissue/energy/strain": "std_msgs/msg/Float64",
     "tissue/energy/potential": "std_msgs/msg/Float64",
     "tissue/energy/bodies": "std_msgs/msg/Float64MultiArray",
+    "tissue/contact": "std_msgs/msg/Float64MultiArray",
     "tool/wrench": "geometry_msgs/msg/WrenchStamped",
     "tissue/points": "sensor_msgs/msg/PointCloud2",
     "tissue/markers": "visualization_msgs/msg/MarkerArray",
@@ -721,6 +724,8 @@ class StepEncoder:
                                   strain_color_max=strain_color_max, wire_width=wire_width, wireframe=wireframe)
         self.body_label = body_label(model.body_names)
         """``tissue/energy/bodies``' row label: ``body:`` and the body names."""
+        self._particle_body = np.asarray(model.particle_body, dtype=np.int64)
+        self._n_bodies = len(model.body_names)
 
     def strain(self, q: np.ndarray) -> np.ndarray:
         """Signed vertex strain of positions ``q`` (N, 2) [m], shape (N,)."""
@@ -755,6 +760,7 @@ class StepEncoder:
                     terms, [self.body_label, "term:" + ",".join(ENERGY_TERMS)])
             else:
                 out.withheld.append(f"step {report.step}: non-finite energy not published")
+        out.messages["tissue/contact"] = self.contact(report)
         f, tz = report.reaction_force, report.reaction_torque
         if np.isfinite(f).all() and math.isfinite(tz):
             out.messages["tool/wrench"] = encode_wrench_stamped(stamp, frame_id, (float(f[0]), float(f[1]), 0.0),
@@ -770,6 +776,16 @@ class StepEncoder:
                     stamp, frame_id, q, strain, tool_pose=tool_pose, tool_stamp=tool_stamp,
                     contact_particles=report.contact_particles)
         return out
+
+    def contact(self, report: Any) -> bytes:
+        """``tissue/contact`` of a step: per body, whether the tool touches it (the Simulation's ``in_contact``:
+        paper model d* < alpha, projection any particle pushed), d* [m] (+inf where the tool is beyond the
+        contact's reach and d* was not computed; never NaN), and how many of its particles the contact moved."""
+        moved = np.bincount(self._particle_body[np.asarray(report.contact_particles, dtype=np.int64)],
+                            minlength=self._n_bodies)[: self._n_bodies]
+        d_star = np.where(np.isnan(report.d_star), np.inf, report.d_star)
+        table = np.column_stack([np.asarray(report.in_contact, dtype=np.float64), d_star, moved.astype(np.float64)])
+        return encode_float64_multiarray(table, [self.body_label, "field:" + ",".join(CONTACT_FIELDS)])
 
     def state(self, stamp: Stamp, frame_id: str, q: np.ndarray) -> StepMessages:
         """Points and markers of a state outside a step (after a reset): no energy, no wrench, no tool."""

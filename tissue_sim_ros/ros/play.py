@@ -21,6 +21,11 @@ starting, play waits up to ``--wait`` seconds for every played topic to have
 ``--min-subscribers`` subscribers, then up to 2 s more for a ``/clock``
 subscriber (a node that follows /clock subscribes within about 0.5 s), so the
 first messages are not lost.
+
+QoS: each topic is published with the QoS its publishers offered when it was
+recorded (rosbag2 keeps it in the bag's metadata, as ``ros2 bag play`` uses
+it): a latched ``/tf_static`` is played latched (TRANSIENT_LOCAL), so a node that
+subscribes to it latched receives it; a VOLATILE publisher would never match.
 """
 from __future__ import annotations
 
@@ -62,6 +67,29 @@ def choose_topics(bag: Bag, requested: list[str] | None) -> list[str]:
                          + (f"; the node's own outputs {', '.join(outputs)} are played only when named" if outputs
                             else "") + f"); it has: {bag.describe_topics()}; choose topics with --topics")
     return chosen
+
+
+#: Topics that are latched by convention: played TRANSIENT_LOCAL even from a bag that recorded no QoS for them.
+LATCHED_BY_NAME = ("/tf_static",)
+
+
+def play_qos(bag: Bag, topic: str, n_messages: int) -> tuple[bool, bool, int]:
+    """(reliable, transient_local, depth) to publish ``topic`` with: as its publishers offered it when recorded.
+
+    A subscriber that asks for TRANSIENT_LOCAL (the node's ``/tf_static``, RViz's latched markers) never
+    matches a VOLATILE publisher, so a latched topic must be played latched: then a late subscriber still
+    gets it. ``/tf_static`` is latched even without recorded QoS (a bag from another recorder). A latched
+    topic keeps every one of its messages (``depth`` = their count, one per broadcaster in a robot's bag);
+    the others keep 1000, enough for a bag played at speed.
+    """
+    recorded = bag.offered_qos(topic)
+    latched_name = topic in LATCHED_BY_NAME
+    if recorded is None:
+        reliable, latched = True, latched_name
+    else:
+        reliable, latched = recorded[0], recorded[1] or latched_name
+    depth = min(1000, max(1, n_messages)) if latched else 1000
+    return reliable, latched, depth
 
 
 def check_remaps(bag: Bag, topics: list[str], remaps: dict[str, str]) -> None:
@@ -112,6 +140,8 @@ def play(bag_path: str | Path, *, topics: list[str] | None = None, remaps: dict[
             raise InputError(f"bag {str(bag_path)!r}: none of its tool topics can be published here "
                              "(their message packages are missing; see above)")
         messages = load_messages(bag, topics)
+        counts = bag.message_counts
+        qos_of = {t: play_qos(bag, t, counts.get(t, 0)) for t in topics}
     if not messages:
         raise InputError(f"bag {str(bag_path)!r}: topics {', '.join(topics)} hold no messages")
 
@@ -133,9 +163,13 @@ def play(bag_path: str | Path, *, topics: list[str] | None = None, remaps: dict[
     sent = 0
     try:
         node = rclpy.create_node("tissue_sim_player", namespace="/")
-        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
-        pubs = {t: node.create_publisher(classes[t], remaps.get(t, t), qos) for t in topics}
+        def qos(topic: str) -> QoSProfile:
+            reliable, latched, depth = qos_of[topic]
+            return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                              reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+                              durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+        pubs = {t: node.create_publisher(classes[t], remaps.get(t, t), qos(t)) for t in topics}
         clock_pub = None
         if clock:
             from rosgraph_msgs.msg import Clock  # noqa: PLC0415

@@ -17,6 +17,11 @@ received (the time to discover publishers is not counted; it waits up to
 second, so even a killed recorder leaves what it wrote; ``recover=BROKEN``
 turns that into a closed bag (sqlite3 also reads as it is).
 
+The simulator node behind the recording (the one publishing ``tissue/energy``)
+is asked for its parameters through its parameter services; they go into the
+bag as ``tissue_sim.params`` (as the node's own ``record_path`` recordings hold
+them), so ``tissue-sim replay`` steps the run with the node's physics.
+
 Each subscription's QoS follows its publishers (as ``ros2 bag record`` does):
 reliable when every publisher is reliable, else best effort; transient local
 when every publisher is (a latched rest mesh is then recorded too).
@@ -38,7 +43,7 @@ DEFAULT_TOPICS = (
     "tool/pose", "tool/twist",
     "tissue/markers", "tissue/points", "tissue/rest_mesh",
     "tissue/energy", "tissue/energy/inertial", "tissue/energy/spring", "tissue/energy/area", "tissue/energy/strain",
-    "tissue/energy/potential", "tissue/energy/bodies",
+    "tissue/energy/potential", "tissue/energy/bodies", "tissue/contact",
     "tool/wrench",
 )
 _PREFIXES = ("tissue/", "tool/")
@@ -133,6 +138,18 @@ class Recorder:
         self.skipped_types: dict[str, str] = {}
         self._provisional: dict[str, str] = {}
         """Topics subscribed before any publisher was seen, with the type assumed."""
+        self.lost: dict[str, int] = {}
+        """Messages DDS reported lost per topic (the subscription's message-lost event), when any."""
+
+    def _subscribe(self, cls: Any, topic: str, qos: Any) -> Any:
+        """A raw subscription whose messages go to the bag and whose DDS-reported losses are counted."""
+        from rclpy.event_handler import SubscriptionEventCallbacks  # noqa: PLC0415
+
+        def on_lost(info: Any, t: str = topic) -> None:
+            self.lost[t] = int(info.total_count)
+
+        return self.node.create_subscription(cls, topic, lambda data, t=topic: self._on_message(t, data), qos,
+                                             raw=True, event_callbacks=SubscriptionEventCallbacks(message_lost=on_lost))
 
     def _want(self, topic: str) -> bool:
         if self.wanted is None:
@@ -156,8 +173,7 @@ class Recorder:
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
         self.writer.add_topic(topic, msgtype)
-        self.subscriptions[topic] = self.node.create_subscription(
-            message_class(msgtype), topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True)
+        self.subscriptions[topic] = self._subscribe(message_class(msgtype), topic, qos)
         self._provisional[topic] = msgtype
 
     def _settle(self, topic: str, types: list[str]) -> None:
@@ -174,9 +190,7 @@ class Recorder:
         if any(i.qos_profile.reliability != ReliabilityPolicy.RELIABLE for i in infos):
             # a best-effort publisher does not match a reliable subscription: follow it
             self.node.destroy_subscription(self.subscriptions[topic])
-            self.subscriptions[topic] = self.node.create_subscription(
-                message_class(msgtype), topic, lambda data, t=topic: self._on_message(t, data), self._qos(topic),
-                raw=True)
+            self.subscriptions[topic] = self._subscribe(message_class(msgtype), topic, self._qos(topic))
 
     def discover(self) -> list[str]:
         """Subscribe to wanted topics that appeared in the graph since the last call; returns the new ones."""
@@ -205,10 +219,24 @@ class Recorder:
             qos = self._qos(topic)
             self.writer.add_topic(topic, msgtype, reliable=qos.reliability == ReliabilityPolicy.RELIABLE,
                                   transient_local=qos.durability == DurabilityPolicy.TRANSIENT_LOCAL)
-            self.subscriptions[topic] = self.node.create_subscription(
-                cls, topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True)
+            self.subscriptions[topic] = self._subscribe(cls, topic, qos)
             new.append(topic)
         return new
+
+    def waiting_for(self) -> str:
+        """One line on what a recording that has received nothing yet is waiting for."""
+        import os  # noqa: PLC0415
+
+        domain = os.environ.get("ROS_DOMAIN_ID", "0")
+        live = sorted(t for t in self.subscriptions if self.node.count_publishers(t) > 0)
+        if live:
+            return (f"waiting for a first message: subscribed to {len(self.subscriptions)} topics, "
+                    f"{len(live)} with a publisher ({', '.join(live[:4])}{', ...' if len(live) > 4 else ''})")
+        wanted = ("every topic" if self.wanted is None
+                  else ", ".join(sorted(self.wanted)[:3]) + (", ..." if len(self.wanted) > 3 else "")
+                  + "".join(f", {p}*" for p in self.prefixes))
+        return (f"waiting for publishers: none yet on {wanted} in ROS domain {domain} (a node that is still "
+                "starting appears here; check its namespace and ROS_DOMAIN_ID)")
 
     @property
     def done(self) -> bool:
@@ -224,6 +252,117 @@ class Recorder:
         elif self.done:
             return  # arrived after the recording's duration
         self.writer.write(topic, data, self.node.get_clock().now().nanoseconds)
+
+
+#: The node's display stream and a topic it publishes every step (names relative to the namespace)
+DISPLAY_TOPIC, STEP_TOPIC = "tissue/markers", "tissue/energy"
+#: Topics the node publishes once per step: a recording with fewer of one than of another lost messages
+PER_STEP_TOPICS = ("tissue/energy", "tissue/energy/bodies", "tissue/contact", "tool/wrench", "tool/applied_twist")
+
+
+def completeness(counts: dict[str, int], namespace: str = "", lost: dict[str, int] | None = None) -> list[str]:
+    """Lines on what a recording of the node holds fewer of than it stepped, and why; empty when nothing is short.
+
+    The node's markers are a display stream (newest state only, at most ``marker_rate``: msg_docs/topics.md),
+    so fewer markers than steps is by design, but must not look like a complete record of the run; a
+    per-step topic with fewer messages than another lost some on the way.
+    """
+    lines = []
+    steps = counts.get(resolve(STEP_TOPIC, namespace))
+    markers = counts.get(resolve(DISPLAY_TOPIC, namespace))
+    if steps and markers is not None and markers < steps:
+        lines.append(f"note: {resolve(DISPLAY_TOPIC, namespace)} holds {markers} arrays for {steps} steps: the node "
+                     "publishes markers as a display stream (newest state only, at most marker_rate), skipping steps "
+                     "while its marker thread is busy; every step is in the per-step topics (energy, contact, wrench, "
+                     "points at points_rate)")
+    per_step = {t: counts[resolve(t, namespace)] for t in PER_STEP_TOPICS if resolve(t, namespace) in counts}
+    if per_step and min(per_step.values()) < max(per_step.values()):
+        most = max(per_step.values())
+        short = ", ".join(f"{resolve(t, namespace)} {n}" for t, n in per_step.items() if n < most)
+        lines.append(f"WARNING: per-step topics differ ({short}, against {most}): messages were lost on the way "
+                     "(a loaded machine, or the recorder started after the node)")
+    for topic, n in sorted((lost or {}).items()):
+        if n:
+            lines.append(f"WARNING: {topic}: DDS reported {n} messages lost in transport")
+    return lines
+
+
+#: A recording's simulator: the node that publishes this topic (relative to the namespace) is asked for its
+#: parameters, which go into the bag (custom data ``tissue_sim.params``) as the node's own recordings hold them.
+SIMULATOR_TOPIC = "tissue/energy"
+
+
+class ParameterFetch:
+    """Asks the simulator node behind a recording for its parameters, without blocking the recording.
+
+    Once :meth:`poll` sees exactly one node publishing the simulator's topic, it calls that node's
+    ``list_parameters`` and ``get_parameters`` services; when both answered, :attr:`params` holds the
+    values of every simulator parameter (``core/config.py``'s table), resolved through the front door,
+    so ``tissue-sim replay`` steps the recorded run with the node's own physics, not the shipped defaults.
+    """
+
+    def __init__(self, node: Any, topics: list[str]) -> None:
+        self.node = node
+        self.topics = topics
+        self.target: str | None = None
+        """The node asked (``/namespace/name``), once chosen."""
+        self.params: dict[str, Any] | None = None
+        self.problem: str | None = None
+        self._list = self._get = None
+        self._future = None
+        self._names: list[str] = []
+
+    def poll(self) -> str | None:
+        """Advance; returns a line to print when something happened (the node found, parameters in, a problem)."""
+        if self.params is not None or self.problem is not None:
+            return None
+        if self.target is None:
+            infos = [i for t in self.topics for i in self.node.get_publishers_info_by_topic(t)]
+            if not infos or any(i.node_name.startswith("_NODE_NAME_UNKNOWN") for i in infos):
+                return None  # the graph names a publisher's node a moment after the publisher itself
+            nodes = sorted({f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos})
+            if len(nodes) > 1:
+                self.problem = (f"several nodes publish {', '.join(self.topics)} ({', '.join(nodes)}): their parameters "
+                                "are not recorded; replay this bag with --params")
+                return self.problem
+            from rcl_interfaces.srv import GetParameters, ListParameters  # noqa: PLC0415
+
+            self.target = nodes[0]
+            self._list = self.node.create_client(ListParameters, f"{self.target}/list_parameters")
+            self._get = self.node.create_client(GetParameters, f"{self.target}/get_parameters")
+            return None
+        if self._future is None:
+            if not self._list.service_is_ready():
+                return None
+            from rcl_interfaces.srv import ListParameters  # noqa: PLC0415
+
+            self._future = ("list", self._list.call_async(ListParameters.Request()))
+            return None
+        kind, future = self._future
+        if not future.done():
+            return None
+        if future.exception() is not None:
+            self.problem = f"{self.target} did not give its parameters ({future.exception()}): replay with --params"
+            return self.problem
+        if kind == "list":
+            from rcl_interfaces.srv import GetParameters  # noqa: PLC0415
+
+            from ..core.config import BY_NAME  # noqa: PLC0415
+
+            self._names = [n for n in future.result().result.names if n in BY_NAME]
+            self._future = ("get", self._get.call_async(GetParameters.Request(names=self._names)))
+            return None
+        from rclpy.parameter import parameter_value_to_python  # noqa: PLC0415
+
+        values = {n: parameter_value_to_python(v) for n, v in zip(self._names, future.result().values)}
+        try:
+            from ..core.config import resolve_config  # noqa: PLC0415
+
+            self.params = resolve_config(overrides=values, source=f"the parameters of {self.target}").flat()
+        except InputError as exc:
+            self.problem = f"the parameters of {self.target} do not resolve ({exc}): replay with --params"
+            return self.problem
+        return f"  parameters of {self.target} recorded ({len(self.params)}): replay steps with them"
 
 
 def record(output: str | Path | None = None, storage: str = "mcap", *, duration: float | None = None,
@@ -274,7 +413,7 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
     old_handlers = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     # args=[]: rcl must not parse this process's command line (tissue-sim's own options), only ROS's defaults
     rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
-    node = None
+    node = recorder = None
     try:
         from rclpy.parameter import Parameter  # noqa: PLC0415
 
@@ -288,6 +427,8 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
             wanted = {resolve(t, namespace) for t in DEFAULT_TOPICS}
             prefixes = tuple(resolve(p, namespace) for p in _PREFIXES)
         recorder = Recorder(node, writer, wanted, prefixes, duration=duration)
+        simulator = resolve(SIMULATOR_TOPIC, namespace)
+        fetch = ParameterFetch(node, [simulator] if wanted is None or recorder._want(simulator) else [])
         for name, msgtype in KNOWN_INPUTS.items():
             topic = resolve(name, namespace)
             if wanted is not None and topic in wanted:
@@ -300,6 +441,7 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
         start = time.monotonic()
         next_discovery = 0.0
         next_status = start + 1.0
+        next_waiting = start + 2.0
         announced = duration is None
         while not stop.is_set():
             now = time.monotonic()
@@ -318,9 +460,22 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
                     print(f"  + {topic} ({writer.topics[topic]})", flush=True)
                 next_discovery = now + 0.2
             executor.spin_once(timeout_sec=0.05)
+            said = fetch.poll()
+            if said:
+                print(said, flush=True)
+                if fetch.params is not None:
+                    from ..core.config import params_json_flat  # noqa: PLC0415
+
+                    # durable: in the storage file at once, so a killed recorder's bag keeps them (record --recover)
+                    writer.set_custom_data("tissue_sim.params", params_json_flat(fetch.params), durable=True)
             if not quiet and now >= next_status:
                 next_status = now + 1.0
-                print(f"  {now - start:6.1f} s  {sum(writer.counts.values())} messages", flush=True)
+                total = sum(writer.counts.values())
+                print(f"  {now - start:6.1f} s  {total} messages", flush=True)
+                if total == 0 and now >= next_waiting:
+                    # a status of 0 messages for many seconds reads as a hang: say what it waits for
+                    next_waiting = now + 5.0
+                    print("  " + recorder.waiting_for(), flush=True)
     finally:
         writer.close()
         if node is not None:
@@ -332,4 +487,6 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
     counts = writer.counts
     print(f"closed {output}{why}: {sum(counts.values())} messages; "
           + (", ".join(f"{t} {n}" for t, n in sorted(counts.items())) or "no topics found"), flush=True)
+    for line in completeness(counts, namespace, recorder.lost if recorder is not None else None):
+        print(line, flush=True)
     return dict(counts)

@@ -198,15 +198,23 @@ TRAJECTORY_SUFFIXES = (".csv", ".yaml", ".yml")
 
 
 def resolve_trajectory(spec: str, tool: ToolShape, dt: float, scene: str = "paper") -> Trajectory:
-    """``spec`` as a preset name (:data:`PRESETS`, on the shipped ``scene``) or a trajectory file (.csv, .yaml, .yml)."""
+    """``spec`` as a preset name (:data:`PRESETS`, on the shipped ``scene``) or a trajectory file (.csv, .yaml, .yml).
+
+    A trajectory shorter than one step of ``dt`` (a CSV of one row) is an InputError: every command that
+    runs one (experiment, replay, demo, the tool driver) would otherwise run 0 steps and succeed.
+    """
     if not isinstance(spec, str) or not spec:
         raise InputError(f"trajectory {spec!r}: expected a preset ({', '.join(PRESETS)}) or a .csv/.yaml file")
     if spec in PRESETS:
-        return preset(spec, tool, dt, scene)
-    path = Path(spec)
-    if path.suffix.lower() not in TRAJECTORY_SUFFIXES:
-        raise InputError(f"trajectory {spec!r}: expected a preset ({', '.join(PRESETS)}) or a .csv/.yaml file")
-    return load_trajectory(path, dt)
+        traj = preset(spec, tool, dt, scene)
+    else:
+        path = Path(spec)
+        if path.suffix.lower() not in TRAJECTORY_SUFFIXES:
+            raise InputError(f"trajectory {spec!r}: expected a preset ({', '.join(PRESETS)}) or a .csv/.yaml file")
+        traj = load_trajectory(path, dt)
+    if traj.n_steps(dt) < 1:
+        raise InputError(f"trajectory {spec!r} lasts {traj.duration} s: shorter than one step of dt={dt} s")
+    return traj
 
 
 def load_trajectory(path: str | Path, dt: float) -> Trajectory:

@@ -115,6 +115,7 @@ class TissueSimNode(Node):
         self.pub_energy_terms = {term: self.create_publisher(Float64, f"tissue/energy/{term}", qos.energy())
                                  for term in messages.ENERGY_TERMS[:3]}
         self.pub_energy_bodies = self.create_publisher(Float64MultiArray, "tissue/energy/bodies", qos.energy())
+        self.pub_contact = self.create_publisher(Float64MultiArray, "tissue/contact", qos.energy())
         # material: dt^2 E_strain (a term of the total) and the potential energy itself in J (msg_docs/topics.md)
         self.pub_energy_terms.update({term: self.create_publisher(Float64, f"tissue/energy/{term}", qos.energy())
                                       for term in ("strain", "potential")})

@@ -58,7 +58,8 @@ class Outputs:
         node = self.node
         return {"tissue/energy": node.pub_energy,
                 **{f"tissue/energy/{k}": p for k, p in node.pub_energy_terms.items()},
-                "tissue/energy/bodies": node.pub_energy_bodies, "tool/wrench": node.pub_wrench,
+                "tissue/energy/bodies": node.pub_energy_bodies, "tissue/contact": node.pub_contact,
+                "tool/wrench": node.pub_wrench,
                 "tissue/points": node.pub_points, "tissue/markers": node.pub_markers}
 
     def publish(self, out: messages.StepMessages) -> None:
