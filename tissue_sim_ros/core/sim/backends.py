@@ -44,7 +44,6 @@ from .batch import (
     finish,
     rollout_baseline,
     rollout_candidate,
-    warm_up,
 )
 from .simulation import Simulation
 from .snapshot import SimSnapshot
@@ -110,12 +109,12 @@ class _RolloutActor:
 
         numba.set_num_threads(1)
         self.sim = scene.build()
-        warm_up(self.sim)
+        self.sim.warm_up()
         self._track: tuple[int, BaselineTrack] | None = None
 
     def set_scene(self, scene: BatchScene) -> int:
         self.sim = scene.build()
-        warm_up(self.sim)
+        self.sim.warm_up()
         self._track = None
         return os.getpid()
 
@@ -252,7 +251,7 @@ def warm_kernels() -> None:
     for contact in ("paper", "projection"):
         cfg = resolve_config({"contact_model": contact, "boundary_y_bottom": 0.001, "boundary_y_top": math.nan,
                               "tool_shape": "box", "tool_length": 0.1}, source="warm_kernels")
-        warm_up(Simulation.from_config(cfg, mesh=mesh_rectangle(0.2, 0.1, 0.05)))
+        Simulation.from_config(cfg, mesh=mesh_rectangle(0.2, 0.1, 0.05)).warm_up()
 
 
 def _local_init() -> None:

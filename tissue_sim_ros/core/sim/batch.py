@@ -492,19 +492,6 @@ def rollout_batch(source: Simulation | SimSnapshot, candidates: Sequence[ToolPat
 # --------------------------------------------------------------------------- the pool
 
 
-def warm_up(sim: Simulation) -> None:
-    """A few throwaway steps with the tool in the tissue, then reset: numba kernels loaded (or compiled) now."""
-    q0 = sim.model.particle_q0
-    if len(q0) == 0:
-        return
-    cx, cy = (q0.min(axis=0) + q0.max(axis=0)) / 2.0
-    sim.step(None)
-    if sim.tool is not None:
-        sim.step(ToolPose(float(cx), float(cy), 0.0))
-        sim.step(ToolPose(float(cx) + 1e-3, float(cy), 0.0))
-    sim.reset()
-
-
 def _worker_main(conn: Connection, scene: BatchScene) -> None:
     """A worker: build and warm the scene once, then serve snapshots, baselines and candidates until told to stop."""
     import signal  # noqa: PLC0415
@@ -515,7 +502,7 @@ def _worker_main(conn: Connection, scene: BatchScene) -> None:
     numba.set_num_threads(1)  # one core per worker: the workers are the parallelism
     try:
         sim = scene.build()
-        warm_up(sim)
+        sim.warm_up()
         conn.send(("ready", os.getpid()))
     except Exception:  # noqa: BLE001  reported to the parent, which raises it
         conn.send(("error", -1, -1, traceback.format_exc()))
@@ -532,7 +519,7 @@ def _worker_main(conn: Connection, scene: BatchScene) -> None:
         try:
             if kind == "scene":
                 sim = msg[1].build()
-                warm_up(sim)
+                sim.warm_up()
                 tracks.clear()
                 conn.send(("scene", os.getpid()))
             elif kind == "snapshot":

@@ -281,6 +281,20 @@ class Simulation:
             self.set_state(state)
             return info
 
+    def warm_up(self) -> None:
+        """A few throwaway steps with the tool in the tissue, then :meth:`reset`: the numba kernels and python-fcl
+        are loaded (or compiled) now, not in the first real step (the node's first tick, a pool worker's first
+        candidate)."""
+        q0 = self.model.particle_q0
+        if len(q0) == 0:
+            return
+        cx, cy = (q0.min(axis=0) + q0.max(axis=0)) / 2.0
+        self.step(None)
+        if self.tool is not None:
+            self.step(ToolPose(float(cx), float(cy), 0.0))
+            self.step(ToolPose(float(cx) + 1e-3, float(cy), 0.0))
+        self.reset()
+
     def reset(self) -> None:
         """Back to t = 0 (tool pose forgotten), at rest in the rest shape, or at the static equilibrium with
         ``settle: static``."""

@@ -56,7 +56,7 @@ from .recording import NodeRecorder, start_recording
 from .settings import ParameterChanges, declare_parameters
 from .shutdown import OutputGate
 from .stats import NodeStats, Warnings
-from .stepping import Stepper, warm_up
+from .stepping import Stepper
 
 __all__ = ["HeapTrimmer", "MemoryTrace", "TissueSimNode", "main"]
 
@@ -92,7 +92,7 @@ class TissueSimNode(Node):
         self.config: Config = declare_parameters(self)
         settings = self.config.node
         self.sim: Simulation = Simulation.from_config(self.config)
-        warm_up(self.sim)
+        self.sim.warm_up()  # so JIT loading is not the first step's overrun
         self.last_report: StepReport | None = None
 
         # the parts, by job

@@ -14,23 +14,9 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from ...core.contact.tool import ToolPose, ToolTwist, twist_from_poses
-from ...core.sim.simulation import Simulation
+from ...core.contact.tool import ToolTwist, twist_from_poses
 from ...core.timing.phase_lock import PhaseLock
 from ...core.timing.stamps import stamp_from_ns
-
-
-def warm_up(sim: Simulation) -> None:
-    """Take a few throwaway steps (tool in the tissue) and reset, so JIT loading is not the first step's overrun."""
-    q0 = sim.model.particle_q0
-    if len(q0) == 0:
-        return
-    cx, cy = (q0.min(axis=0) + q0.max(axis=0)) / 2.0
-    sim.step(None)
-    if sim.tool is not None:
-        sim.step(ToolPose(float(cx), float(cy), 0.0))
-        sim.step(ToolPose(float(cx) + 1e-3, float(cy), 0.0))
-    sim.reset()
 
 
 def ms(ns: float) -> float:
