@@ -8,9 +8,25 @@ check_backend), so a Python caller gets the same one-line errors as the command 
 from __future__ import annotations
 
 import argparse
+import math
 from typing import Any
 
+from ..core.errors import InputError
 from ..core.sim.backends import BACKENDS
+
+
+def positive_floats(text: str, option: str, *, numbers: str = "numbers", positive: str = "numbers > 0") -> list[float]:
+    """A comma-separated list of numbers > 0 (``--spacings 0.1,0.05``); InputError naming ``option`` and the text.
+
+    ``numbers`` and ``positive`` word the two refusals (``"comma-separated numbers in metres"``...).
+    """
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise InputError(f"{option}={text!r}: expected comma-separated {numbers}") from None
+    if not values or any(not (math.isfinite(v) and v > 0) for v in values):
+        raise InputError(f"{option}={text!r}: expected {positive}")
+    return values
 
 
 def add_backend_arguments(parser: argparse.ArgumentParser, *, jobs_default: int, jobs_help: str) -> None:

@@ -2,12 +2,10 @@
 from __future__ import annotations
 
 import argparse
-import math
 
 from ..bench import tune
 from ..core.config import resolve_config
-from ..core.errors import InputError
-from .options import add_backend_arguments, backend_kwargs
+from .options import add_backend_arguments, backend_kwargs, positive_floats
 
 HELP = "pick the cheapest mesh spacing/method/iterations meeting an error tolerance"
 DESCRIPTION = tune.__doc__  # what tune measures and chooses, written once beside it
@@ -54,13 +52,8 @@ def parse_spacings(text: str) -> list[float]:
 
     The message names --spacings for each of the three lists, as it always has.
     """
-    try:
-        values = sorted({float(v) for v in text.split(",") if v.strip()}, reverse=True)
-    except ValueError:
-        raise InputError(f"--spacings={text!r}: expected comma-separated numbers in metres") from None
-    if not values or any(not (math.isfinite(v) and v > 0) for v in values):
-        raise InputError(f"--spacings={text!r}: expected spacings > 0 m")
-    return values
+    values = positive_floats(text, "--spacings", numbers="numbers in metres", positive="spacings > 0 m")
+    return sorted(set(values), reverse=True)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -2,11 +2,10 @@
 from __future__ import annotations
 
 import argparse
-import math
 
 from ...bench import refinement
 from ...core.config import parse_assignments
-from ...core.errors import InputError
+from ..options import positive_floats
 
 HELP = "the material model run to rest against the scikit-fem reference: errors vs mesh spacing and dt"
 DESCRIPTION = refinement.__doc__
@@ -26,21 +25,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="two coarse spacings and two dts (smoke test)")
 
 
-def floats(text: str, name: str) -> list[float]:
-    """Comma-separated numbers > 0 (the option ``name`` names them in the error)."""
-    try:
-        values = [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise InputError(f"{name}={text!r}: expected comma-separated numbers") from None
-    if not values or any(not (math.isfinite(v) and v > 0) for v in values):
-        raise InputError(f"{name}={text!r}: expected numbers > 0")
-    return values
-
-
 def run(args: argparse.Namespace) -> int:
     overrides = parse_assignments(args.set)
-    spacings = floats(args.spacings, "--spacings")
-    dts = floats(args.dts, "--dts")
+    spacings = positive_floats(args.spacings, "--spacings")
+    dts = positive_floats(args.dts, "--dts")
     return refinement.run(args.out, spacings=spacings, dts=dts, spacing_dt=args.dt, damping=args.damping,
                           rest_speed=args.rest_speed, max_steps=args.max_steps, overrides=overrides,
                           quick=args.quick)
