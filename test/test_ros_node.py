@@ -886,7 +886,13 @@ def test_a_node_killed_hard_leaves_its_parameters_for_an_applied_replay(
     live = Node(proc, ros_client, ns=ns)
     live.wait_ready()
     live.drive(np.stack([np.full(40, 0.2), np.linspace(-0.06, 0.02, 40)], axis=1))
-    # the bag is flushed every second: wait for one after the poses, so the pushed steps are on disk
+
+    def pushed() -> bool:
+        return any(np.abs(np.concatenate(M.decode_wrench_stamped(raw)[2:4])).max() > 0 for raw in live.wrench.messages)
+
+    # the node took the poses and the tool pushes the tissue (seen live, not assumed from the drive's timing) ...
+    ros_client.spin_until(pushed, TIMEOUT, proc, f"a non-zero {ns}/tool/wrench after the drive")
+    # ... and the bag is flushed every second: wait for one after that, so the pushed steps are on disk
     ros_client.spin_for(1.5)
     assert proc.stop(signal.SIGKILL) == -signal.SIGKILL
     assert not (bag_path / "metadata.yaml").exists()  # never closed
@@ -895,7 +901,7 @@ def test_a_node_killed_hard_leaves_its_parameters_for_an_applied_replay(
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stdout + run.stderr
     w_live = _assert_replay_is_the_live_run(fixed, ns, tmp_path / "replay", cut=True)
-    assert np.abs(w_live).max() > 0  # the tool pushed the tissue within what was kept
+    assert np.abs(w_live).max() > 0, proc.log_path.read_text(errors="replace")[-4000:]  # the tool pushed the tissue within what was kept
     assert "custom_data kept: tissue_sim.params" in run.stdout, run.stdout
     with Bag(fixed) as bag:
         params = json.loads(bag.custom_data["tissue_sim.params"])

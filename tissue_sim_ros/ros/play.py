@@ -18,7 +18,8 @@ time (continuing across loops; ``--no-clock``: none), so the recorded stamps
 are current on that clock: ``tissue_sim_node`` follows it by itself
 (parameter ``follow_clock``), other nodes with ``use_sim_time:=true``. Before
 starting, play waits up to ``--wait`` seconds for every played topic to have
-``--min-subscribers`` subscribers, then up to 2 s more for a ``/clock``
+``--min-subscribers`` subscribers, and every subscription the graph already
+shows on it matched, then up to 2 s more for a ``/clock``
 subscriber (a node that follows /clock subscribes within about 0.5 s), so the
 first messages are not lost.
 
@@ -177,9 +178,17 @@ def play(bag_path: str | Path, *, topics: list[str] | None = None, remaps: dict[
             clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10))
         watched = dict(pubs) if clock_pub is None else {**pubs, "/clock": clock_pub}
         need = min_subscribers
+
+        def matched(pub: Any) -> bool:
+            # --min-subscribers matched, and every subscription the graph already shows on the topic: one
+            # subscriber elsewhere (a monitor, a viewer) must not start the play before the node's own is
+            # matched, whose first messages, and a latched /tf_static once play has ended, it would miss
+            known = node.count_subscribers(pub.topic_name) if need > 0 else 0
+            return pub.get_subscription_count() >= max(need, known)
+
         deadline = time.monotonic() + max(0.0, wait)
         while not stop.is_set() and time.monotonic() < deadline:
-            if all(p.get_subscription_count() >= need for p in pubs.values()):
+            if all(matched(p) for p in pubs.values()):
                 break
             stop.wait(0.02)  # polling the graph; a signal ends the wait at once
         if clock_pub is not None and need > 0:
@@ -191,6 +200,11 @@ def play(bag_path: str | Path, *, topics: list[str] | None = None, remaps: dict[
         if waiting and wait > 0:
             print(f"play: fewer than {need} subscribers on {', '.join(waiting)} after {wait} s; playing anyway",
                   flush=True)
+        unmatched = [f"{p.topic_name} ({p.get_subscription_count()} of {node.count_subscribers(p.topic_name)})"
+                     for t, p in pubs.items() if remaps.get(t, t) not in waiting and not matched(p)]
+        if unmatched and wait > 0:
+            print(f"play: not every subscription in the graph matched after {wait} s on {', '.join(unmatched)} (one "
+                  "with incompatible QoS never does); playing anyway", flush=True)
         if clock_pub is not None and clock_pub.get_subscription_count() == 0:
             print("play: nobody subscribes to /clock (yet): nodes with use_sim_time or follow_clock follow the "
                   "bag's time once they do", flush=True)
