@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 import shutil
 import sqlite3
+import struct
 
 import numpy as np
 import pytest
@@ -490,3 +491,36 @@ def test_signals_are_held_during_a_write_and_delivered_after():
         assert inside == [] and seen == ["int"]
     finally:
         signal.signal(signal.SIGINT, old)
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_every_thread_can_write_a_bag(tmp_path, storage):
+    """The node writes its bag from the step thread and the marker thread: with sqlite3 the marker thread's
+    writes failed ("SQLite objects created in a thread can only be used in that same thread"), so a node's
+    sqlite3 recording held no tissue/markers. Each of several threads' messages is in the bag, read back."""
+    import threading
+
+    from tissue_sim_ros.ros.bags import Bag, BagWriter
+
+    path = tmp_path / "threads"
+    writer = BagWriter(path, storage)
+    writer.add_topic("/a", "std_msgs/msg/Float64")
+    errors: list[BaseException] = []
+
+    def write(k: int) -> None:
+        try:
+            for i in range(20):
+                writer.write("/a", struct.pack("<4xd", float(100 * k + i)), 1_000_000 * (100 * k + i + 1))
+        except BaseException as exc:  # noqa: BLE001  reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=write, args=(k,)) for k in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    writer.close()
+    assert not errors, errors
+    with Bag(path) as bag:
+        values = sorted(struct.unpack_from("<d", bytes(raw), 4)[0] for _, _, _, raw in bag.messages(["/a"]))
+    assert values == sorted(float(100 * k + i) for k in range(3) for i in range(20))

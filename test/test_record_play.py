@@ -5,6 +5,7 @@ every wait has a timeout, every process is ended by the start_process fixture.
 """
 from __future__ import annotations
 
+import os
 import signal
 import struct
 
@@ -411,7 +412,7 @@ def test_tool_only_on_tf_played_into_the_node_equals_the_offline_replay(tmp_path
 
 
 @pytest.mark.parametrize("recorded_qos", [True, False], ids=["latched-in-metadata", "no-qos-recorded"])
-def test_play_delivers_a_bags_tf_static_to_the_node(tmp_path, ros_client, start_process, recorded_qos):
+def test_play_delivers_a_bags_tf_static_to_the_node(tmp_path, start_process, recorded_qos):
     """A robot bag whose tool frame reaches the node only through /tf_static (world -> robot_base, poses in
     robot_base): played into a fresh lock-step node, every pose becomes a step, none dropped as dropped_frame.
 
@@ -433,9 +434,10 @@ def test_play_delivers_a_bags_tf_static_to_the_node(tmp_path, ros_client, start_
     times = irregular_times(n, 40.0)
     poses = trajectory(times)
     base = (0.05, -0.02, 0.0)  # world -> robot_base: a pure translation in the plane
-    static = T["tf2_msgs/msg/TFMessage"](transforms=[transform_stamped(int(times[0]) - 1_000_000, "world",
-                                                                       "robot_base", *base)])
-    msgs = [("/tf_static", "tf2_msgs/msg/TFMessage", int(times[0]) - 1_000_000, static)]
+    # as a robot's bag starts: /tf_static first, the arm's poses half a second later
+    t_static = int(times[0]) - 500_000_000
+    static = T["tf2_msgs/msg/TFMessage"](transforms=[transform_stamped(t_static, "world", "robot_base", *base)])
+    msgs = [("/tf_static", "tf2_msgs/msg/TFMessage", t_static, static)]
     for t, (x, y, yaw) in zip(times, poses):
         msgs.append(("/tool/pose", "geometry_msgs/msg/PoseStamped", int(t),
                      T["geometry_msgs/msg/PoseStamped"](header=header(int(t), "robot_base"),
@@ -453,27 +455,45 @@ def test_play_delivers_a_bags_tf_static_to_the_node(tmp_path, ros_client, start_
 
     import yaml
 
-    params = tmp_path / "params.yaml"  # for every node name: this node runs in a namespace (below)
+    params = tmp_path / "params.yaml"
     params.write_text(yaml.safe_dump({"/**": {"ros__parameters": small_params(tmp_path, frame_id="world",
                                                                                lock_step=True)}}))
-    # the node in a namespace of its own, the bag's /tool/pose remapped onto it (as a robot's topic would be): a
-    # recorder killed by an earlier test can linger in the graph on /tool/pose until its lease ends, and play,
-    # matched with that one, would not wait for the node
-    ns = f"/tf_static_{'recorded' if recorded_qos else 'by_name'}"
-    energy = ros_client.raw_subscription(Float64, f"{ns}/tissue/energy", QoSProfile(
-        history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE))
-    node = start_process(["tissue_sim_node", "--ros-args", "-r", f"__ns:={ns}", "--params-file", str(params)],
-                         name="node")
-    ros_client.wait_for_publisher(f"{ns}/tissue/energy", timeout=120, process=node)
-    ros_client.spin_until(lambda: energy.sub.get_publisher_count() > 0, 30, node, f"matching {ns}/tissue/energy")
-    play = start_process(["tissue-sim", "play", str(src), "--no-clock", "--wait", "30", "--remap",
-                          f"/tool/pose:={ns}/tool/pose"], name="play")
-    assert play.wait(timeout=60) == 0, _text(play)
-    ros_client.spin_until(lambda: len(energy.messages) >= n, 60, node,
+    # on a ROS domain of its own, so that nothing else in the session's graph (a participant an earlier test
+    # killed lingers there until its lease ends) counts as one of play's subscribers
+    from tissue_sim_ros.ros.domain import domain_in_use
+
+    from ros_env import RosClient
+
+    domain = next(d for d in range(1, 101) if str(d) != os.environ.get("ROS_DOMAIN_ID") and not domain_in_use(d))
+    client = RosClient(domain, name="tf_static_client")
+    try:
+        energy = client.raw_subscription(Float64, "/tissue/energy", QoSProfile(
+            history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE))
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        diags: list = []
+        client.node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        own = {"ROS_DOMAIN_ID": str(domain)}
+        node = start_process(["tissue_sim_node", "--ros-args", "--params-file", str(params)], name="node",
+                             env_changes=own)
+        client.wait_for_publisher("/tissue/energy", timeout=120, process=node)
+        client.spin_until(lambda: energy.sub.get_publisher_count() > 0, 30, node, "matching /tissue/energy")
+        play = start_process(["tissue-sim", "play", str(src), "--no-clock", "--wait", "30"], name="play",
+                             env_changes=own)
+        assert play.wait(timeout=60) == 0, _text(play)
+        client.spin_until(lambda: len(energy.messages) >= n, 60, node,
                           f"{n} energy messages (every pose in robot_base taken through /tf_static); play said:\n"
                           f"{_text(play)}")
-    ros_client.spin_for(0.3)
-    assert len(energy.messages) == n
+
+        def counters() -> dict[str, str] | None:  # the node's diagnostics once they count every step
+            last = {kv.key: kv.value for d in diags[-1:] for kv in d.status[0].values} if diags else {}
+            return last if int(last.get("steps", 0)) >= n else None
+
+        last = client.spin_until(counters, 30, node, f"/diagnostics counting {n} steps")
+        assert {k: v for k, v in last.items() if k.startswith("dropped_") and v != "0"} == {}
+        assert len(energy.messages) == n
+    finally:
+        client.close()
 
 
 def test_the_recorders_summary_says_what_a_recording_holds_fewer_of():

@@ -11,6 +11,7 @@ import math
 import os
 import signal
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -885,12 +886,20 @@ def test_a_node_killed_hard_leaves_its_parameters_for_an_applied_replay(
                           "-p", f"record_path:={bag_path}"], name=f"killed_{storage}")
     live = Node(proc, ros_client, ns=ns)
     live.wait_ready()
-    live.drive(np.stack([np.full(40, 0.2), np.linspace(-0.06, 0.02, 40)], axis=1))
 
     def pushed() -> bool:
         return any(np.abs(np.concatenate(M.decode_wrench_stamped(raw)[2:4])).max() > 0 for raw in live.wrench.messages)
 
-    # the node took the poses and the tool pushes the tissue (seen live, not assumed from the drive's timing) ...
+    # the node took the poses and the tool pushes the tissue, seen live: the tool input is best effort by design
+    # (sensor-data QoS), so the drive is repeated, up to three times, when no push follows it (the kept steps of
+    # 2 of 5 full runs held no push, with no pose dropped by the node); the replay checks what the node took
+    for _ in range(3):
+        live.drive(np.stack([np.full(40, 0.2), np.linspace(-0.06, 0.02, 40)], axis=1))
+        end = time.monotonic() + 3.0
+        while not pushed() and time.monotonic() < end:
+            ros_client.spin_for(0.05)
+        if pushed():
+            break
     ros_client.spin_until(pushed, TIMEOUT, proc, f"a non-zero {ns}/tool/wrench after the drive")
     # ... and the bag is flushed every second: wait for one after that, so the pushed steps are on disk
     ros_client.spin_for(1.5)
@@ -905,7 +914,11 @@ def test_a_node_killed_hard_leaves_its_parameters_for_an_applied_replay(
     assert "custom_data kept: tissue_sim.params" in run.stdout, run.stdout
     with Bag(fixed) as bag:
         params = json.loads(bag.custom_data["tissue_sim.params"])
+        markers = bag.message_counts.get(f"{ns}/tissue/markers", 0)
     assert params["k_spring"] == 0.3 and params["contact_model"] == "projection"  # the -p and the file's
+    # written by the marker thread: with sqlite3 those writes used to fail (the connection was the opening
+    # thread's only), so the node's sqlite3 recordings held no markers
+    assert markers > 0
 
 
 def _assert_replay_is_the_live_run(bag_path: Path, ns: str, out: Path, cut: bool = False) -> np.ndarray:

@@ -208,6 +208,8 @@ class BagWriter:
             self._writer.open()
         except (WriterError, OSError) as exc:
             raise InputError(f"cannot create bag {str(self.path)!r}: {exc}") from None
+        if storage == "sqlite3":
+            self._share_sqlite_connection()
         self._lock = threading.Lock()
         self._connections: dict[str, "Connection"] = {}
         self._counts: dict[str, int] = {}
@@ -344,6 +346,20 @@ class BagWriter:
             if not self._closed:
                 with self._hold():
                     self._flush_locked()
+
+    def _share_sqlite_connection(self) -> None:
+        """Let every thread write: rosbags' sqlite3 storage opens its connection in the opening thread with
+        Python's default ``check_same_thread=True``, so the node's marker thread (or any writer but the one that
+        opened the bag) got "SQLite objects created in a thread can only be used in that same thread" and its
+        messages never reached the bag. The connection is reopened shared; this class's lock already
+        serialises every use of it, which is what that check protects."""
+        import sqlite3  # noqa: PLC0415
+
+        st = self._writer.storage
+        st.conn.commit()
+        st.conn.close()
+        st.conn = sqlite3.connect(f"file:{st.path}", uri=True, check_same_thread=False)
+        st.cursor = st.conn.cursor()
 
     def _flush_locked(self) -> None:
         # rosbags has no public flush; these are its storage writers' own steps (rosbags 0.10/0.11).

@@ -70,6 +70,9 @@ def choose_topics(bag: Bag, requested: list[str] | None) -> list[str]:
     return chosen
 
 
+#: Seconds play stays after its last message, for best-effort readers, which acknowledge nothing.
+LINGER_S = 0.5
+
 #: Topics that are latched by convention: played TRANSIENT_LOCAL even from a bag that recorded no QoS for them.
 LATCHED_BY_NAME = ("/tf_static",)
 
@@ -234,12 +237,17 @@ def play(bag_path: str | Path, *, topics: list[str] | None = None, remaps: dict[
             if not loop:
                 break
             loop_offset += span + period_ns
-        # let the middleware hand the last reliable messages (and /clock) over before the node goes
+        # let the middleware hand the last messages (and /clock) over before the node goes: reliable readers
+        # acknowledge them; best-effort ones (the node's tool input) never do, and the publisher's sending
+        # thread may still hold the last sample when wait_for_all_acked returns, so play lingers a moment more
+        # (without it a lock-step node lost the bag's last pose: 29 steps for 30 poses, 5 of 22 runs)
         end = time.monotonic() + 1.0
         for p in watched.values():
             left = end - time.monotonic()
             if left > 0 and p.get_subscription_count() > 0 and not stop.is_set():
                 p.wait_for_all_acked(Duration(nanoseconds=ns_from_seconds(left)))
+        if any(p.get_subscription_count() > 0 for p in watched.values()):
+            stop.wait(LINGER_S)
     finally:
         if node is not None:
             node.destroy_node()
