@@ -919,3 +919,22 @@ def strain_mesh_arrays(q, tri_flat, edge_flat, strain, strain_color_max, lut, tr
     tri_rgba[:] = lut[k][tri_flat]
     if wireframe:
         wire_points[:] = q3[edge_flat]
+
+
+def project_attachments(x, inv_mass, attach_idx, attach_target, alpha_tilde, lam):
+    """One XPBD pass over zero-length springs E = |x_i - t_i|^2 / (2 c), alpha~ = c / h^2, as vector constraints.
+
+    Written from the energy: per attachment the constraint C = x_i - t_i (a 2-vector, gradient the identity),
+    d lambda = -(C + alpha~ lambda) / (w + alpha~) (2-vector), x_i += w d lambda. Returns (x, lam), copies.
+    """
+    x = np.array(x, dtype=np.float64, copy=True)
+    lam = np.array(lam, dtype=np.float64, copy=True)
+    for k, i in enumerate(attach_idx):
+        w = inv_mass[i]
+        if w == 0.0:
+            continue
+        c = x[i] - attach_target[k]
+        dlam = -(c + alpha_tilde * lam[k]) / (w + alpha_tilde)
+        lam[k] += dlam
+        x[i] += w * dlam
+    return x, lam

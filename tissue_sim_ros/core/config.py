@@ -322,6 +322,13 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("tool_length", float, _TOOL.length, "m", "Tool length along its axis (box, capsule).", True, "tool"),
     ParamSpec("tool_width", float, _TOOL.width, "m", "Full width of a box tool.", True, "tool"),
     ParamSpec("tool_radius", float, _TOOL.radius, "m", "Radius of a capsule or sphere tool.", True, "tool"),
+    ParamSpec("jaw_length", float, _TOOL.jaw_length, "m", "Grasper: length of each jaw (tool_length is the whole grasper, jaw tips to shaft end).", True, "tool"),
+    ParamSpec("shaft_width", float, _TOOL.shaft_width, "m", "Grasper: full width of the shaft; contact sees the grasper as a capsule of this diameter from the jaw tips up.", True, "tool"),
+    # grasping (tunable)
+    ParamSpec("grasp_close_angle", float, _SIM.grasp_close_angle, "rad", "Grasper: a jaw angle (tool/jaw) below this closes the jaw: the free particles within grasp_radius of the tip are held to it.", False, "contact"),
+    ParamSpec("grasp_open_angle", float, _SIM.grasp_open_angle, "rad", "Grasper: a jaw angle above this opens the jaw and releases what it held (> grasp_close_angle: hysteresis).", False, "contact"),
+    ParamSpec("grasp_radius", float, _SIM.grasp_radius, "m", "Grasper: reach of the closing jaw from its tip (the pose); should exceed contact_margin, which keeps the tissue that far from the tool.", False, "contact"),
+    ParamSpec("grasp_compliance", float, _SIM.grasp_compliance, "m/N", "Grasper: compliance of the zero-length springs holding each grasped particle to its place in the jaws (energy |x - target|^2 / (2 compliance)).", False, "contact"),
     # the node's own
     ParamSpec("frame_id", str, "world", "", "The simulation plane's frame (tissue in its z = 0 plane): every message out is in it. A tool input in another frame is taken through the known transforms (world_frame and plane_*, static_transforms, /tf, /tf_static) and projected onto the plane; with no transform it is dropped.", False, "node", _frame),
     ParamSpec("world_frame", str, "", "", "Frame in which plane_x .. plane_yaw place the plane (frame_id); the node broadcasts world_frame -> frame_id on /tf_static where tf2_msgs is installed. Empty = the plane is not placed.", True, "node", _frame_or_empty),
@@ -347,6 +354,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("strain_color_max", float, 0.2, "", "Strain shown at full colour in the mesh marker (blue -max, red +max).", False, "node", _positive),
     ParamSpec("wire_width", float, 0.002, "m", "Line width of the wireframe markers.", False, "node", _positive),
     ParamSpec("max_tool_jump", float, 0.05, "m", "A tool pose farther than this from the last one accepted is rejected (dropped and counted): the tool holds its pose until a pose within this distance arrives, or ~/reset (after which any pose is accepted).", False, "node", _positive),
+    ParamSpec("relocate_poses", int, 5, "", "A relocated robot: when the tool grasps nothing and this many rejected poses in a row are each within max_tool_jump of the one before, the tool is taken there (through the contact checks: swept in steps no longer than max_tool_jump, stopped before it would pass through the tissue), with a warning and a count on /diagnostics; 0 = never (only ~/reset).", False, "node", _non_negative),
     ParamSpec("max_stamp_age", float, 0.5, "s", "Timer mode: tool messages stamped older than this are dropped as stale; 0 = no check.", False, "node", _non_negative),
     ParamSpec("max_stamp_future", float, 0.5, "s", "Timer mode: tool messages stamped further than this ahead of the node's clock are dropped (one would make every later message out of order until the clock caught up); 0 = no check.", False, "node", _non_negative),
     ParamSpec("twist_timeout", float, 0.05, "s", "A tool twist received longer ago than this is stale: velocity is derived from poses.", False, "node", _positive),
@@ -374,7 +382,8 @@ BY_NAME: dict[str, ParamSpec] = {p.name: p for p in PARAMETERS}
 #: Where each parameter goes: "sim" (SimParams), "scene" (SceneConfig), "tool" (ToolShape) or "node".
 _SIM_FIELDS = {f.name for f in fields(SimParams)}
 _SCENE_FIELDS = {f.name for f in fields(SceneConfig)}
-TOOL_FIELDS = {"tool_shape": "kind", "tool_length": "length", "tool_width": "width", "tool_radius": "radius"}
+TOOL_FIELDS = {"tool_shape": "kind", "tool_length": "length", "tool_width": "width", "tool_radius": "radius",
+               "jaw_length": "jaw_length", "shaft_width": "shaft_width"}
 
 
 def _home(spec: ParamSpec) -> str:

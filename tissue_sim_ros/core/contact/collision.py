@@ -112,6 +112,13 @@ class Contacts:
     edge_side_tol: float = 0.0
     """Projection model: how far [m] the tool may be past a boundary edge at the start of a (sub)step and
     still be pushed back out by it (:func:`project_edges`); deeper, the tool is taken to be through the edge."""
+    attach_idx: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    """Particles held to the tool this step (a closed grasper), shape (K,), int64; set by the Simulation
+    (``core/sim/grasp.py``), solved by ``core/physics/attach.py`` inside every solver iteration. Empty: none."""
+    attach_target: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    """Where each held particle is held at the end of the step [m], shape (K, 2), float64."""
+    attach_compliance: float = 0.0
+    """Compliance of the attachment springs [m/N] (energy |x - target|^2 / (2 compliance))."""
 
     @classmethod
     def empty(cls, n_bodies: int) -> "Contacts":
@@ -150,9 +157,13 @@ def _fcl_tool(shape: ToolShape) -> tuple[fcl.CollisionGeometry, np.ndarray]:
     """
     if shape.kind == "box":
         return fcl.Box(shape.length, shape.width, shape.width), np.eye(3)
+    lay = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # R_y(+90 deg): z -> +x
+    if shape.kind == "grasper":
+        # its envelope (ToolShape.rounded_box), placed at ToolShape.contact_pose by _place_tool
+        hx, _, r = shape.rounded_box()
+        return (fcl.Capsule(r, 2.0 * hx), lay) if hx > 0 else (fcl.Sphere(r), np.eye(3))
     if shape.kind == "capsule" and shape.length > 0:
-        # R_y(+90 deg): z -> +x
-        return fcl.Capsule(shape.radius, shape.length), np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
+        return fcl.Capsule(shape.radius, shape.length), lay
     return fcl.Sphere(shape.radius), np.eye(3)
 
 
@@ -229,8 +240,9 @@ class ContactModel:
     # -- queries ------------------------------------------------------------------------------
 
     def _place_tool(self, pose: ToolPose) -> None:
-        rot = _yaw_matrix(pose.yaw) @ self._axis_rot
-        self._tool_obj.setTransform(fcl.Transform(rot, np.array([pose.x, pose.y, 0.0])))
+        cx, cy, yaw = self.tool.contact_pose(pose)
+        rot = _yaw_matrix(yaw) @ self._axis_rot
+        self._tool_obj.setTransform(fcl.Transform(rot, np.array([cx, cy, 0.0])))
 
     def prepare(self, x: np.ndarray, pose: ToolPose) -> None:
         """Every particle's signed distance (and gradient) to the tool at ``pose``, for :meth:`body_distance`.
@@ -347,7 +359,8 @@ class ContactModel:
         vmax = float(np.sqrt((qd * qd).sum(axis=1).max())) if qd.shape[0] else 0.0
         radius = math.hypot(shape1[4], shape1[5]) + shape1[6]
         dyaw = abs(math.atan2(math.sin(pose1.yaw - pose0.yaw), math.cos(pose1.yaw - pose0.yaw)))
-        travel = math.hypot(pose1.x - pose0.x, pose1.y - pose0.y) + dyaw * radius
+        # the rounded box's centre (the pose, but the grasper's envelope centre: it turns about its tip)
+        travel = math.hypot(shape1[0] - shape0[0], shape1[1] - shape0[1]) + dyaw * radius
         reach = vmax * dt + abs(p.gravity) * dt * dt + travel
         x = np.ascontiguousarray(state.particle_q)
         inv_mass = self.model.particle_inv_mass

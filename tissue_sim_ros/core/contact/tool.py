@@ -1,7 +1,8 @@
 """The tool: shape, planar pose and velocity, and trajectories as data.
 
 All in the simulation frame: x right, y up, yaw about +z (the tool's heading in
-the tissue plane). A tool's long axis is its local +x.
+the tissue plane). A tool's long axis is its local +x, except the grasper's: its pose is the point midway
+between its jaw tips and at yaw 0 its shaft points up (+y) from there, jaws down (it comes from above).
 """
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 
 from ..errors import InputError
 
-TOOL_SHAPES = ("box", "capsule", "sphere")
+TOOL_SHAPES = ("box", "capsule", "sphere", "grasper")
 
 
 @dataclass(frozen=True)
@@ -21,7 +22,12 @@ class ToolShape:
 
     * ``box``: a ``length`` x ``width`` rectangle (the paper's authors used 0.8 x 0.005);
     * ``capsule``: a segment of ``length`` along +x, inflated by ``radius``;
-    * ``sphere``: a disc of ``radius``.
+    * ``sphere``: a disc of ``radius``;
+    * ``grasper``: a shaft of ``shaft_width`` ending in two jaws of ``jaw_length``, ``length`` long in all
+      (tip to shaft end). Its pose is the point midway between the jaw tips; at yaw 0 the shaft points +y.
+      Contact sees its envelope: a capsule of radius ``shaft_width / 2`` from the tip (its lowest point is the
+      pose) up the shaft, open or closed; the jaws inside it are drawn (:meth:`outline`), and grasp what lies
+      within ``grasp_radius`` of the tip (``core/sim/grasp.py``).
     """
 
     kind: str = "box"
@@ -31,11 +37,15 @@ class ToolShape:
     """Full width of a box [m]."""
     radius: float = 0.0025
     """Radius of a capsule or sphere [m]."""
+    jaw_length: float = 0.01
+    """Grasper: length of each jaw [m] (drawn; the grasp reaches ``grasp_radius`` from the tip)."""
+    shaft_width: float = 0.005
+    """Grasper: full width of the shaft [m] (the contact envelope's diameter)."""
 
     def __post_init__(self) -> None:
         if self.kind not in TOOL_SHAPES:
             raise InputError(f"tool_shape={self.kind!r}: expected one of {', '.join(TOOL_SHAPES)}")
-        for name in ("length", "width", "radius"):
+        for name in ("length", "width", "radius", "jaw_length", "shaft_width"):
             value = getattr(self, name)
             if not math.isfinite(value) or value < 0:
                 raise InputError(f"tool_{name}={value!r}: expected a finite size >= 0 m")
@@ -43,17 +53,59 @@ class ToolShape:
             raise InputError(f"box tool needs tool_length and tool_width > 0; got {self.length}, {self.width}")
         if self.kind in ("capsule", "sphere") and self.radius <= 0:
             raise InputError(f"{self.kind} tool needs tool_radius > 0; got {self.radius}")
+        if self.kind == "grasper":
+            if self.shaft_width <= 0 or self.jaw_length <= 0:
+                raise InputError(f"grasper tool needs shaft_width and jaw_length > 0; got {self.shaft_width}, "
+                                 f"{self.jaw_length}")
+            if self.length < self.shaft_width or self.length < self.jaw_length:
+                raise InputError(f"grasper tool_length={self.length!r}: expected at least shaft_width "
+                                 f"({self.shaft_width}) and jaw_length ({self.jaw_length}) [m]")
 
     def rounded_box(self) -> tuple[float, float, float]:
         """The shape as a rounded box: half extents (hx, hy) and corner radius, all [m].
 
-        Box: (length/2, width/2, 0); capsule: (length/2, 0, radius); sphere: (0, 0, radius).
+        Box: (length/2, width/2, 0); capsule: (length/2, 0, radius); sphere: (0, 0, radius); grasper: its
+        envelope, a capsule (length/2 - shaft_width/2, 0, shaft_width/2) along the shaft (centred
+        :meth:`contact_pose`).
         """
+        if self.kind == "grasper":
+            r = 0.5 * self.shaft_width
+            return 0.5 * self.length - r, 0.0, r
         if self.kind == "box":
             return 0.5 * self.length, 0.5 * self.width, 0.0
         if self.kind == "capsule":
             return 0.5 * self.length, 0.0, self.radius
         return 0.0, 0.0, self.radius
+
+
+    def contact_pose(self, pose: "ToolPose") -> tuple[float, float, float]:
+        """Centre [m] and axis angle [rad] of :meth:`rounded_box` for the tool at ``pose``: the pose itself, but
+        for the grasper, whose envelope's centre is ``length / 2`` up the shaft from the tip and whose long
+        axis (local +x of the rounded box) is the shaft, at yaw + pi/2."""
+        if self.kind != "grasper":
+            return pose.x, pose.y, pose.yaw
+        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+        half = 0.5 * self.length
+        return pose.x - s * half, pose.y + c * half, pose.yaw + 0.5 * math.pi
+
+    def outline(self, jaw: float | None = None, segments: int = 8) -> np.ndarray:
+        """Closed outline in the tool's pose frame (the frame :class:`ToolPose` places), (K, 2) float64 [m].
+
+        The rounded box for box, capsule and sphere; the grasper's shaft and its two jaws, opened to ``jaw``
+        [rad] (the full angle between them; None or below 0: closed), for the markers and pictures.
+        """
+        if self.kind != "grasper":
+            return rounded_box_outline(*self.rounded_box(), segments=segments)
+        w, lj = 0.5 * self.shaft_width, self.jaw_length
+        half = 0.5 * min(max(0.0 if jaw is None else float(jaw), 0.0), math.pi / 2)
+        s, c = math.sin(half), math.cos(half)
+        # the jaws hinge at the shaft's end (y = jaw_length), each a thin blade turned out by half the angle
+        hinge = lj
+        pts = [(-w, self.length), (-w, hinge), (-s * lj - 0.3 * w * c, hinge - c * lj),
+               (-s * lj + 0.3 * w * c, hinge - c * lj), (0.0, hinge - 0.4 * w),
+               (s * lj - 0.3 * w * c, hinge - c * lj), (s * lj + 0.3 * w * c, hinge - c * lj), (w, hinge),
+               (w, self.length)]
+        return np.array(pts, dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -96,9 +148,13 @@ def rounded_box_outline(hx: float, hy: float, radius: float, segments: int = 8) 
 
 
 def tool_shape_array(shape: ToolShape, pose: ToolPose, margin: float = 0.0) -> np.ndarray:
-    """Pack a posed shape for numba kernels: [cx, cy, cos(yaw), sin(yaw), hx, hy, radius + margin], float64 (7,)."""
+    """Pack a posed shape for numba kernels: [cx, cy, cos(yaw), sin(yaw), hx, hy, radius + margin], float64 (7,).
+
+    (cx, cy, yaw) is :meth:`ToolShape.contact_pose`: the pose itself but for the grasper (its envelope's centre).
+    """
     hx, hy, rr = shape.rounded_box()
-    return np.array([pose.x, pose.y, math.cos(pose.yaw), math.sin(pose.yaw), hx, hy, rr + margin], dtype=np.float64)
+    cx, cy, yaw = shape.contact_pose(pose)
+    return np.array([cx, cy, math.cos(yaw), math.sin(yaw), hx, hy, rr + margin], dtype=np.float64)
 
 
 # --------------------------------------------------------------------------- trajectories
@@ -264,7 +320,7 @@ class StraightInsertion(Trajectory):
     def from_tool(cls, tool: ToolShape, start: tuple[float, float], target: tuple[float, float], speed: float,
                   dt: float | None = None, hold: float = 0.0) -> "StraightInsertion":
         """An insertion of ``tool`` (its tip is ``length / 2`` ahead of its centre; a sphere's is its centre)."""
-        offset = 0.0 if tool.kind == "sphere" else 0.5 * tool.length
+        offset = 0.0 if tool.kind in ("sphere", "grasper") else 0.5 * tool.length
         return cls(start, target, speed, tip_offset=offset, dt=dt, hold=hold)
 
     @classmethod

@@ -2,8 +2,8 @@
 material, the numba kernels and the solvers that step them, and the energy a step stores.
 
 ``model`` builds the arrays (rest lengths and areas, masses, pins, material tables);
-``kernels``, ``step_kernels``, ``material`` and ``violated_jacobi`` (the paper authors'
-Jacobi) are the ``@njit`` kernels; ``solvers`` and ``sleeping`` run them as PBD and XPBD
+``kernels``, ``step_kernels``, ``material``, ``attach`` (a grasper's attachment springs) and
+``violated_jacobi`` (the paper authors' Jacobi) are the ``@njit`` kernels; ``solvers`` and ``sleeping`` run them as PBD and XPBD
 (Gauss-Seidel, Jacobi, substeps); ``statics`` and ``minimize`` find rest shapes by
 Newton; ``energy`` and ``strain`` measure a state. It may import :mod:`..mesh` and
 the array kernels of :mod:`..contact` (the tool is kept out of the tissue inside the

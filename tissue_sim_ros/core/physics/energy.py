@@ -42,17 +42,23 @@ class EnergyTerms:
     """dt^2 * E_strain per body (``material: neo_hookean``; zeros otherwise; None counts as zeros)."""
     potential: np.ndarray | None = None
     """Potential energy per body, not scaled: E_spring + E_area + E_strain [J for xpbd and the material]."""
+    attach: np.ndarray | None = None
+    """dt^2 * E_attach per body: the grasper's springs, sum |x - target|^2 / (2 grasp_compliance) over the held
+    particles (``core/physics/attach.py``; zeros when nothing is held; None counts as zeros). In the total, not in
+    ``potential`` (the tissue's own)."""
 
     def __post_init__(self) -> None:
         if self.strain is None:
             self.strain = np.zeros_like(self.inertial)
+        if self.attach is None:
+            self.attach = np.zeros_like(self.inertial)
         if self.potential is None:
             self.potential = np.zeros_like(self.inertial)
 
     @property
     def total(self) -> np.ndarray:
         """Total energy per body, shape (B,)."""
-        return self.inertial + self.spring + self.area + self.strain
+        return self.inertial + self.spring + self.area + self.strain + self.attach
 
     @property
     def scene_potential(self) -> float:

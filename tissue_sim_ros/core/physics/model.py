@@ -147,6 +147,15 @@ class SimParams:
     """Projection contact: what is kept out of the tool. ``edges`` (default): particles and boundary edges,
     so a tool thinner than the mesh spacing indents the surface instead of slipping between particles;
     ``particles``: particles only (such a tool pierces the tissue between them)."""
+    # grasping (issue 30): a grasper's jaw closes on what lies at its tip (core/sim/grasp.py, core/physics/attach.py)
+    grasp_close_angle: float = 0.2
+    """Grasper: the jaw closes (grasps) when its angle falls below this [rad]."""
+    grasp_open_angle: float = 0.4
+    """Grasper: the jaw opens (releases) when its angle rises above this [rad] (> grasp_close_angle: hysteresis)."""
+    grasp_radius: float = 0.004
+    """Grasper: particles within this distance of the tip when the jaw closes are grasped [m]."""
+    grasp_compliance: float = 1e-4
+    """Grasper: compliance of the springs holding grasped particles to the jaws [m/N] (stiffness 1 / it)."""
     # material (issue 16): constraints (the paper) or a plane-stress neo-Hookean membrane
     material: str = "constraints"
     """``constraints`` (the paper's springs and areas; the default, so the paper reproduces) or
@@ -187,7 +196,8 @@ class SimParams:
                      "stiffness_spring", "stiffness_area", "contact_radius", "contact_threshold",
                      "contact_margin", "sleep_speed", "sleep_wake_radius", "jacobi_spring_tolerance",
                      "jacobi_area_tolerance", "young_modulus", "poisson_ratio",
-                     "thickness", "density"):
+                     "thickness", "density", "grasp_close_angle", "grasp_open_angle", "grasp_radius",
+                     "grasp_compliance"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise bad(name, "a finite number")
@@ -257,6 +267,12 @@ class SimParams:
             raise bad("contact_threshold", "a distance >= 0 m")
         if self.contact_margin < 0:
             raise bad("contact_margin", "a margin >= 0 m")
+        if self.grasp_open_angle <= self.grasp_close_angle:
+            raise bad("grasp_open_angle", f"an angle > grasp_close_angle={self.grasp_close_angle!r} rad (hysteresis)")
+        if self.grasp_radius <= 0:
+            raise bad("grasp_radius", "a radius > 0 m")
+        if self.grasp_compliance <= 0:
+            raise bad("grasp_compliance", "a compliance > 0 m/N")
         for name in ("boundary_y_top", "boundary_y_bottom", "pin_y_top", "pin_y_bottom", "wall_y_top",
                      "wall_y_bottom"):
             value = getattr(self, name)

@@ -11,7 +11,7 @@ One step (the paper's Algorithm 1, with Macklin's multipliers for XPBD)::
     for each of `substeps` substeps of h = dt / substeps:
         predict from the substep's start (h), reset multipliers
         (held particles: the fraction (s+1)/substeps of their way from x_t to x*)
-        `iterations` sweeps: edges, triangles, tool (projection contact), walls
+        `iterations` sweeps: edges, triangles, tool (projection contact), attachments (a closed grasper), walls
             (material: neo_hookean: the triangles' elements instead of edges and areas, core/physics/material.py)
         v = (x - x_start) / h; boundary lines clamp and stop particles
     residual = RMS(C / rest size)
@@ -47,6 +47,7 @@ import numpy as np
 from ..contact.collision import Contacts
 from ..errors import InputError
 from . import kernels, material
+from .attach import project_attachments
 from .model import Model, State
 from .violated_jacobi import apply_walls, violated_jacobi_iterations
 
@@ -329,6 +330,8 @@ class Solver:
         self._no_shapes = np.zeros((0, 7))
         self._no_edge_set = (self._no_edges, self._no_float, self.edge_offsets)
         self._no_tri_set = (self._no_tris, self._no_float, self.tri_offsets)
+        self.lam_a = np.zeros((0, 2))
+        """Multipliers of the attachments (contacts.attach_idx, core/physics/attach.py) of the current substep, (K, 2)."""
 
     @property
     def n_projections_per_step(self) -> int:
@@ -365,24 +368,32 @@ class Solver:
             out[2], out[3] = s1[2], s1[3]
 
     def _material_iterations(self, x: np.ndarray, w: np.ndarray, h: float, cand: np.ndarray, surf: np.ndarray,
-                             edge_side_tol: float) -> None:
-        """One substep's iterations of the material elements (and the tool), Gauss-Seidel or Jacobi."""
+                             edge_side_tol: float, attach: tuple | None = None) -> None:
+        """One substep's iterations of the material elements (and the tool), Gauss-Seidel or Jacobi; with
+        ``attach`` = (idx, target, alpha~) one iteration per call, the attachments after each."""
         p = self.params
         inv_h2 = 1.0 / (h * h)
+        n_calls, per_call = (p.iterations, 1) if attach is not None else (1, p.iterations)
         if self.jacobi:
             if self.jacobi_relaxation == "stiffness":
                 material.jacobi_relaxation_elements(x, w, self.tris, self.elastic, inv_h2, self.relaxation_scale,
                                                     self._node_sum, self.omega_m)
             else:
                 self.omega_m[:] = p.relaxation
-            material.material_jacobi(x, w, self.tris, self.elastic, inv_h2, self.lam_m, self.omega_m, p.iterations,
-                                     self._dx_acc, self.x_start, cand, self._shape0, self._shape1, self.contact_dx,
-                                     surf, edge_side_tol)
+            for _ in range(n_calls):
+                material.material_jacobi(x, w, self.tris, self.elastic, inv_h2, self.lam_m, self.omega_m, per_call,
+                                         self._dx_acc, self.x_start, cand, self._shape0, self._shape1,
+                                         self.contact_dx, surf, edge_side_tol)
+                if attach is not None:
+                    project_attachments(x, w, attach[0], attach[1], attach[2], self.lam_a)
         else:
             # a parallel colour order runs serially here (the elements have no coloured kernel)
-            material.material_gauss_seidel(x, w, self.tris, self.elastic, inv_h2, self.lam_m, self.tri_offsets,
-                                           self.gs_mode == kernels.GS_PARTITIONED, p.iterations, self.x_start,
-                                           cand, self._shape0, self._shape1, self.contact_dx, surf, edge_side_tol)
+            for _ in range(n_calls):
+                material.material_gauss_seidel(x, w, self.tris, self.elastic, inv_h2, self.lam_m, self.tri_offsets,
+                                               self.gs_mode == kernels.GS_PARTITIONED, per_call, self.x_start,
+                                               cand, self._shape0, self._shape1, self.contact_dx, surf, edge_side_tol)
+                if attach is not None:
+                    project_attachments(x, w, attach[0], attach[1], attach[2], self.lam_a)
 
     @property
     def compiled(self) -> bool:
@@ -417,6 +428,7 @@ class Solver:
             cand, surf = candidates, surface_edges
         else:
             shapes, cand, surf = self._no_shapes, self._no_index, self._no_edges
+        a_idx, a_target, a_compliance = self._attachments(contacts)
         k_e, alpha_e, use_e = self._k_alpha(p.k_spring, p.stiffness_spring, h)
         k_t, alpha_t, use_t = self._k_alpha(p.k_area, p.stiffness_area, h)
         edge_set = (self.edges, self.rest, self.edge_offsets) if use_e else self._no_edge_set
@@ -431,8 +443,29 @@ class Solver:
             self.signed, p.iterations, self.gs_mode,
             self.jacobi, self.jacobi and p.method == "xpbd" and self.jacobi_relaxation == "stiffness",
             self.relaxation_scale, self._node_sum, self.particle_scale, self._dx_acc,
-            cand, surf, float(contacts.edge_side_tol), shapes, self._shape0, self._shape1, self.contact_dx)
+            cand, surf, float(contacts.edge_side_tol), shapes, self._shape0, self._shape1, self.contact_dx,
+            a_idx, a_target, a_compliance / (h * h), self.lam_a)
         return self._finish(contacts, held_idx, projection, residual)
+
+    def _attachments(self, contacts: Contacts) -> tuple[np.ndarray, np.ndarray, float]:
+        """The step's attachments (``contacts.attach_*``, core/physics/attach.py) checked and contiguous:
+        (idx (K,) int64, target (K, 2) float64 [m], compliance [m/N]); sizes the multipliers ``lam_a``."""
+        n = self.model.n_particles
+        idx = np.ascontiguousarray(getattr(contacts, "attach_idx", self._no_index), dtype=np.int64).reshape(-1)
+        target = np.ascontiguousarray(getattr(contacts, "attach_target", self._no_float), dtype=np.float64)
+        target = target.reshape(-1, 2)
+        compliance = float(getattr(contacts, "attach_compliance", 0.0))
+        if idx.shape[0]:
+            if idx.min() < 0 or idx.max() >= n:
+                raise InputError(f"contacts.attach_idx must lie in [0, {n}); got [{idx.min()}, {idx.max()}]")
+            if target.shape[0] != idx.shape[0] or not np.isfinite(target).all():
+                raise InputError(f"contacts.attach_target has shape {target.shape} for {idx.shape[0]} attachments: "
+                                 "expected (K, 2), finite [m]")
+            if not (compliance > 0.0 and np.isfinite(compliance)):
+                raise InputError(f"contacts.attach_compliance={compliance!r}: expected a compliance > 0 m/N")
+        if self.lam_a.shape[0] != idx.shape[0]:
+            self.lam_a = np.zeros((idx.shape[0], 2))
+        return idx, target, compliance
 
     def _check_step(self, state_in: State, state_out: State, contacts: Contacts,
                     dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
@@ -509,6 +542,8 @@ class Solver:
             use_e = use_t = False
         edges, rest = (self.edges, self.rest) if use_e else (self._no_edges, self._no_float)
         tris, area0 = (self.tris, self.area0) if use_t else (self._no_tris, self._no_float)
+        a_idx, a_target, a_compliance = self._attachments(contacts)
+        attach = (a_idx, a_target, a_compliance / (h * h)) if a_idx.shape[0] else None
 
         np.copyto(v, v0)
         np.copyto(x, x0)
@@ -524,6 +559,7 @@ class Solver:
             self.lam_e.fill(0.0)
             self.lam_t.fill(0.0)
             self.lam_m.fill(0.0)
+            self.lam_a.fill(0.0)
             if projection:
                 self._interpolate_shape(s0, s1, sub / n_sub, self._shape0)
                 self._interpolate_shape(s0, s1, (sub + 1) / n_sub, self._shape1)
@@ -531,7 +567,7 @@ class Solver:
             else:
                 cand, surf = self._no_index, self._no_edges
             if self.is_material:
-                self._material_iterations(x, w, h, cand, surf, float(contacts.edge_side_tol))
+                self._material_iterations(x, w, h, cand, surf, float(contacts.edge_side_tol), attach)
                 if self.walls:
                     apply_walls(x, p.wall_y_bottom, p.wall_y_top)
             elif self.violated:
@@ -542,9 +578,12 @@ class Solver:
                                            p.wall_y_bottom, p.wall_y_top, self._dx_acc, self._dxa, self._ns,
                                            self._na, self.x_start, cand, self._shape0, self._shape1,
                                            self.contact_dx, surf, float(contacts.edge_side_tol))
+                if attach is not None:  # once after the authors' sweeps (their loop has no place for it)
+                    project_attachments(x, w, attach[0], attach[1], attach[2], self.lam_a)
             else:
                 # with walls: one iteration per kernel call, the walls after each (as the authors' loop)
-                sweeps = [1] * p.iterations if self.walls else [p.iterations]
+                # with attachments: one iteration per kernel call, the attachments after each (after the tool)
+                sweeps = [1] * p.iterations if (self.walls or attach is not None) else [p.iterations]
                 if self.jacobi and p.method == "xpbd" and self.jacobi_relaxation == "stiffness":
                     kernels.jacobi_relaxation(x, w, edges, alpha_e, tris, alpha_t, self.signed, self.relaxation_scale,
                                               self._node_sum, self.omega_e, self.omega_t)
@@ -560,6 +599,8 @@ class Solver:
                     else:
                         kernels.gauss_seidel_iterations(x, w, edge_set, tri_set, tool, k_e, alpha_e, self.lam_e,
                                                         k_t, alpha_t, self.lam_t, self.signed, iters, self.gs_mode)
+                    if attach is not None:
+                        project_attachments(x, w, attach[0], attach[1], attach[2], self.lam_a)
                     if self.walls:
                         apply_walls(x, p.wall_y_bottom, p.wall_y_top)
             kernels.update_velocity(x, self.x_start, h, v)

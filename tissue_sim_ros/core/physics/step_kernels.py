@@ -28,6 +28,7 @@ import math
 import numpy as np
 from numba import njit, uint32
 
+from .attach import project_attachments
 from .kernels import (
     apply_boundary_lines,
     constraint_residual,
@@ -58,7 +59,8 @@ def solve_step(x0: np.ndarray, v0: np.ndarray, x: np.ndarray, v: np.ndarray, inv
                jacobi: bool, stiffness_relaxation: bool, relaxation_scale: float, node_sum: np.ndarray,
                particle_scale: np.ndarray, dx_acc: np.ndarray,
                candidates: np.ndarray, surface_edges: np.ndarray, edge_side_tol: float, shapes: np.ndarray,
-               shape0: np.ndarray, shape1: np.ndarray, contact_dx: np.ndarray) -> float:
+               shape0: np.ndarray, shape1: np.ndarray, contact_dx: np.ndarray,
+               attach_idx: np.ndarray, attach_target: np.ndarray, alpha_attach: float, lam_attach: np.ndarray) -> float:
     """One step of ``Solver.step_reference`` (constraint methods) in one call; returns the residual.
 
     ``x0, v0`` in, ``x, v`` out; ``w``, ``x_pred``, ``x_start``, the multipliers, ``node_sum``, ``omega_*``,
@@ -66,7 +68,9 @@ def solve_step(x0: np.ndarray, v0: np.ndarray, x: np.ndarray, v: np.ndarray, inv
     them). ``edges, rest, edge_offsets`` and ``tris, area0, tri_offsets`` are the active constraints (empty
     when off), ``res_*`` all of them (the residual). Arguments are arrays and scalars only, no tuples: the
     dispatcher types those in C, a tuple's items in Python (~1 us each, per call). ``shapes`` (substeps + 1, 7): the tool at fraction s / substeps of the step (projection contact;
-    (0, 7) without). ``candidates`` and ``surface_edges`` empty: no projection contact.
+    (0, 7) without). ``candidates`` and ``surface_edges`` empty: no projection contact. ``attach_idx`` (K,) int64,
+    ``attach_target`` (K, 2) [m], ``alpha_attach`` = compliance / h^2 and the multipliers ``lam_attach`` (K, 2):
+    the attachments (``core/physics/attach.py``), after the tool in every iteration; K = 0: none.
     """
     edge_set = (edges, rest, edge_offsets)
     tri_set = (tris, area0, tri_offsets)
@@ -98,6 +102,7 @@ def solve_step(x0: np.ndarray, v0: np.ndarray, x: np.ndarray, v: np.ndarray, inv
         lam_e[:] = 0.0
         lam_t[:] = 0.0
         lam_m[:] = 0.0
+        lam_attach[:] = 0.0
         if projection:
             for k in range(uint32(7)):
                 shape0[k] = shapes[sub, k]
@@ -106,9 +111,10 @@ def solve_step(x0: np.ndarray, v0: np.ndarray, x: np.ndarray, v: np.ndarray, inv
         if jacobi and stiffness_relaxation:
             jacobi_relaxation(x, w, edges, alpha_e, tris, alpha_t, signed, relaxation_scale, node_sum,
                               omega_e, omega_t)
-        # with walls: one iteration per kernel call, the walls after each (as the reference)
-        n_calls = iterations if walls else 1
-        per_call = 1 if walls else iterations
+        # with walls or attachments: one iteration per kernel call, the attachments and walls after each
+        attached = attach_idx.shape[0] > 0
+        n_calls = iterations if (walls or attached) else 1
+        per_call = 1 if (walls or attached) else iterations
         for _ in range(n_calls):
             if jacobi:
                 jacobi_iterations(x, w, edge_set, tri_set, tool, k_e, alpha_e, lam_e, omega_e, k_t, alpha_t,
@@ -116,6 +122,8 @@ def solve_step(x0: np.ndarray, v0: np.ndarray, x: np.ndarray, v: np.ndarray, inv
             else:
                 gauss_seidel_iterations(x, w, edge_set, tri_set, tool, k_e, alpha_e, lam_e, k_t, alpha_t, lam_t,
                                         signed, per_call, gs_mode, True)
+            if attached:
+                project_attachments(x, w, attach_idx, attach_target, alpha_attach, lam_attach)
             if walls:
                 apply_walls(x, wall_y_bottom, wall_y_top)
         update_velocity(x, x_start, h, v)

@@ -31,11 +31,13 @@ from ..contact.collision import ContactModel, Contacts
 from ..contact.tool import ToolPose, ToolShape, ToolTwist, tool_shape_array, twist_from_poses
 from ..contact.tool_checks import INSIDE_TOL, tool_checks
 from ..errors import InputError
+from ..physics.attach import attachment_energy, attachment_wrench
 from ..physics.energy import EnergyTerms, energy_terms
 from ..physics.kernels import count_inverted
 from ..physics.model import Model, State
 from ..physics.solvers import SolveInfo, Solver
 from ..physics.step_kernels import finish_step
+from .grasp import Grasp
 from .snapshot import SimSnapshot, carry_state, restore_carry, scene_key
 
 if TYPE_CHECKING:
@@ -138,6 +140,11 @@ class StepReport:
     """Particles whose path relative to the tool ran through it within the step (``core/contact/tool_checks.py``)."""
     tool_buried: bool = False
     """True when a point of the tool's axis lies inside a triangle of the deformed tissue (the tool is buried in it)."""
+    grasped: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    """Particles the grasper's jaw held during this step (``core/sim/grasp.py``), int64 (empty: none)."""
+    attach_force: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    """The held particles' pull on the tool [N], (2,): sum (x - target) / grasp_compliance (included in
+    ``reaction_force``)."""
     detail: StepDetail | None = None
     """The step's start State, Contacts and solver info when asked (``Simulation.step(..., detail=True)``), else None."""
 
@@ -183,6 +190,8 @@ class Simulation:
         self.report_tool_checks = True
         """Fill the report's penetration, tunnelling and buried-tool fields each step (``core/contact/tool_checks.py``, ~15 us
         of a paper-scene step); batch rollouts' scratch simulations turn it off (they measure what they report)."""
+        self.grasp = Grasp()
+        """The grasper's jaw: its angle, closed or open, the particles it holds (``core/sim/grasp.py``)."""
         self.settle_info = None
         """:class:`~tissue_sim_ros.core.physics.statics.SettleInfo` of the last :meth:`settle` (None before)."""
         if self.params.settle == "static":
@@ -202,7 +211,7 @@ class Simulation:
                 scene=self.scene_key, particle_q=self.state.particle_q.copy(), particle_qd=self.state.particle_qd.copy(),
                 last_good_q=self._last_good.particle_q.copy(), last_good_qd=self._last_good.particle_qd.copy(),
                 step_count=self.step_count, time=self.time, tool_pose=self.tool_pose,
-                solver=carry_state(self.solver), contact=carry_state(self.contact))
+                solver=carry_state(self.solver), contact=carry_state(self.contact), grasp=self.grasp.carry_state())
 
     def restore(self, snap: SimSnapshot) -> None:
         """Continue from ``snap`` (copied): the next step is bit for bit the one that followed the snapshot.
@@ -224,6 +233,7 @@ class Simulation:
             self.tool_pose = snap.tool_pose
             restore_carry(self.solver, snap.solver)
             restore_carry(self.contact, snap.contact)
+            self.grasp.restore_carry(snap.grasp)
 
     @classmethod
     def from_config(cls, cfg: Config, mesh: "TissueMesh | None" = None,
@@ -307,6 +317,7 @@ class Simulation:
             self.step_count = 0
             self.time = 0.0
             self.tool_pose = None
+            self.grasp.reset()
 
     def set_state(self, state: State) -> None:
         """Replace the current state (copied)."""
@@ -370,7 +381,7 @@ class Simulation:
         return state_out, info
 
     def step(self, tool_pose: ToolPose | None = None, tool_twist: ToolTwist | None = None, *,
-             detail: bool = False) -> StepReport:
+             jaw: float | None = None, detail: bool = False) -> StepReport:
         """Advance one time step dt.
 
         Parameters
@@ -379,23 +390,28 @@ class Simulation:
             Tool pose at the end of this step (the commanded pose). None: no tool this step.
         tool_twist : ToolTwist, optional
             Tool velocity. None: derived from the previous and this pose over dt.
+        jaw : float, optional
+            The grasper's jaw angle [rad] (``tool_shape: grasper``): closing below ``grasp_close_angle`` grasps
+            what lies within ``grasp_radius`` of the tip, opening above ``grasp_open_angle`` releases it
+            (``core/sim/grasp.py``). None: the last angle given (open before any).
         detail : bool
             Keep the step's start State, Contacts and solver info on the report (``report.detail``, a
             :class:`StepDetail`: copies, for :meth:`solve` and benchmarks); the step itself is the same.
         """
         with self.lock:
-            return self._step(tool_pose, tool_twist, keep=detail)
+            return self._step(tool_pose, tool_twist, keep=detail, jaw=jaw)
 
-    def step_reference(self, tool_pose: ToolPose | None = None, tool_twist: ToolTwist | None = None) -> StepReport:
+    def step_reference(self, tool_pose: ToolPose | None = None, tool_twist: ToolTwist | None = None, *,
+                       jaw: float | None = None) -> StepReport:
         """:meth:`step` as it was before the compiled calls: the solver's :meth:`~tissue_sim_ros.core.physics.solvers.Solver.step_reference`
         (when it has one), then the finite check, energy terms and inverted triangles each on its own. The same
         numbers bit for bit (``test/test_step_kernels.py``); kept for that test and ``tissue-sim bench solver``'s
         ref columns."""
         with self.lock:
-            return self._step(tool_pose, tool_twist, reference=True)
+            return self._step(tool_pose, tool_twist, reference=True, jaw=jaw)
 
     def _step(self, tool_pose: ToolPose | None, tool_twist: ToolTwist | None, reference: bool = False,
-              keep: bool = False) -> StepReport:
+              keep: bool = False, jaw: float | None = None) -> StepReport:
         t_start = time.perf_counter()
         p = self.params
         model = self.model
@@ -406,6 +422,15 @@ class Simulation:
             contacts = self.contact.detect(self.state, self.tool_pose or tool_pose, tool_pose, tool_twist, p.dt)
         else:
             contacts = Contacts.empty(nb)
+        # the jaw: closes (grasps at the step's start pose) or opens; held particles follow the end pose
+        grasper = self.tool is not None and self.tool.kind == "grasper"
+        self.grasp.update(jaw, grasper, (self.tool_pose or tool_pose) if tool_pose is not None else None,
+                          self.state.particle_q, model.particle_inv_mass, p.grasp_close_angle, p.grasp_open_angle,
+                          p.grasp_radius)
+        if self.grasp.n_held and tool_pose is not None:
+            contacts.attach_idx = self.grasp.idx.copy()
+            contacts.attach_target = self.grasp.targets(tool_pose)
+            contacts.attach_compliance = float(p.grasp_compliance)
         state_in = self.state.copy() if keep else None  # before the solve: a sleeping solver writes into it
         t_contact = time.perf_counter()
 
@@ -442,12 +467,26 @@ class Simulation:
             n_inverted = int(count_inverted(out.particle_q, model.tri_indices))
             force = np.zeros(2)
             torque = 0.0
+            attach_force = np.zeros(2)
+            self.grasp.release()  # what diverged tore loose: the jaw holds nothing until it opens and closes again
         else:
             if model.is_material and not reference:
                 energy = energy_terms(model, out.particle_q, info.x_pred)
             elif not reference:  # as energy_terms
                 energy.potential[:] = (energy.spring + energy.area) / (p.dt * p.dt)
             force, torque = self._reaction(info.contact_dx, tool_pose, p.dt, contacts, out.particle_q)
+            attach_force = np.zeros(2)
+            if contacts.attach_idx.shape[0]:
+                # the held particles pull the tool (x - target) / c, and their springs hold dt^2 E_attach
+                attach_force, attach_torque = attachment_wrench(out.particle_q, contacts.attach_idx,
+                                                                contacts.attach_target, contacts.attach_compliance,
+                                                                (tool_pose.x, tool_pose.y))
+                force = force + attach_force
+                torque = torque + attach_torque
+                e_attach = np.zeros(nb)
+                attachment_energy(out.particle_q, model.particle_body, contacts.attach_idx, contacts.attach_target,
+                                  contacts.attach_compliance, e_attach)
+                energy.attach = p.dt * p.dt * e_attach
         checks = (self._tool_checks(self.state.particle_q, out.particle_q, self.tool_pose or tool_pose, tool_pose)
                   if self.report_tool_checks else (0, 0.0, -1, 0, False))
         t_energy = time.perf_counter()
@@ -471,6 +510,7 @@ class Simulation:
             held_dx=np.asarray(contacts.held_dx, dtype=np.float64).reshape(-1, 2).copy(),
             n_penetrating=checks[0], penetration_depth=checks[1], deepest_particle=checks[2],
             n_tunnelled=checks[3], tool_buried=checks[4], detail=detail,
+            grasped=np.asarray(contacts.attach_idx, dtype=np.int64).copy(), attach_force=attach_force,
         )
 
     def _tool_checks(self, x0: np.ndarray, x1: np.ndarray, pose0: ToolPose | None,

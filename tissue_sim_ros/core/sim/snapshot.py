@@ -69,6 +69,8 @@ class SimSnapshot:
     """The solver's ``carry_state()`` (empty when nothing carries over)."""
     contact: dict[str, Any] = field(default_factory=dict)
     """The contact model's ``carry_state()`` (empty when nothing carries over)."""
+    grasp: dict[str, Any] = field(default_factory=dict)
+    """The grasper jaw's ``carry_state()`` (:class:`~.grasp.Grasp`: jaw angle, closed, held particles); empty: open."""
 
     @property
     def n_particles(self) -> int:

@@ -1,0 +1,173 @@
+"""The grasper (issue 30): its shape, the attachment kernel against its NumPy twin, the jaw's hysteresis, what it
+grasps and releases, the pull on the tool and the attachment energy, checked against the equations."""
+from __future__ import annotations
+
+import math
+
+import naive
+import numpy as np
+import pytest
+
+from tissue_sim_ros.core.config import resolve_config
+from tissue_sim_ros.core.contact.kernels import points_sdf
+from tissue_sim_ros.core.contact.tool import ToolPose, ToolShape, tool_shape_array
+from tissue_sim_ros.core.errors import InputError
+from tissue_sim_ros.core.mesh import mesh_rectangle
+from tissue_sim_ros.core.physics.attach import project_attachments
+from tissue_sim_ros.core.sim.simulation import Simulation
+
+GRASPER = {"tool_shape": "grasper", "tool_length": 0.05, "shaft_width": 0.004, "jaw_length": 0.01,
+           "method": "xpbd", "contact_model": "projection", "contact_margin": 0.001, "gravity": 0.0,
+           "pin_y_bottom": 0.001, "grasp_radius": 0.006, "boundary_y_top": float("nan"),
+           "boundary_y_bottom": float("nan")}
+TOP = 0.02  # the strip's top surface [m]
+REST_TIP = TOP + 0.001  # the tip resting on it (the contact margin)
+
+
+def strip_sim(**changes) -> Simulation:
+    """A 6 cm x 2 cm strip (16 x 6 particles), pinned at the bottom, the grasper above its middle."""
+    cfg = resolve_config({**GRASPER, **changes})
+    return Simulation.from_config(cfg, mesh=mesh_rectangle(0.06, 0.02, 0.004, origin=(-0.03, 0.0)))
+
+
+def settle_tip(sim: Simulation, jaw: float = 1.0) -> None:
+    sim.step(ToolPose(0.0, REST_TIP + 0.002, 0.0), jaw=jaw)
+    for _ in range(3):
+        sim.step(ToolPose(0.0, REST_TIP, 0.0))
+
+
+def test_grasper_shape_pose_is_the_tip_and_the_shaft_points_up():
+    shape = ToolShape("grasper", length=0.05, shaft_width=0.004, jaw_length=0.01)
+    packed = tool_shape_array(shape, ToolPose(0.1, 0.2, 0.0))
+    np.testing.assert_allclose(packed[:4], [0.1, 0.2 + 0.025, 0.0, 1.0], atol=1e-15)
+    # the tip (the pose) is on the surface, a point above it inside, one below it outside
+    pts = np.array([[0.1, 0.2], [0.1, 0.23], [0.1, 0.19], [0.1, 0.2 + 0.051]])
+    sdf, grad = np.empty(4), np.empty((4, 2))
+    points_sdf(pts, packed, sdf, grad)
+    assert abs(sdf[0]) < 1e-12 and sdf[1] < 0 and sdf[2] == pytest.approx(0.01) and sdf[3] > 0
+    # yawed a quarter turn the shaft points -x from the tip
+    packed = tool_shape_array(shape, ToolPose(0.0, 0.0, math.pi / 2))
+    np.testing.assert_allclose(packed[:2], [-0.025, 0.0], atol=1e-15)
+    with pytest.raises(InputError, match="shaft_width"):
+        ToolShape("grasper", length=0.05, shaft_width=0.0)
+    with pytest.raises(InputError, match="tool_length"):
+        ToolShape("grasper", length=0.005, shaft_width=0.004, jaw_length=0.01)
+    assert shape.outline(0.5).shape[1] == 2
+
+
+def test_attachment_kernel_equals_its_numpy_twin():
+    rng = np.random.default_rng(3)
+    n, k = 40, 12
+    x = rng.normal(size=(n, 2))
+    inv_mass = rng.uniform(0.5, 2.0, n)
+    inv_mass[[2, 7]] = 0.0  # held by something else: not moved
+    idx = rng.choice(n, k, replace=False).astype(np.int64)
+    idx[:2] = [2, 7]
+    target = rng.normal(size=(k, 2))
+    lam0 = rng.normal(size=(k, 2)) * 1e-3
+    for alpha in (0.0, 1e-3, 10.0):
+        got_x, got_lam = x.copy(), lam0.copy()
+        project_attachments(got_x, inv_mass, idx, target, alpha, got_lam)
+        want_x, want_lam = naive.project_attachments(x, inv_mass, idx, target, alpha, lam0)
+        np.testing.assert_allclose(got_x, want_x, rtol=1e-13, atol=1e-15)
+        np.testing.assert_allclose(got_lam, want_lam, rtol=1e-13, atol=1e-15)
+    np.testing.assert_array_equal(got_x[[2, 7]], x[[2, 7]])
+    # alpha 0: a free particle lands on its target
+    got_x = x.copy()
+    project_attachments(got_x, inv_mass, idx, target, 0.0, np.zeros((k, 2)))
+    np.testing.assert_allclose(got_x[idx[2:]], target[2:], atol=1e-14)
+
+
+def test_hanging_particles_stretch_their_springs_by_m_g_c():
+    """Independent reference: at rest a held particle of mass m under gravity g hangs below its target by
+    x - t = m g c (force balance (t - x) / c + m g = 0), and pulls the tool with sum m g (down)."""
+    c = 0.5
+    sim = strip_sim(gravity=-9.8, stiffness_spring=0.0, stiffness_area=0.0, pin_y_bottom=float("nan"),
+                    grasp_radius=0.5, grasp_compliance=c, damping=20.0, contact_model="none")
+    sim.step(ToolPose(0.0, 0.05, 0.0), jaw=0.0)
+    n = sim.model.n_particles
+    report = None
+    for _ in range(400):
+        report = sim.step(ToolPose(0.0, 0.05, 0.0))
+    assert report.grasped.size == n
+    m = sim.model.particle_mass
+    target = sim.grasp.targets(ToolPose(0.0, 0.05, 0.0))
+    sag = sim.state.particle_q[sim.grasp.idx] - target
+    np.testing.assert_allclose(sag[:, 0], 0.0, atol=1e-9)
+    np.testing.assert_allclose(sag[:, 1], -m[sim.grasp.idx] * 9.8 * c, rtol=1e-4)
+    np.testing.assert_allclose(report.reaction_force, [0.0, -m.sum() * 9.8], rtol=1e-4, atol=1e-9)
+    # the attachment term: dt^2 sum |x - t|^2 / (2 c)
+    want = sim.params.dt ** 2 * 0.5 * (sag * sag).sum() / c
+    assert report.energy.attach.sum() == pytest.approx(want, rel=1e-9)
+    assert report.energy.scene_total == pytest.approx(report.energy.total.sum())
+
+
+def test_hysteresis_air_and_closed_jaw():
+    sim = strip_sim()
+    # in air: closing grasps nothing
+    sim.step(ToolPose(0.0, 0.05, 0.0), jaw=0.0)
+    assert sim.grasp.closed and sim.grasp.n_held == 0
+    # a closed jaw brought onto the surface does not grasp: it must open and close again
+    settle_tip(sim, jaw=0.0)
+    assert sim.grasp.n_held == 0
+    sim.step(ToolPose(0.0, REST_TIP, 0.0), jaw=0.3)  # between the angles: still closed
+    assert sim.grasp.closed and sim.grasp.n_held == 0
+    sim.step(ToolPose(0.0, REST_TIP, 0.0), jaw=0.5)  # opens
+    assert not sim.grasp.closed
+    sim.step(ToolPose(0.0, REST_TIP, 0.0), jaw=0.3)  # between: still open
+    assert not sim.grasp.closed and sim.grasp.n_held == 0
+    r = sim.step(ToolPose(0.0, REST_TIP, 0.0), jaw=0.1)  # closes on the surface: grasps
+    held = r.grasped.copy()
+    assert held.size > 0
+    assert np.all(np.hypot(*(sim.model.particle_q0[held] - [0.0, TOP]).T) < 0.006 + 1e-9)
+    r = sim.step(ToolPose(0.0, REST_TIP + 0.001, 0.0), jaw=0.35)  # between: still holding
+    np.testing.assert_array_equal(r.grasped, held)
+    r = sim.step(ToolPose(0.0, REST_TIP + 0.002, 0.0), jaw=0.45)  # opens: released
+    assert r.grasped.size == 0 and sim.grasp.n_held == 0
+    with pytest.raises(InputError, match="jaw=nan"):
+        sim.step(ToolPose(0.0, REST_TIP, 0.0), jaw=float("nan"))
+
+
+@pytest.mark.parametrize("material", ["constraints", "neo_hookean"])
+def test_lift_follows_the_tool_pulls_it_back_and_release_lets_go(material):
+    sim = strip_sim(material=material)
+    settle_tip(sim)
+    i = int(np.argmin(np.hypot(*(sim.state.particle_q - [0.0, TOP]).T)))
+    y0 = sim.state.particle_q[i, 1]
+    e0 = sim.step(ToolPose(0.0, REST_TIP, 0.0), jaw=0.0).energy.scene_total
+    rise = 0.0
+    for k in range(10):  # lift 1 cm at 1 mm per step
+        rise = 0.001 * (k + 1)
+        r = sim.step(ToolPose(0.0, REST_TIP + rise, 0.0))
+    assert i in r.grasped
+    assert abs((sim.state.particle_q[i, 1] - y0) - rise) < 0.002
+    assert r.reaction_force[1] < 0 and r.attach_force[1] < 0  # the tissue pulls the tool back down
+    assert r.energy.scene_total > e0 and r.energy.attach.sum() > 0
+    assert np.isfinite(r.reaction_force).all() and not r.diverged
+    for _ in range(40):
+        r = sim.step(ToolPose(0.0, REST_TIP + rise, 0.0), jaw=1.0)
+    assert r.grasped.size == 0 and r.energy.attach.sum() == 0.0
+    assert sim.state.particle_q[i, 1] - y0 < 0.001  # the strip springs back
+
+
+def test_compiled_step_equals_reference_and_snapshots_carry_the_grasp():
+    a, b = strip_sim(), strip_sim()
+    poses = [(ToolPose(0.0, REST_TIP + 0.002, 0.0), 1.0), (ToolPose(0.0, REST_TIP, 0.0), None),
+             (ToolPose(0.0, REST_TIP, 0.0), 0.0)] + [(ToolPose(0.001 * k, REST_TIP + 0.001 * k, 0.1 * k), None)
+                                                    for k in range(1, 6)]
+    for pose, jaw in poses:
+        ra = a.step(pose, jaw=jaw)
+        rb = b.step_reference(pose, jaw=jaw)
+        np.testing.assert_array_equal(a.state.particle_q, b.state.particle_q)
+        np.testing.assert_array_equal(ra.reaction_force, rb.reaction_force)
+    assert ra.grasped.size > 0
+    snap = a.snapshot()
+    c = strip_sim()
+    c.restore(snap)
+    for k in range(3):
+        pose = ToolPose(0.0, REST_TIP + 0.01 + 0.001 * k, 0.5)
+        ra, rc = a.step(pose), c.step(pose)
+        np.testing.assert_array_equal(a.state.particle_q, c.state.particle_q)
+        np.testing.assert_array_equal(ra.grasped, rc.grasped)
+    a.reset()
+    assert a.grasp.n_held == 0 and a.grasp.jaw is None
