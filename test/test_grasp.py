@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 
-import naive
 import numpy as np
 import pytest
 
@@ -15,6 +14,8 @@ from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_rectangle
 from tissue_sim_ros.core.physics.attach import project_attachments
 from tissue_sim_ros.core.sim.simulation import Simulation
+
+import naive
 
 GRASPER = {"tool_shape": "grasper", "tool_length": 0.05, "shaft_width": 0.004, "jaw_length": 0.01,
            "method": "xpbd", "contact_model": "projection", "contact_margin": 0.001, "gravity": 0.0,
@@ -171,3 +172,37 @@ def test_compiled_step_equals_reference_and_snapshots_carry_the_grasp():
         np.testing.assert_array_equal(ra.grasped, rc.grasped)
     a.reset()
     assert a.grasp.n_held == 0 and a.grasp.jaw is None
+
+
+def test_trajectory_files_carry_the_jaw_and_rollouts_take_it(tmp_path):
+    from tissue_sim_ros.core.contact.tool import WaypointTrajectory
+    from tissue_sim_ros.core.sim.rollout import rollout
+    from tissue_sim_ros.core.timing.trajectories import load_trajectory, write_trajectory_csv
+
+    dt = 0.01
+    traj = WaypointTrajectory([0.0, 0.03, 0.05, 0.15], [(0.0, REST_TIP + 0.003, 0.0), (0.0, REST_TIP, 0.0),
+                                                         (0.0, REST_TIP, 0.0), (0.0, REST_TIP + 0.01, 0.0)],
+                              jaws=[1.0, 1.0, 0.0, 0.0])
+    assert traj.jaw_at(0.04) == pytest.approx(0.5)
+    path = write_trajectory_csv(tmp_path / "grasp.csv", traj, dt)
+    assert path.read_text().splitlines()[0] == "time,x,y,yaw,jaw"
+    back = load_trajectory(path, dt)
+    assert [j for *_, j in back.steps_with_jaw(dt)] == [j for *_, j in traj.steps_with_jaw(dt)]
+    yaml_file = tmp_path / "grasp.yaml"
+    yaml_file.write_text("waypoints:\n  - {time: 0.0, x: 0.0, y: 0.1, yaw: 0.0, jaw: 1.0}\n"
+                         "  - {time: 0.1, x: 0.0, y: 0.1, yaw: 0.0, jaw: 0.0}\n")
+    assert load_trajectory(yaml_file, dt).jaw_at(0.05) == pytest.approx(0.5)
+    yaml_file.write_text("waypoints:\n  - {time: 0.0, x: 0.0, y: 0.1, yaw: 0.0, jaw: 1.0}\n"
+                         "  - {time: 0.1, x: 0.0, y: 0.1, yaw: 0.0}\n")
+    with pytest.raises(InputError, match="jaw"):
+        load_trajectory(yaml_file, dt)
+    # a rollout of the file equals stepping by hand, and keeps the jaw, the held count and the attachment term
+    a, b = strip_sim(), strip_sim()
+    run = rollout(a, back.steps_with_jaw(dt))
+    for pose, twist, jaw in traj.steps_with_jaw(dt):
+        b.step(pose, twist, jaw=jaw)
+    np.testing.assert_array_equal(a.state.particle_q, b.state.particle_q)
+    assert run.n_grasped[-1] > 0 and run.n_grasped[0] == 0 and run.attach[-1].sum() > 0
+    names, table = run.energy_table()
+    assert "jaw" in names and "grasped" in names and "body0_attach" in names
+    np.testing.assert_allclose(run.scene_total, table[:, names.index("energy_total")])

@@ -374,7 +374,8 @@ def test_tool_jump_is_rejected_held_and_recovered(node: Node) -> None:
     c = node.client
     node.drive(np.array([[0.2, -0.1]] * 5))
     node.markers.clear()
-    node.drive(np.array([[0.7, -0.1]] * 5))  # a teleport: every one of these is rejected
+    # a teleport: every one of these is rejected (one fewer than relocate_poses, 5, which would take the stream up)
+    node.drive(np.array([[0.7, -0.1]] * 4))
     c.spin_for(0.1)
     held = _tool_centres(node)
     np.testing.assert_allclose(held[:, 0], 0.2, atol=1e-6)  # never followed, not even partly
@@ -383,7 +384,7 @@ def test_tool_jump_is_rejected_held_and_recovered(node: Node) -> None:
     c.spin_for(0.1)
     assert abs(_tool_centres(node)[-1, 0] - 0.23) < 1e-6
     after = node.fresh_diag()
-    assert int(after["dropped_tool_jump"]) - int(before["dropped_tool_jump"]) == 5
+    assert int(after["dropped_tool_jump"]) - int(before["dropped_tool_jump"]) == 4
     node.reset()  # a re-homed robot: after a reset the first pose is taken wherever it is
     node.markers.clear()
     node.drive(np.array([[0.7, -0.1]] * 3))

@@ -44,13 +44,16 @@ class MarkerSnapshot:
     tool_pose: tuple[float, float, float] | None = None
     tool_stamp: Stamp | None = None
     contact_particles: np.ndarray | None = None
+    grasped_particles: np.ndarray | None = None
+    """Particles a grasper holds (None: none)."""
     strain: np.ndarray | None = None
     """Per-particle strain if the step thread computed it already (None: the worker computes it)."""
 
     def encode(self) -> bytes:
         strain = self.strain if self.strain is not None else self.encoder.vertex_strain(self.q)
         return self.encoder.markers(self.stamp, self.frame_id, self.q, strain, tool_pose=self.tool_pose,
-                                    tool_stamp=self.tool_stamp, contact_particles=self.contact_particles)
+                                    tool_stamp=self.tool_stamp, contact_particles=self.contact_particles,
+                                    grasped_particles=self.grasped_particles)
 
 
 class MarkerPublisher:

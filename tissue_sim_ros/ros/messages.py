@@ -235,6 +235,17 @@ def decode_float64(data: bytes) -> float:
     return CdrReader(data).f64()
 
 
+def encode_uint32(value: int) -> bytes:
+    """std_msgs/UInt32."""
+    w = CdrWriter()
+    w.u32(int(value))
+    return w.getvalue()
+
+
+def decode_uint32(data: bytes) -> int:
+    return CdrReader(data).u32()
+
+
 def encode_float64_multiarray(data: np.ndarray, labels: list[str], sizes: list[int] | None = None) -> bytes:
     """std_msgs/Float64MultiArray of a row-major array with labelled dimensions.
 
@@ -537,6 +548,11 @@ class SceneEncoder:
         Body of each particle, shape (N,), int.
     tool_rounded_box : tuple of float, optional
         (hx, hy, radius) of the tool [m]; None: no tool marker.
+    tool_outline_local : ndarray, optional
+        The tool's convex outline in its pose frame, (K, 2) [m] (:meth:`ToolShape.outline`); overrides
+        ``tool_rounded_box`` (the grasper, whose pose is its tip).
+    grasper : bool
+        Show the particles a grasper holds (a ``grasped`` sphere list, cyan) in every MarkerArray.
     strain_color_max : float
         Strain shown at full colour (blue at -max, red at +max).
     wire_width : float
@@ -547,8 +563,10 @@ class SceneEncoder:
 
     def __init__(self, tri_indices: np.ndarray, edge_indices: np.ndarray, edge_rest_length: np.ndarray,
                  particle_body: np.ndarray, tool_rounded_box: tuple[float, float, float] | None = None,
-                 strain_color_max: float = 0.2, wire_width: float = 0.002, wireframe: bool = True) -> None:
+                 strain_color_max: float = 0.2, wire_width: float = 0.002, wireframe: bool = True,
+                 tool_outline_local: np.ndarray | None = None, grasper: bool = False) -> None:
         self.tri = np.ascontiguousarray(tri_indices, dtype=np.int64)
+        self.grasper = grasper
         self.edges = np.ascontiguousarray(edge_indices, dtype=np.int64)
         self.strain = VertexStrain(edge_indices, edge_rest_length, particle_body.shape[0])
         n = particle_body.shape[0]
@@ -572,6 +590,8 @@ class SceneEncoder:
         spacing = float(np.median(edge_rest_length)) if len(edge_rest_length) else 0.01
         self.contact_diameter = 0.4 * spacing
         self.tool_outline = tool_outline(*tool_rounded_box) if tool_rounded_box is not None else None
+        if tool_outline_local is not None:
+            self.tool_outline = np.asarray(tool_outline_local, dtype=np.float64)
 
     def vertex_strain(self, q: np.ndarray) -> np.ndarray:
         """Signed strain per particle (:class:`~tissue_sim_ros.core.physics.strain.VertexStrain`), shape (N,), float64."""
@@ -601,8 +621,9 @@ class SceneEncoder:
 
     def markers(self, stamp: Stamp, frame_id: str, q: np.ndarray, strain: np.ndarray,
                 tool_pose: tuple[float, float, float] | None = None, tool_stamp: Stamp | None = None,
-                contact_particles: np.ndarray | None = None) -> bytes:
-        """``tissue/markers``: tool (first; stamped with the tool pose's stamp), mesh, wireframe, contact region.
+                contact_particles: np.ndarray | None = None, grasped_particles: np.ndarray | None = None) -> bytes:
+        """``tissue/markers``: tool (first; stamped with the tool pose's stamp), mesh, wireframe, contact region
+        (and, for a grasper, the grasped particles).
 
         Parameters
         ----------
@@ -616,13 +637,16 @@ class SceneEncoder:
             Stamp of the tool pose message used by the step (default ``stamp``).
         contact_particles : ndarray of int, optional
             Particles the contact model moved this step.
+        grasped_particles : ndarray of int, optional
+            Particles the grasper holds (shown in cyan when the encoder is made for a grasper).
         """
         with self._markers_lock:
-            return self._markers(stamp, frame_id, q, strain, tool_pose, tool_stamp, contact_particles)
+            return self._markers(stamp, frame_id, q, strain, tool_pose, tool_stamp, contact_particles,
+                                 grasped_particles)
 
     def _markers(self, stamp: Stamp, frame_id: str, q: np.ndarray, strain: np.ndarray,
                  tool_pose: tuple[float, float, float] | None, tool_stamp: Stamp | None,
-                 contact_particles: np.ndarray | None) -> bytes:
+                 contact_particles: np.ndarray | None, grasped_particles: np.ndarray | None = None) -> bytes:
         tri = self.tri_points
         # one compiled, GIL-free gather (core/physics/strain.py): the step thread runs while the marker thread fills these
         strain_mesh_arrays(np.ascontiguousarray(q, dtype=np.float64), self.tri_flat, self.edge_flat,
@@ -641,6 +665,14 @@ class SceneEncoder:
                                     scale=(d, d, d), color=(1.0, 0.85, 0.0, 0.9), points=q[contact_particles]))
         else:
             specs.append(MarkerSpec("contact", 0, MARKER_SPHERE_LIST, stamp, frame_id, action=ACTION_DELETE))
+        if self.grasper:
+            if grasped_particles is not None and len(grasped_particles):
+                d = 1.3 * self.contact_diameter
+                specs.append(MarkerSpec("grasped", 0, MARKER_SPHERE_LIST, stamp, frame_id, position=(0.0, 0.0, 0.004),
+                                        scale=(d, d, d), color=(0.0, 0.8, 0.9, 1.0),
+                                        points=q[np.asarray(grasped_particles, dtype=np.int64)]))
+            else:
+                specs.append(MarkerSpec("grasped", 0, MARKER_SPHERE_LIST, stamp, frame_id, action=ACTION_DELETE))
         return encode_marker_array(specs)
 
     def rest_markers(self, stamp: Stamp, frame_id: str, q0: np.ndarray, pinned: np.ndarray) -> bytes:
@@ -686,6 +718,13 @@ STEP_TOPICS: dict[str, str] = {
     "tissue/markers": "visualization_msgs/msg/MarkerArray",
 }
 
+#: The further outputs of a step when the tool is a grasper (msg_docs/topics.md): the attachment springs' term
+#: dt^2 E_attach (a term of the total) and the number of particles held.
+GRASP_TOPICS: dict[str, str] = {
+    "tissue/energy/attach": "std_msgs/msg/Float64",
+    "tool/grasped": "std_msgs/msg/UInt32",
+}
+
 
 @dataclass
 class StepMessages:
@@ -721,11 +760,15 @@ class StepEncoder:
                  wireframe: bool = True) -> None:
         self.scene = SceneEncoder(model.tri_indices, model.edge_indices, model.edge_rest_length, model.particle_body,
                                   tool_rounded_box=tool.rounded_box() if tool is not None else None,
-                                  strain_color_max=strain_color_max, wire_width=wire_width, wireframe=wireframe)
+                                  strain_color_max=strain_color_max, wire_width=wire_width, wireframe=wireframe,
+                                  tool_outline_local=tool.outline() if tool is not None and tool.kind == "grasper"
+                                  else None, grasper=tool is not None and tool.kind == "grasper")
         self.body_label = body_label(model.body_names)
         """``tissue/energy/bodies``' row label: ``body:`` and the body names."""
         self._particle_body = np.asarray(model.particle_body, dtype=np.int64)
         self._n_bodies = len(model.body_names)
+        self.grasper = tool is not None and tool.kind == "grasper"
+        """Encode :data:`GRASP_TOPICS` too."""
 
     def strain(self, q: np.ndarray) -> np.ndarray:
         """Signed vertex strain of positions ``q`` (N, 2) [m], shape (N,)."""
@@ -760,6 +803,12 @@ class StepEncoder:
                     terms, [self.body_label, "term:" + ",".join(ENERGY_TERMS)])
             else:
                 out.withheld.append(f"step {report.step}: non-finite energy not published")
+        if self.grasper:
+            attach = getattr(e, "attach", None)
+            value = float(np.sum(attach)) if attach is not None else 0.0
+            if not report.diverged and math.isfinite(value):
+                out.messages["tissue/energy/attach"] = encode_float64(value)
+            out.messages["tool/grasped"] = encode_uint32(len(getattr(report, "grasped", ())))
         out.messages["tissue/contact"] = self.contact(report)
         f, tz = report.reaction_force, report.reaction_torque
         if np.isfinite(f).all() and math.isfinite(tz):
@@ -774,7 +823,7 @@ class StepEncoder:
             if markers:
                 out.messages["tissue/markers"] = self.scene.markers(
                     stamp, frame_id, q, strain, tool_pose=tool_pose, tool_stamp=tool_stamp,
-                    contact_particles=report.contact_particles)
+                    contact_particles=report.contact_particles, grasped_particles=getattr(report, "grasped", None))
         return out
 
     def contact(self, report: Any) -> bytes:

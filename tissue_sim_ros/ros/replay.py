@@ -156,9 +156,10 @@ class ReplayBagSink:
         self.points_every = points_every
         self._n = 0
         self._log_ns = -1
-        for name, msgtype in OUTPUT_TOPICS.items():
-            writer.add_topic(name, msgtype)
         self.encoder = msgs.StepEncoder(sim.model, sim.tool)
+        grasp = {f"/{t}": m for t, m in msgs.GRASP_TOPICS.items()} if self.encoder.grasper else {}
+        for name, msgtype in {**OUTPUT_TOPICS, **grasp}.items():
+            writer.add_topic(name, msgtype)
 
     def __call__(self, report: StepReport, t_ns: int, pose: ToolPose | None) -> None:
         stamp = stamp_from_ns(t_ns)

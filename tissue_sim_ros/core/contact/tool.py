@@ -91,11 +91,16 @@ class ToolShape:
     def outline(self, jaw: float | None = None, segments: int = 8) -> np.ndarray:
         """Closed outline in the tool's pose frame (the frame :class:`ToolPose` places), (K, 2) float64 [m].
 
-        The rounded box for box, capsule and sphere; the grasper's shaft and its two jaws, opened to ``jaw``
-        [rad] (the full angle between them; None or below 0: closed), for the markers and pictures.
+        The rounded box for box, capsule and sphere. The grasper: with ``jaw`` None its contact envelope
+        (convex, for the markers), else its shaft and two jaws opened to ``jaw`` [rad] (the full angle between
+        them; below 0: closed), for the pictures.
         """
         if self.kind != "grasper":
             return rounded_box_outline(*self.rounded_box(), segments=segments)
+        if jaw is None:
+            # the contact envelope (convex: the markers fan it from its centre): the capsule up the shaft
+            env = rounded_box_outline(*self.rounded_box(), segments=segments)
+            return np.stack([-env[:, 1], env[:, 0] + 0.5 * self.length], axis=1)
         w, lj = 0.5 * self.shaft_width, self.jaw_length
         half = 0.5 * min(max(0.0 if jaw is None else float(jaw), 0.0), math.pi / 2)
         s, c = math.sin(half), math.cos(half)
@@ -248,6 +253,18 @@ class Trajectory:
     def twist_at(self, t: float) -> ToolTwist:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def jaw_at(self, t: float) -> float | None:
+        """The grasper's jaw angle at ``t`` [rad]; None: the trajectory does not drive the jaw."""
+        return None
+
+    def steps_with_jaw(self, dt: float):
+        """Iterate ``(pose, twist, jaw)`` for steps k = 1..n: :meth:`steps` with the jaw angle at the end of
+        step k (None when the trajectory has no jaw), as ``Simulation.step(pose, twist, jaw=jaw)`` and
+        :func:`~tissue_sim_ros.core.sim.rollout.rollout` take them."""
+        end = self.start_time + self.duration
+        for k, (pose, twist) in enumerate(self.steps(dt), start=1):
+            yield pose, twist, self.jaw_at(min(self.start_time + k * dt, end))
+
     def n_steps(self, dt: float) -> int:
         """Steps of ``dt`` needed to cover :attr:`duration` (the last one may be partial)."""
         if not (math.isfinite(dt) and dt > 0):
@@ -389,11 +406,14 @@ class WaypointTrajectory(Trajectory):
         Pose of the tool's centre at each time [m, m, rad].
     hold : float
         Time the last pose is held after ``times[-1]`` [s].
+    jaws : array of float, shape (K,), optional
+        The grasper's jaw angle at each time [rad], linearly interpolated (held before and after); None: no jaw.
     """
 
     times: np.ndarray
     poses: np.ndarray
     hold: float = 0.0
+    jaws: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         times = np.asarray(self.times, dtype=np.float64).reshape(-1)
@@ -413,6 +433,12 @@ class WaypointTrajectory(Trajectory):
             raise InputError(f"waypoint times must increase strictly; times[{k}]={times[k]} >= times[{k + 1}]={times[k + 1]}")
         if not (math.isfinite(self.hold) and self.hold >= 0):
             raise InputError(f"hold={self.hold!r}: expected a time >= 0 s")
+        if self.jaws is not None:
+            jaws = np.asarray(self.jaws, dtype=np.float64).reshape(-1)
+            if jaws.shape != times.shape or not np.isfinite(jaws).all():
+                raise InputError(f"waypoint jaws have shape {jaws.shape}: expected ({times.size},) finite angles [rad]")
+            jaws.setflags(write=False)
+            object.__setattr__(self, "jaws", jaws)
         times.setflags(write=False)
         poses.setflags(write=False)
         object.__setattr__(self, "times", times)
@@ -442,6 +468,12 @@ class WaypointTrajectory(Trajectory):
         p0, p1 = poses[k], poses[k + 1]
         yaw = wrap_angle(p0[2] + s * wrap_angle(p1[2] - p0[2]))
         return ToolPose(float(p0[0] + s * (p1[0] - p0[0])), float(p0[1] + s * (p1[1] - p0[1])), yaw)
+
+    def jaw_at(self, t: float) -> float | None:
+        """The jaw angle at ``t`` [rad], linear between waypoints, held outside them; None without jaws."""
+        if self.jaws is None:
+            return None
+        return float(np.interp(t, self.times, self.jaws))
 
     def twist_at(self, t: float) -> ToolTwist:
         """Velocity of the segment holding ``t`` (constant per segment); zero outside [times[0], times[-1])."""

@@ -136,6 +136,9 @@ class SleepingSolver:
         contact_idx = np.union1d(np.asarray(contacts.held_idx, dtype=np.int64),
                                  np.asarray(contacts.candidates, dtype=np.int64))
         contact_idx = np.union1d(contact_idx, self._last_contact)
+        # a grasper's held particles stay awake (core/physics/attach.py)
+        contact_idx = np.union1d(contact_idx, np.asarray(getattr(contacts, "attach_idx", contact_idx[:0]),
+                                                         dtype=np.int64))
         near = self._near_contact(contact_idx)
         speed = np.sqrt((state_in.particle_qd ** 2).sum(axis=1))
         moving = self._neighbour_of_fast(speed >= self.sleep_speed)

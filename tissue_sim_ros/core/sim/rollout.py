@@ -11,7 +11,6 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
-from ..contact.tool import ToolPose, ToolTwist
 from .simulation import Simulation, StepReport
 
 
@@ -45,12 +44,19 @@ class Rollout:
     """Particle positions at chosen steps (0 = the initial state), step -> (N, 2)."""
     strain: np.ndarray | None = None
     """dt^2-scaled strain energy per body, shape (S, B) (``material: neo_hookean``; None for constraints)."""
+    attach: np.ndarray | None = None
+    """dt^2-scaled attachment energy of a grasper's held particles per body, shape (S, B) (None: no grasper)."""
+    n_grasped: np.ndarray | None = None
+    """Particles the grasper held in each step, shape (S,), int64 (None: no grasper)."""
+    jaw: np.ndarray | None = None
+    """The jaw angle given with each step [rad], shape (S,) (NaN: none given; None: no grasper)."""
 
     @property
     def total(self) -> np.ndarray:
         """Total energy per body, shape (S, B)."""
         total = self.inertial + self.spring + self.area
-        return total if self.strain is None else total + self.strain
+        total = total if self.strain is None else total + self.strain
+        return total if self.attach is None else total + self.attach
 
     @property
     def scene_total(self) -> np.ndarray:
@@ -63,11 +69,15 @@ class Rollout:
         cols = [self.steps.astype(float), self.time, self.scene_total]
         for b in range(self.inertial.shape[1]):
             terms = [("total", self.total), ("inertial", self.inertial), ("spring", self.spring), ("area", self.area)]
-            for term, arr in terms + ([("strain", self.strain)] if self.strain is not None else []):
+            extra = [(n, a) for n, a in (("strain", self.strain), ("attach", self.attach)) if a is not None]
+            for term, arr in terms + extra:
                 names.append(f"body{b}_{term}")
                 cols.append(arr[:, b])
         names += ["contact_any", "reaction_fx", "reaction_fy"]
         cols += [self.in_contact.any(axis=1).astype(float), self.reaction_force[:, 0], self.reaction_force[:, 1]]
+        if self.n_grasped is not None:
+            names += ["jaw", "grasped"]
+            cols += [self.jaw, self.n_grasped.astype(float)]
         return names, np.column_stack(cols)
 
     def write_csv(self, path) -> None:
@@ -76,7 +86,7 @@ class Rollout:
         np.savetxt(path, table, delimiter=",", header=",".join(names), comments="", fmt="%.17g")
 
 
-def rollout(sim: Simulation, poses: Iterable[tuple[ToolPose | None, ToolTwist | None]], *,
+def rollout(sim: Simulation, poses: Iterable[tuple], *,
             snapshot_steps: Sequence[int] = (), on_step: Callable[[StepReport], None] | None = None) -> Rollout:
     """Step ``sim`` once per (pose, twist) and record the series.
 
@@ -84,8 +94,9 @@ def rollout(sim: Simulation, poses: Iterable[tuple[ToolPose | None, ToolTwist | 
     ----------
     sim : Simulation
         Stepped from its current state.
-    poses : iterable of (ToolPose or None, ToolTwist or None)
-        The tool at the end of each step; a None twist is derived from poses.
+    poses : iterable of (ToolPose or None, ToolTwist or None[, jaw])
+        The tool at the end of each step; a None twist is derived from poses. A third item is the grasper's
+        jaw angle [rad] (None: the last one; :meth:`Trajectory.steps_with_jaw` yields these).
     snapshot_steps : sequence of int
         Steps whose positions to keep (0 = the state before the first step).
     on_step : callable, optional
@@ -97,8 +108,12 @@ def rollout(sim: Simulation, poses: Iterable[tuple[ToolPose | None, ToolTwist | 
         snaps[0] = sim.state.particle_q.copy()
     rows: list[StepReport] = []
     poses_out: list[tuple[float, float, float]] = []
-    for pose, twist in poses:
-        report = sim.step(pose, twist)
+    jaws: list[float] = []
+    for item in poses:
+        pose, twist = item[0], item[1]
+        jaw = item[2] if len(item) > 2 else None
+        report = sim.step(pose, twist, jaw=jaw)
+        jaws.append(np.nan if jaw is None else float(jaw))
         rows.append(report)
         poses_out.append((pose.x, pose.y, pose.yaw) if pose is not None else (np.nan, np.nan, np.nan))
         if report.step in want:
@@ -106,6 +121,7 @@ def rollout(sim: Simulation, poses: Iterable[tuple[ToolPose | None, ToolTwist | 
         if on_step is not None:
             on_step(report)
     nb = sim.model.n_bodies
+    grasper = sim.tool is not None and sim.tool.kind == "grasper"
     if not rows:
         z = np.zeros((0, nb))
         return Rollout(np.zeros(0, np.int64), np.zeros(0), z, z.copy(), z.copy(), np.zeros((0, nb), bool),
@@ -124,4 +140,7 @@ def rollout(sim: Simulation, poses: Iterable[tuple[ToolPose | None, ToolTwist | 
         diverged=np.array([r.diverged for r in rows], dtype=bool),
         snapshots=snaps,
         strain=np.array([r.energy.strain for r in rows]).reshape(len(rows), nb) if sim.model.is_material else None,
+        attach=np.array([r.energy.attach for r in rows]).reshape(len(rows), nb) if grasper else None,
+        n_grasped=np.array([r.grasped.size for r in rows], dtype=np.int64) if grasper else None,
+        jaw=np.array(jaws) if grasper else None,
     )

@@ -333,6 +333,17 @@ class Simulation:
         with self.lock:
             self.tool_pose = pose
 
+    def tool_overlaps_tissue(self, pose: ToolPose) -> bool:
+        """True when the tool at ``pose`` (its own shape, no margin) holds a particle or lies inside a triangle of
+        the current state (``core/contact/tool_checks.py``): a pose where it cannot be put without passing
+        through the tissue. False without a tool."""
+        if self.tool is None:
+            return False
+        shape = tool_shape_array(self.tool, pose)
+        x = self.state.particle_q
+        n_in, _, _, _, buried = tool_checks(x, x, shape, shape, self.model.tri_indices, INSIDE_TOL)
+        return bool(n_in) or bool(buried)
+
     def use_solver(self, solver: SolverFactory) -> None:
         """Step with ``solver(model)`` from now on, instead of the solver made so far (and after :meth:`retune`).
 

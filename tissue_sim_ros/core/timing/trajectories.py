@@ -255,20 +255,22 @@ def _from_csv(text: str, name: str) -> WaypointTrajectory:
     if missing or yaw_col is None:
         raise InputError(f"trajectory file {name!r}: header {','.join(head)!r}: expected columns time,x,y,yaw "
                          "(yaw [rad]; or yaw_deg [deg])")
-    cols = [head.index(c) for c in ("time", "x", "y", yaw_col)]
-    times, poses = [], []
+    cols = [head.index(c) for c in ("time", "x", "y", yaw_col)] + ([head.index("jaw")] if "jaw" in head else [])
+    times, poses, jaws = [], [], []
     for k, r in enumerate(rows[1:], start=2):
         try:
-            t, x, y, yaw = (float(r[c]) for c in cols)
+            values = [float(r[c]) for c in cols]
         except (ValueError, IndexError):
-            raise InputError(f"trajectory file {name!r} line {k}: {','.join(r)!r}: expected four numbers "
-                             "time,x,y,yaw") from None
+            raise InputError(f"trajectory file {name!r} line {k}: {','.join(r)!r}: expected {len(cols)} numbers "
+                             f"{','.join(head[c] for c in cols)}") from None
+        t, x, y, yaw = values[:4]
         times.append(t)
         poses.append((x, y, math.radians(yaw) if yaw_col == "yaw_deg" else yaw))
+        jaws += values[4:]
     if not times:
         raise InputError(f"trajectory file {name!r} has a header but no poses: expected one row per pose")
     try:
-        return WaypointTrajectory(np.array(times), np.array(poses))
+        return WaypointTrajectory(np.array(times), np.array(poses), jaws=np.array(jaws) if "jaw" in head else None)
     except InputError as exc:
         raise InputError(f"trajectory file {name!r}: {exc}") from None
 
@@ -281,18 +283,25 @@ def _from_mapping(data: Any, name: str, dt: float) -> Trajectory:
         rows = data["waypoints"]
         if not isinstance(rows, list) or not rows:
             raise InputError(f"trajectory file {name!r}: waypoints: expected a list of {{time, x, y, yaw}}")
-        times, poses = [], []
+        times, poses, jaws = [], [], []
         for k, r in enumerate(rows):
-            if isinstance(r, (list, tuple)) and len(r) in (3, 4):
-                r = dict(zip(("time", "x", "y", "yaw"), r))
+            if isinstance(r, (list, tuple)) and len(r) in (3, 4, 5):
+                r = dict(zip(("time", "x", "y", "yaw", "jaw"), r))
             if not isinstance(r, dict):
                 raise InputError(f"trajectory file {name!r}: waypoints[{k}]={r!r}: expected {{time, x, y, yaw}}")
+            if ("jaw" in r) != ("jaw" in (rows[0] if isinstance(rows[0], dict) else
+                                          dict(zip(("time", "x", "y", "yaw", "jaw"), rows[0])))):
+                raise InputError(f"trajectory file {name!r}: waypoints[{k}]: a jaw in some waypoints only: "
+                                 "expected a jaw angle [rad] in every waypoint or in none")
+            if "jaw" in r:
+                jaws.append(_number(r["jaw"], f"waypoints[{k}].jaw", name))
             times.append(_number(r.get("time"), f"waypoints[{k}].time", name))
             poses.append((_number(r.get("x"), f"waypoints[{k}].x", name),
                           _number(r.get("y"), f"waypoints[{k}].y", name), _yaw(r, f"waypoints[{k}]", name)))
         try:
             return WaypointTrajectory(np.array(times), np.array(poses),
-                                      hold=_number(data.get("hold", 0.0), "hold", name))
+                                      hold=_number(data.get("hold", 0.0), "hold", name),
+                                      jaws=np.array(jaws) if jaws else None)
         except InputError as exc:
             raise InputError(f"trajectory file {name!r}: {exc}") from None
     missing = [k for k in ("start", "direction_deg", "steps") if k not in data]
@@ -333,12 +342,16 @@ def trajectory_poses(traj: Trajectory, dt: float) -> tuple[np.ndarray, np.ndarra
 
 
 def write_trajectory_csv(path: str | Path, traj: Trajectory, dt: float) -> Path:
-    """Write ``traj`` sampled at its steps of ``dt`` as a trajectory CSV (time,x,y,yaw; full precision)."""
+    """Write ``traj`` sampled at its steps of ``dt`` as a trajectory CSV (time,x,y,yaw; full precision), with a jaw
+    column [rad] when the trajectory drives the jaw."""
     path = Path(path)
     times, poses = trajectory_poses(traj, dt)
+    jaws = [traj.jaw_at(float(t)) for t in times]
+    with_jaw = any(j is not None for j in jaws)
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["time", "x", "y", "yaw"])
-        for t, (x, y, yaw) in zip(times, poses):
-            w.writerow([repr(float(t)), repr(float(x)), repr(float(y)), repr(float(yaw))])
+        w.writerow(["time", "x", "y", "yaw"] + (["jaw"] if with_jaw else []))
+        for t, (x, y, yaw), jaw in zip(times, poses, jaws):
+            w.writerow([repr(float(t)), repr(float(x)), repr(float(y)), repr(float(yaw))]
+                       + ([repr(float(jaw))] if with_jaw else []))
     return path

@@ -36,8 +36,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from sensor_msgs.msg import PointCloud2
-from std_msgs.msg import Float64, Float64MultiArray
+from sensor_msgs.msg import JointState, PointCloud2
+from std_msgs.msg import Float64, Float64MultiArray, UInt32
 from std_srvs.srv import SetBool, Trigger
 from visualization_msgs.msg import MarkerArray
 
@@ -118,7 +118,9 @@ class TissueSimNode(Node):
         self.pub_contact = self.create_publisher(Float64MultiArray, "tissue/contact", qos.energy())
         # material: dt^2 E_strain (a term of the total) and the potential energy itself in J (msg_docs/topics.md)
         self.pub_energy_terms.update({term: self.create_publisher(Float64, f"tissue/energy/{term}", qos.energy())
-                                      for term in ("strain", "potential")})
+                                      for term in ("strain", "potential", "attach")})
+        # a grasper's: the particles held (each step; tool_shape grasper only) (msg_docs/topics.md)
+        self.pub_grasped = self.create_publisher(UInt32, "tool/grasped", qos.energy())
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", qos.diagnostics())
         self.pub_applied_pose = self.create_publisher(PoseStamped, "tool/applied_pose", qos.state_stream())
         self.pub_applied_twist = self.create_publisher(TwistStamped, "tool/applied_twist", qos.state_stream())
@@ -132,6 +134,7 @@ class TissueSimNode(Node):
                                                  qos.tool_input(lock_step))
         self.sub_twist = self.create_subscription(TwistStamped, "tool/twist", self.inputs.on_twist,
                                                   qos.tool_input(lock_step))
+        self.sub_jaw = self.create_subscription(JointState, "tool/jaw", self.inputs.on_jaw, qos.tool_input(lock_step))
         self.recorder: NodeRecorder | None = None
         if settings.record_path:
             self.recorder = start_recording(self, settings.record_path, settings.record_storage)

@@ -1,11 +1,20 @@
-"""The node's tool inputs: ``tool/pose``, ``tool/twist`` and the tool's /tf frame, checked and taken into the plane.
+"""The node's tool inputs: ``tool/pose``, ``tool/twist``, ``tool/jaw`` and the tool's /tf frame, checked and taken
+into the plane.
 
 A message is checked (finite values, a known frame, its stamp's order and age,
 no jump farther than ``max_tool_jump``), taken into the plane's frame
 (:class:`~tissue_sim_ros.ros.tf_input.FrameInput`) and kept as the newest
 tool; a bad one is dropped and counted (``dropped_*`` on /diagnostics) with a
 throttled warning. In lock-step every accepted pose is one step, paired with
-the twist of its own stamp among those that arrived before it.
+the twist of its own stamp among those that arrived before it, and the newest jaw angle
+(``tool/jaw``, sensor_msgs/JointState ``position[0]`` [rad]) received before it.
+
+A relocated robot (``relocate_poses``): poses farther than ``max_tool_jump`` from the tool are rejected, but
+when the tool grasps nothing and ``relocate_poses`` of them in a row each lie within ``max_tool_jump`` of the
+one before, the stream is taken up: the tool is put at the newest one without a step (the simulation's
+``place_tool``: no sweep, so it drags nothing across and never passes through the tissue), unless the tool
+there would overlap the tissue (``Simulation.tool_overlaps_tissue``), in which case the poses go on being
+rejected. A throttled warning says so and ``relocations`` on /diagnostics counts it; ``~/reset`` is unchanged.
 """
 from __future__ import annotations
 
@@ -17,6 +26,7 @@ from typing import Any
 from geometry_msgs.msg import PoseStamped, TwistStamped
 from rclpy.exceptions import InvalidHandle
 from rclpy.time import Time
+from sensor_msgs.msg import JointState
 
 from ...core.contact.tool import ToolPose, ToolTwist, yaw_from_quaternion
 from ...core.timing.frames import FrameLookupError
@@ -41,6 +51,9 @@ class ToolInput:
     twist_stamp: tuple[int, int] = (0, 0)
     twist_received: float = -math.inf
     """Node-clock time the twist arrived [s]."""
+    jaw: float | None = None
+    """The newest accepted jaw angle [rad] (None: none yet; the grasper counts as open)."""
+    jaw_stamp: tuple[int, int] = (0, 0)
     recent_twists: dict = field(default_factory=dict)
     """The newest accepted twists by stamp (at most ``TWIST_HISTORY``, oldest forgotten first): lock-step pairs a
     pose with the twist of its own stamp among those that arrived before it, as ``tissue-sim replay`` does,
@@ -76,14 +89,17 @@ class ToolInputs:
     def __init__(self, node: Any) -> None:
         self.node = node
         self.tool = ToolInput()
+        self._run: list[tuple[float, float]] = []
+        """The rejected poses in a row, each within max_tool_jump of the one before (a relocated robot)."""
 
     def reset(self) -> None:
         """Forget the tool (``~/reset``): the next pose is accepted however far and whenever stamped."""
         self.tool = ToolInput()
+        self._run = []
 
     def forget_stamps(self) -> None:
         """The node's clock switched: the last input stamps mean nothing on the new one."""
-        self.tool.pose_stamp = self.tool.twist_stamp = (0, 0)
+        self.tool.pose_stamp = self.tool.twist_stamp = self.tool.jaw_stamp = (0, 0)
         self.tool.twist_received = -math.inf
         self.tool.recent_twists.clear()
 
@@ -130,12 +146,39 @@ class ToolInputs:
         dist = math.hypot(x - last.x, y - last.y)
         max_jump = self.node.config.node.max_tool_jump
         if dist <= max_jump:
+            self._run = []
             return True
+        if self._run and math.hypot(x - self._run[-1][0], y - self._run[-1][1]) <= max_jump:
+            self._run.append((x, y))
+        else:
+            self._run = [(x, y)]
         self.node.warnings.drop(
             "tool_jump", f"tool/pose ({x:.4g}, {y:.4g}) is {dist:.3f} m from the tool at ({last.x:.4g}, "
                          f"{last.y:.4g}) (max_tool_jump {max_jump} m): the tool holds its pose until a pose "
                          "within max_tool_jump of it arrives, or ~/reset")
         return False
+
+    def relocation_due(self) -> bool:
+        """A consistent stream of rejected poses (``relocate_poses`` in a row) while nothing is grasped."""
+        need = self.node.config.node.relocate_poses
+        return need > 0 and len(self._run) >= need and self.node.sim.grasp.n_held == 0
+
+    def relocate(self, pose: ToolPose) -> bool:
+        """Take up a relocated stream at ``pose`` (module docstring); False when the tool would land in the tissue."""
+        node = self.node
+        last = self.tool.pose if self.tool.pose is not None else node.sim.tool_pose
+        self._run = []
+        if node.sim.tool_overlaps_tissue(pose):
+            node.warnings.warn("relocate", f"a stream of tool poses at ({pose.x:.4g}, {pose.y:.4g}) was not taken "
+                                           "up: the tool there would overlap the tissue")
+            return False
+        node.sim.place_tool(pose)
+        node.stats.relocations += 1
+        node.warnings.warn("relocate", f"tool relocated from ({last.x:.4g}, {last.y:.4g}) to ({pose.x:.4g}, "
+                                       f"{pose.y:.4g}): {node.config.node.relocate_poses} consistent poses beyond "
+                                       f"max_tool_jump, nothing grasped ({node.stats.relocations} relocations)"
+                           if last is not None else "tool relocated")
+        return True
 
     # ------------------------------------------------------------------ callbacks
 
@@ -144,8 +187,9 @@ class ToolInputs:
         node = self.node
         if node.config.node.lock_step:
             # the pose steps now: first every twist that arrived before it (the executor may run this callback
-            # before the twist's, though the twist came first), and recorded before it in that order
+            # before the twist's, though the twist came first), and recorded before it in that order; the jaw too
             self.take_waiting(node.sub_twist)
+            self.take_waiting(node.sub_jaw)
         if node.recorder is not None:
             node.recorder.write(node.sub_pose.topic_name, msg)  # as received, before any check
         p, o = msg.pose.position, msg.pose.orientation
@@ -184,7 +228,8 @@ class ToolInputs:
             node.warnings.drop("nonfinite", f"{topic}: its orientation is not a rotation in '{settings.frame_id}'")
             return
         if not self.check_jump(x, y):
-            return
+            if not (self.relocation_due() and self.relocate(ToolPose(x, y, yaw))):
+                return
         self.tool.pose = ToolPose(x, y, yaw)
         self.tool.pose_stamp = stamp
         self.tool.quaternion = quaternion
@@ -194,6 +239,30 @@ class ToolInputs:
         if settings.lock_step and not node.paused:
             twist = self.tool.twist_at(stamp) if (settings.twist_source == "auto" and stamp != (0, 0)) else None
             node.stepping.step(stamp if stamp != (0, 0) else stamp_now(node), twist)
+
+    def on_jaw(self, msg: JointState) -> None:
+        """A tool/jaw message: ``position[0]`` is the jaw angle [rad] (the dVRK's ``jaw/measured_js``).
+
+        Dropped and counted: no position (``jaw_empty``), a non-finite one (``nonfinite``), a frame_id that is
+        neither empty, the plane's nor a known frame (``frame``), a stamp out of order or too old or new.
+        """
+        node = self.node
+        if node.recorder is not None:
+            node.recorder.write(node.sub_jaw.topic_name, msg)
+        if len(msg.position) == 0:
+            node.warnings.drop("jaw_empty", "tool/jaw with an empty position: expected position[0], the jaw angle "
+                                            "in rad")
+            return
+        value = float(msg.position[0])
+        if not math.isfinite(value):
+            node.warnings.drop("nonfinite", f"tool/jaw with position[0]={value!r}: expected a finite angle in rad")
+            return
+        stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+        frame = msg.header.frame_id
+        if not self.check_header("tool/jaw", stamp, frame or self.node.config.node.frame_id, self.tool.jaw_stamp):
+            return
+        self.tool.jaw = value
+        self.tool.jaw_stamp = stamp
 
     def on_twist(self, msg: TwistStamped) -> None:
         node = self.node
@@ -235,7 +304,7 @@ class ToolInputs:
 
     def take_queued(self) -> None:
         """Take the tool messages already received before stepping (the executor runs a ready timer first)."""
-        for sub in (self.node.sub_twist, self.node.sub_pose):
+        for sub in (self.node.sub_twist, self.node.sub_jaw, self.node.sub_pose):
             self.take_waiting(sub)
 
     def take_waiting(self, sub: Any) -> None:
@@ -250,5 +319,7 @@ class ToolInputs:
                 return
             if sub is self.node.sub_pose:
                 self.on_pose(*taken)
+            elif sub is self.node.sub_jaw:
+                self.on_jaw(taken[0])
             else:
                 self.on_twist(taken[0])

@@ -59,6 +59,7 @@ class Outputs:
         return {"tissue/energy": node.pub_energy,
                 **{f"tissue/energy/{k}": p for k, p in node.pub_energy_terms.items()},
                 "tissue/energy/bodies": node.pub_energy_bodies, "tissue/contact": node.pub_contact,
+                "tool/grasped": node.pub_grasped,
                 "tool/wrench": node.pub_wrench,
                 "tissue/points": node.pub_points, "tissue/markers": node.pub_markers}
 
@@ -118,7 +119,8 @@ class Outputs:
             self.encoder.scene, stamp, node.frame_id, q.copy(),
             tool_pose=None if pose is None else (pose.x, pose.y, pose.yaw),
             tool_stamp=node.inputs.tool.pose_stamp if pose is not None else None,
-            contact_particles=None if contact is None else np.array(contact))
+            contact_particles=None if contact is None else np.array(contact),
+            grasped_particles=np.array(report.grasped))
 
     def flush_markers(self) -> None:
         """Lock-step: hand the newest unshown state to the marker worker if 1/marker_rate has passed since the last."""
@@ -185,6 +187,7 @@ class Outputs:
             "overruns": s.overruns,
             "missed_ticks": s.missed_ticks,
             "divergences": s.divergences,
+            "relocations": s.relocations,
             "markers_published": w.published,
             "markers_skipped": w.skipped,
             "marker_encode_ms_mean": 1e3 * w.encode_seconds / max(w.published + w.errors, 1),
@@ -219,6 +222,9 @@ class Outputs:
                 "tool_penetration_depth_m": r.penetration_depth,
                 "tool_tunnelled_particles": r.n_tunnelled,
                 "tool_buried_in_tissue": r.tool_buried,
+                "grasped_particles": int(r.grasped.size),
+                "jaw_angle": "none" if sim.grasp.jaw is None else sim.grasp.jaw,
+                "jaw_closed": sim.grasp.closed,
             })
             if r.tool_buried and level == DiagnosticStatus.OK:
                 level, message = DiagnosticStatus.WARN, f"{message}; the tool is buried in the tissue"

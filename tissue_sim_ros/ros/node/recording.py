@@ -85,7 +85,7 @@ class NodeRecorder:
 
 #: The node's publishers (attributes) whose every message goes into the bag too.
 RECORDED_PUBLISHERS = ("pub_markers", "pub_points", "pub_rest", "pub_wrench", "pub_energy", "pub_energy_bodies",
-                       "pub_contact", "pub_diagnostics", "pub_applied_pose", "pub_applied_twist")
+                       "pub_contact", "pub_diagnostics", "pub_applied_pose", "pub_applied_twist", "pub_grasped")
 
 
 def start_recording(node: Any, path: str, storage: str) -> NodeRecorder:
@@ -103,7 +103,7 @@ def start_recording(node: Any, path: str, storage: str) -> NodeRecorder:
     for name in RECORDED_PUBLISHERS:
         setattr(node, name, recorder.wrap(getattr(node, name)))
     node.pub_energy_terms = {k: recorder.wrap(p) for k, p in node.pub_energy_terms.items()}
-    for sub in (node.sub_pose, node.sub_twist, *node.frames.subs):
+    for sub in (node.sub_pose, node.sub_twist, node.sub_jaw, *node.frames.subs):
         recorder.add(sub.topic_name, sub.msg_type, sub.qos_profile)
     node.frames.record = recorder.write
     node.get_logger().info(f"recording every message in and out to {path} ({storage})")

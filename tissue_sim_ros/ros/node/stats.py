@@ -18,9 +18,11 @@ class NodeStats:
     missed_ticks: int = 0
     """Timer ticks skipped because the previous one ran late."""
     divergences: int = 0
+    relocations: int = 0
+    """Streams of poses far from the tool taken up (a relocated robot; ``relocate_poses``)."""
     dropped: dict[str, int] = field(default_factory=lambda: {
         "nonfinite": 0, "frame": 0, "stale": 0, "future": 0, "out_of_order": 0, "tool_jump": 0,
-        "unpublished_nonfinite": 0})
+        "unpublished_nonfinite": 0, "jaw_empty": 0})
     window_steps: int = 0
     window_step_time_sum: float = 0.0
     window_step_time_max: float = 0.0

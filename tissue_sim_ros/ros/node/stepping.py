@@ -119,7 +119,7 @@ class Stepper:
             # derived here, by the Simulation's own formula, so the twist used can be published and replayed
             twist = twist_from_poses(sim.tool_pose, pose, sim.params.dt)
         quaternion = node.inputs.tool.quaternion
-        report = sim.step(pose, twist)
+        report = sim.step(pose, twist, jaw=node.inputs.tool.jaw)
         node.last_report = report
         s = node.stats
         s.steps += 1
