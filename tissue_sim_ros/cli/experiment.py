@@ -8,7 +8,7 @@ from ..core.contact.tool import ToolShape
 from ..core.errors import InputError, output_dir
 from ..core.resources import scene_names, scene_params_file
 from ..core.timing import trajectories as tr
-from ..experiments import paper
+from ..experiments import paper, retract
 from .config import add_config_arguments
 
 HELP = "run the paper's experiment a or b offline and write its figures"
@@ -19,6 +19,10 @@ another shipped scene (--scene liver_probe: a real-size liver slab under a 5 mm 
      steps 0, 150, 220, 270 and the energy of each tissue with its terms.
   b  insertions from two angles toward one target (Fig. 3): the final
      deformation for each angle, the energy curves, and which angle costs less.
+  retract  grasp and retract on config/scenes/retract.yaml (always that scene, under
+     --params/--set): the open grasper comes down onto the flap, closes, lifts and
+     pulls back 2 cm, holds and opens; snapshots of each phase, the energy with its
+     attachment term, the reaction on the tool and the particles held.
 
 --trajectory PRESET|FILE replaces the tool's path: a preset (experiment_a,
 experiment_b_shallow, experiment_b_steep, authors: the paper authors' saved run)
@@ -30,7 +34,8 @@ Figures (PNG) and the energy series (CSV) are written to --out."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("which", choices=["a", "b"], help="experiment a (approach) or b (two insertion angles)")
+    parser.add_argument("which", choices=["a", "b", "retract"],
+                        help="experiment a (approach), b (two insertion angles) or retract (grasp and retract)")
     parser.add_argument("--out", default="out", help="output directory (default: out)")
     parser.add_argument("--scene", default="paper", choices=scene_names(),
                         help="shipped scene: its parameter file (config/scenes/NAME.yaml, under --params; paper: "
@@ -58,6 +63,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.which == "retract":
+        return _retract(args)
     scene = tr.scene_experiments(args.scene)
     files = ([scene_params_file(args.scene)] if args.scene != "paper" else []) + ([args.params] if args.params else [])
     tool = scene.b_tool
@@ -95,3 +102,16 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {f}")
         finite &= bool(result.summary.get("energy finite", True))
     return 0 if finite else 1
+
+
+def _retract(args: argparse.Namespace) -> int:
+    files = [scene_params_file("retract")] + ([args.params] if args.params else [])
+    cfg = resolve_config(overrides=parse_assignments(args.set), params_file=files, source="--set")
+    output_dir(args.out, "--out")
+    result = retract.experiment_retract(args.out, params=cfg, progress=not args.no_progress)
+    print("experiment retract:")
+    print(result.summary_text())
+    print("wrote:")
+    for f in result.files:
+        print(f"  {f}")
+    return 0 if result.summary.get("energy finite", True) else 1

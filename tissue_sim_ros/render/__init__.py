@@ -26,9 +26,11 @@ BODY_COLOURS = ["#e58fa0", "#d9667d", "#f2b8c6", "#c94f6d"]
 TERM_STYLES = {"inertial": ("#1f77b4", "--"), "spring": ("#2ca02c", "-."), "area": ("#9467bd", ":")}
 
 
-def tool_outline(shape: ToolShape, pose: ToolPose, segments: int = 8) -> np.ndarray:
-    """Polygon of the tool's outline in world coordinates, shape (K, 2)."""
-    local = rounded_box_outline(*shape.rounded_box(), segments=segments)
+def tool_outline(shape: ToolShape, pose: ToolPose, segments: int = 8, jaw: float | None = None) -> np.ndarray:
+    """Polygon of the tool's outline in world coordinates, shape (K, 2) (:meth:`ToolShape.outline`: a grasper's
+    envelope, or with ``jaw`` [rad] its shaft and jaws)."""
+    local = shape.outline(jaw, segments=segments) if shape.kind == "grasper" else rounded_box_outline(
+        *shape.rounded_box(), segments=segments)
     c, s = math.cos(pose.yaw), math.sin(pose.yaw)
     return local @ np.array([[c, s], [-s, c]]) + np.array([pose.x, pose.y])
 
@@ -137,6 +139,60 @@ def plot_energy(path: str | Path, steps: np.ndarray, terms: Mapping[str, np.ndar
         ax.set_ylabel("implicit Euler energy")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="upper left")
+    if title:
+        fig.suptitle(title, fontsize=11)
+    return _save(fig, path, dpi)
+
+
+def save_grasp_snapshots(path: str | Path, model: Model,
+                         snapshots: Sequence[tuple[str, np.ndarray, ToolPose | None, float | None, np.ndarray]], *,
+                         tool: ToolShape, title: str | None = None, bounds: tuple[float, float, float, float] | None = None,
+                         dpi: int = 120) -> Path:
+    """Snapshots of a grasp: (label, positions, tool pose, jaw angle [rad], held particles) each; the grasper is
+    drawn with its jaws, the held particles in cyan."""
+    n = len(snapshots)
+    fig, axes = plt.subplots(1, n, figsize=(3.0 * n, 2.8), squeeze=False)
+    for ax, (label, x, pose, jaw, held) in zip(axes[0], snapshots):
+        draw_scene(ax, model, x, bounds=bounds, colour="strain", strain_max=0.3)
+        if pose is not None:
+            ax.add_patch(Polygon(tool_outline(tool, pose, jaw=0.0 if jaw is None else jaw), closed=True,
+                                 facecolor="#37474f", edgecolor="#111111", lw=0.6, zorder=5))
+        if len(held):
+            ax.plot(x[held, 0], x[held, 1], "o", ms=3.0, color="#00bcd4", zorder=6)
+        ax.set_title(label, fontsize=9)
+    if title:
+        fig.suptitle(title, fontsize=11)
+    return _save(fig, path, dpi)
+
+
+def plot_grasp(path: str | Path, time_s: np.ndarray, terms: Mapping[str, np.ndarray], force: np.ndarray,
+               grasped: np.ndarray, jaw: np.ndarray, *, phases: Sequence[tuple[float, str]] = (),
+               title: str | None = None, dpi: int = 120) -> Path:
+    """A grasp's energy (total and each term, scene sums, against time [s]), the reaction on the tool [N] and the
+    held count with the jaw angle; ``phases`` (time, name) are marked."""
+    fig, axes = plt.subplots(3, 1, figsize=(7.0, 7.0), sharex=True)
+    total = sum(terms.values())
+    axes[0].plot(time_s, total, color="#c62828", lw=2.0, label="total")
+    for name, arr in terms.items():
+        axes[0].plot(time_s, arr, lw=1.1, label=name)
+    axes[0].set_ylabel("implicit Euler energy [J s^2]")
+    axes[0].legend(fontsize=8, loc="upper left")
+    axes[1].plot(time_s, force[:, 0], label="F_x")
+    axes[1].plot(time_s, force[:, 1], label="F_y")
+    axes[1].set_ylabel("tissue on tool [N]")
+    axes[1].legend(fontsize=8, loc="lower left")
+    axes[2].plot(time_s, grasped, color="#00838f", label="particles held")
+    axes[2].set_ylabel("held")
+    twin = axes[2].twinx()
+    twin.plot(time_s, jaw, color="#6d4c41", ls="--", label="jaw [rad]")
+    twin.set_ylabel("jaw [rad]")
+    axes[2].set_xlabel("time [s]")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        for t, name in phases:
+            ax.axvline(t, color="#2e7d32", ls=":", lw=0.9)
+    for t, name in phases:
+        axes[0].text(t, 1.0, f" {name}", transform=axes[0].get_xaxis_transform(), fontsize=7, va="top")
     if title:
         fig.suptitle(title, fontsize=11)
     return _save(fig, path, dpi)

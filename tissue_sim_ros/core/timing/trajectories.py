@@ -43,7 +43,7 @@ import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import yaml
@@ -105,7 +105,38 @@ LIVER_PROBE = SceneExperiments((0.022, 0.040), -40.0, 4e-5, 400, (0, 150, 280, 4
 
 #: Experiments per shipped scene (``tissue-sim experiment a --scene NAME``; the tool driver's ``scene``).
 #: ``authors`` (config/scenes/authors.yaml) is the paper's 1 m scene with the authors' code as parameters.
-SCENE_EXPERIMENTS: dict[str, SceneExperiments] = {"paper": PAPER, "liver_probe": LIVER_PROBE, "authors": PAPER}
+#: The retraction scene (config/scenes/retract.yaml; its own experiment is ``tissue-sim experiment retract``): a and
+#: b poke the flap (top at y = 16 mm, x = 10-70 mm) with the grasper's closed tip, as the liver scene's.
+RETRACT = SceneExperiments((0.030, 0.024), -60.0, 4e-5, 250, (0, 100, 180, 250),
+                           (0.040, 0.014), 0.010, 4e-5, (-45.0, -80.0), None)
+SCENE_EXPERIMENTS: dict[str, SceneExperiments] = {"paper": PAPER, "liver_probe": LIVER_PROBE, "authors": PAPER,
+                                                  "retract": RETRACT}
+
+
+#: The retraction (issue 30, config/scenes/retract.yaml): phases of :func:`retract_trajectory` as
+#: (name, duration [s]): the open grasper comes down onto the flap, closes, lifts and pulls back, holds, opens.
+RETRACT_PHASES = (("approach", 0.4), ("close", 0.1), ("lift", 1.0), ("pull back", 1.0), ("hold", 0.5), ("open", 0.1),
+                  ("after", 0.6))
+RETRACT_JAW_OPEN = 0.8
+"""The jaw open [rad] (the dVRK's grasper opens to about 1 rad)."""
+
+
+def retract_trajectory(x: float, surface_y: float, *, above: float = 0.01, gap: float = 0.0002, lift: float = 0.02,
+                       pull: float = 0.02, jaw_open: float = RETRACT_JAW_OPEN, jaw_closed: float = 0.0,
+                       phases: Sequence[tuple[str, float]] = RETRACT_PHASES) -> WaypointTrajectory:
+    """Grasp and retract at ``x`` [m]: the open grasper (yaw 0, jaws down) starts ``above`` [m] over the surface
+    at ``surface_y`` [m], comes down to ``gap`` [m] over it, closes, lifts by ``lift`` [m], pulls back by ``pull``
+    [m] (toward -x), holds, opens and stays. Waypoints with a jaw angle [rad] (``steps_with_jaw``)."""
+    for name, value in (("x", x), ("surface_y", surface_y), ("above", above), ("gap", gap), ("lift", lift),
+                        ("pull", pull), ("jaw_open", jaw_open), ("jaw_closed", jaw_closed)):
+        if not math.isfinite(value):
+            raise InputError(f"retract {name}={value!r}: expected a finite number")
+    t = np.concatenate([[0.0], np.cumsum([d for _, d in phases])])
+    y0, y1, y2 = surface_y + above, surface_y + gap, surface_y + gap + lift
+    xs = [x, x, x, x, x - pull, x - pull, x - pull, x - pull]
+    ys = [y0, y1, y1, y2, y2, y2, y2, y2]
+    jaws = [jaw_open, jaw_open, jaw_closed, jaw_closed, jaw_closed, jaw_closed, jaw_open, jaw_open]
+    return WaypointTrajectory(t, np.stack([xs, ys, np.zeros(8)], axis=1), jaws=np.array(jaws))
 
 
 def scene_experiments(name: str) -> SceneExperiments:
