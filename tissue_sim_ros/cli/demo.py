@@ -20,9 +20,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--domain-id", type=int, default=None,
                         help="ROS_DOMAIN_ID to use (default: a free-looking one derived from the process id)")
     parser.add_argument("--timeout", type=float, default=120.0, help="give up after this many seconds (default 120)")
-    parser.add_argument("--trajectory", default="experiment_a", metavar="PRESET|FILE",
+    parser.add_argument("--trajectory", default=None, metavar="PRESET|FILE",
                         help="the tool driver's trajectory: a preset (experiment_a, experiment_b_shallow, "
-                             "experiment_b_steep, authors) or a .csv/.yaml trajectory file (default experiment_a)")
+                             "experiment_b_steep, authors, retract) or a .csv/.yaml trajectory file (default "
+                             "experiment_a; retract with --scene retract: grasp, lift and pull back 2 cm, open)")
     parser.add_argument("--contact-model", choices=["paper", "projection"], default="projection",
                         help="contact model of the node (default projection: the tissue is pushed; the paper's eq. (3) "
                              "lets the tool pass into the tissue once it touches)")
@@ -30,5 +31,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     # the node reads the parameter file itself (--params-file): the demo takes the file, not a resolved Config
+    trajectory = args.trajectory or ("retract" if args.scene == "retract" else "experiment_a")
     return demo.run(args.out, scene=args.scene, params_file=args.params, domain_id=args.domain_id,
-                    timeout=args.timeout, trajectory=args.trajectory, contact_model=args.contact_model)
+                    timeout=args.timeout, trajectory=trajectory, contact_model=args.contact_model)

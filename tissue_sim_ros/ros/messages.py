@@ -319,6 +319,20 @@ def encode_pose_stamped(stamp: Stamp, frame_id: str, x: float, y: float, yaw: fl
     return w.getvalue()
 
 
+def encode_joint_state(stamp: Stamp, frame_id: str, names: list[str], positions: list[float]) -> bytes:
+    """sensor_msgs/JointState with names and positions (no velocity, no effort): ``tool/jaw`` is one joint, the
+    jaw angle [rad] in ``position[0]`` (as the dVRK's ``jaw/measured_js``)."""
+    w = CdrWriter()
+    w.header(stamp, frame_id)
+    w.u32(len(names))
+    for name in names:
+        w.string(name)
+    w.sequence(np.asarray(positions, dtype="<f8"), len(positions), 8)
+    w.u32(0)  # velocity
+    w.u32(0)  # effort
+    return w.getvalue()
+
+
 def encode_twist_stamped(stamp: Stamp, frame_id: str, vx: float, vy: float, wz: float) -> bytes:
     """geometry_msgs/TwistStamped of a planar twist (linear [m/s] in the plane, angular [rad/s] about +z)."""
     w = CdrWriter()

@@ -35,6 +35,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.task import Future
 from rclpy.time import Time
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from ..core.config import BY_NAME, Config, ParamSpec, coerce, resolve_config
@@ -145,6 +146,8 @@ class ToolDriver(Node):
         # exactly the (pose, twist) sequence an offline rollout steps through (Trajectory.steps): the pose at the
         # end of step k and the pose change over it, so a live lock-step run equals the offline one
         self.commands = list(self.trajectory.steps(self.dt))
+        # the jaw angle at the end of each step (a trajectory with a jaw: published on tool/jaw before the pose)
+        self.jaws = [j for *_, j in self.trajectory.steps_with_jaw(self.dt)]
         self.n_steps = len(self.commands)
         if self.n_steps == 0:
             raise InputError(f"the trajectory lasts {self.trajectory.duration} s: shorter than one step of dt={self.dt} s")
@@ -156,6 +159,8 @@ class ToolDriver(Node):
         self._start_ns: int | None = None
         self.pub_pose = self.create_publisher(PoseStamped, "tool/pose", qos.tool_output())
         self.pub_twist = self.create_publisher(TwistStamped, "tool/twist", qos.tool_output())
+        self.pub_jaw = (self.create_publisher(JointState, "tool/jaw", qos.tool_output())
+                        if any(j is not None for j in self.jaws) else None)
         if self.values["lock_step"]:
             self.create_subscription(Float64, "tissue/energy", self._on_energy, qos.energy())
         self._wait_start = self.get_clock().now()
@@ -228,6 +233,9 @@ class ToolDriver(Node):
         frame = self.values["frame_id"]
         if self.values["publish_twist"]:
             self.pub_twist.publish(messages.encode_twist_stamped(stamp, frame, twist.vx, twist.vy, twist.wz))
+        jaw = self.jaws[min(self.k, self.n_steps) - 1]
+        if self.pub_jaw is not None and jaw is not None:
+            self.pub_jaw.publish(messages.encode_joint_state(stamp, "", ["jaw"], [jaw]))
         self.pub_pose.publish(messages.encode_pose_stamped(stamp, frame, pose.x, pose.y, pose.yaw))
         self._sent_at = now
         self._acked = False

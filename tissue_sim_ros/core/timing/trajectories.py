@@ -207,7 +207,7 @@ def authors_run(tool: ToolShape, dt: float) -> WaypointTrajectory:
     return straight_motion((*AUTHORS_START, AUTHORS_YAW), AUTHORS_DIRECTION_DEG, AUTHORS_SPEED, AUTHORS_STEPS, dt)
 
 
-PRESETS = ("experiment_a", "experiment_b_shallow", "experiment_b_steep", "authors")
+PRESETS = ("experiment_a", "experiment_b_shallow", "experiment_b_steep", "authors", "retract")
 
 
 def preset(name: str, tool: ToolShape, dt: float, scene: str = "paper") -> Trajectory:
@@ -222,6 +222,9 @@ def preset(name: str, tool: ToolShape, dt: float, scene: str = "paper") -> Traje
         return experiment_b(tool, dt, sc.b_angles_deg[1], scene=sc)
     if name == "authors":
         return authors_run(tool, dt)
+    if name == "retract":
+        # the retraction scene's flap: its top surface at y = 16 mm (config/scenes/retract.png), taken at x = 40 mm
+        return retract_trajectory(0.040, 0.016)
     raise InputError(f"trajectory preset {name!r}: expected one of {', '.join(PRESETS)} or a .csv/.yaml file")
 
 
