@@ -152,6 +152,8 @@ class ToolInputs:
             self._run.append((x, y))
         else:
             self._run = [(x, y)]
+        if self.relocation_due():
+            return False  # not dropped: take_pose takes the stream up (relocate), or drops it if it cannot
         self.node.warnings.drop(
             "tool_jump", f"tool/pose ({x:.4g}, {y:.4g}) is {dist:.3f} m from the tool at ({last.x:.4g}, "
                          f"{last.y:.4g}) (max_tool_jump {max_jump} m): the tool holds its pose until a pose "
@@ -169,8 +171,8 @@ class ToolInputs:
         last = self.tool.pose if self.tool.pose is not None else node.sim.tool_pose
         self._run = []
         if node.sim.tool_overlaps_tissue(pose):
-            node.warnings.warn("relocate", f"a stream of tool poses at ({pose.x:.4g}, {pose.y:.4g}) was not taken "
-                                           "up: the tool there would overlap the tissue")
+            node.warnings.drop("tool_jump", f"tool/pose ({pose.x:.4g}, {pose.y:.4g}): a stream of poses beyond "
+                                            "max_tool_jump was not taken up: the tool there would overlap the tissue")
             return False
         node.sim.place_tool(pose)
         node.stats.relocations += 1

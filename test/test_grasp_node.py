@@ -1,0 +1,191 @@
+"""An outside client of the node, written from msg_docs (topics.md, the retract scene's YAML) with rclpy's own
+message types: grasp the retract scene's flap, lift it 2 cm, let go; with the node's names and with a dVRK arm's
+names by remapping. Also: bad jaw messages are dropped and counted, and a relocated robot is taken up."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from geometry_msgs.msg import PoseStamped, WrenchStamped  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from sensor_msgs.msg import JointState, PointCloud2  # noqa: E402
+from std_msgs.msg import Float64, UInt32  # noqa: E402
+
+SCENE = Path(__file__).resolve().parent.parent / "config" / "scenes" / "retract.yaml"
+TIMEOUT = 30.0
+DT = 0.01  # the scene's dt
+# from the scene's YAML: the flap spans x = 10..70 mm, its top at y = 16 mm; the grasper's pose is its jaw tips
+X, TOP = 0.040, 0.016
+RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class Client:
+    """What a user writes: publishers of the tool's pose and jaw, readers of points, wrench, energy, grasped."""
+
+    def __init__(self, ros_client: Any, proc: Any, pose_topic: str = "tool/pose", jaw_topic: str = "tool/jaw") -> None:
+        self.ros, self.proc = ros_client, proc
+        n = ros_client.node
+        self.points: list[PointCloud2] = []
+        self.wrench: list[WrenchStamped] = []
+        self.energy: list[float] = []
+        self.grasped: list[int] = []
+        self.diagnostics: list[dict[str, str]] = []
+        self.subs = [
+            n.create_subscription(PointCloud2, "tissue/points", self.points.append, RELIABLE),
+            n.create_subscription(WrenchStamped, "tool/wrench", self.wrench.append, RELIABLE),
+            n.create_subscription(Float64, "tissue/energy", lambda m: self.energy.append(m.data), RELIABLE),
+            n.create_subscription(UInt32, "tool/grasped", lambda m: self.grasped.append(m.data), RELIABLE),
+            n.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, RELIABLE),
+        ]
+        self.pose_pub = n.create_publisher(PoseStamped, pose_topic, RELIABLE)
+        self.jaw_pub = n.create_publisher(JointState, jaw_topic, RELIABLE)
+        self.k = 0
+        self.t0 = n.get_clock().now()
+        ros_client.wait_for_subscriber(self.pose_pub, TIMEOUT, proc)
+        ros_client.wait_for_subscriber(self.jaw_pub, TIMEOUT, proc)
+        for topic in ("tissue/energy", "tool/grasped", "tissue/points", "tool/wrench"):
+            ros_client.wait_for_publisher(topic, TIMEOUT, proc)
+        ros_client.spin_until(lambda: all(s.get_publisher_count() for s in self.subs[:4]), TIMEOUT, proc,
+                              "our readers matched")
+
+    def close(self) -> None:
+        for s in self.subs:
+            self.ros.node.destroy_subscription(s)
+        self.ros.node.destroy_publisher(self.pose_pub)
+        self.ros.node.destroy_publisher(self.jaw_pub)
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.endswith("tissue_sim_node: simulation"):
+                self.diagnostics.append({kv.key: kv.value for kv in status.values})
+
+    def stamp(self) -> Any:
+        from rclpy.duration import Duration  # noqa: PLC0415
+
+        return (self.t0 + Duration(nanoseconds=int(round(self.k * DT * 1e9)))).to_msg()
+
+    def jaw(self, angle: float, frame: str = "", position: list[float] | None = None) -> None:
+        msg = JointState()
+        msg.header.stamp = self.stamp()
+        msg.header.frame_id = frame
+        msg.name = ["jaw"]
+        msg.position = [angle] if position is None else position
+        self.jaw_pub.publish(msg)
+        self.ros.spin_for(0.02)  # the reader takes it before the next pose (lock-step: the newest jaw before it)
+
+    def pose(self, x: float, y: float, wait: bool = True) -> None:
+        """One lock-step step: the pose (yaw 0: shaft up), then wait for its energy."""
+        self.k += 1
+        msg = PoseStamped()
+        msg.header.stamp = self.stamp()
+        msg.header.frame_id = "world"
+        msg.pose.position.x, msg.pose.position.y = float(x), float(y)
+        msg.pose.orientation.w = 1.0
+        n = len(self.grasped)
+        self.pose_pub.publish(msg)
+        if wait:
+            self.ros.spin_until(lambda: len(self.grasped) > n and len(self.energy) > n, TIMEOUT, self.proc,
+                                f"step {self.k}")
+
+    def xy(self) -> np.ndarray:
+        """The newest tissue/points as (N, 2): fields x, y (float32) as PointField says."""
+        self.ros.spin_until(lambda: self.points, TIMEOUT, self.proc, "tissue/points")
+        msg = self.points[-1]
+        fields = {f.name: f.offset for f in msg.fields}
+        raw = np.frombuffer(bytes(msg.data), dtype=np.uint8).reshape(-1, msg.point_step)
+        return np.stack([raw[:, fields[c]:fields[c] + 4].copy().view("<f4").ravel() for c in ("x", "y")],
+                        axis=1).astype(np.float64)
+
+
+def start_node(start_process: Any, name: str, *extra: str) -> Any:
+    return start_process(["tissue_sim_node", "--ros-args", "--params-file", str(SCENE), "-p", "lock_step:=true",
+                          *extra], name=name)
+
+
+def grasp_lift_release(c: Client) -> None:
+    """Open grasper down onto the flap, close, lift 2 cm, open: the checks of issue 30's outside client."""
+    c.jaw(0.8)
+    for k in range(21):  # from 1 cm above down to 0.2 mm above the surface, 0.5 mm per step
+        c.pose(X, TOP + 0.010 - 0.0005 * k + 0.0002 * (k == 20))
+    assert c.grasped[-1] == 0  # open: nothing held
+    xy = c.xy()
+    i = int(np.argmin(np.hypot(xy[:, 0] - X, xy[:, 1] - TOP)))  # the particle under the tip
+    y_before = xy[i, 1]
+    c.jaw(0.0)
+    for _ in range(3):
+        c.pose(X, TOP + 0.0002)
+    assert c.grasped[-1] > 0
+    e_before = c.energy[-1]
+    for k in range(1, 51):  # lift 2 cm at 0.4 mm per step
+        c.pose(X, TOP + 0.0002 + 0.0004 * k)
+    rise = c.xy()[i, 1] - y_before
+    assert abs(rise - 0.02) < 0.002, rise
+    f = c.wrench[-1].wrench.force
+    assert f.y < 0 and abs(f.x) < abs(f.y)  # the flap pulls the tool back down, toward the tissue
+    assert math.isfinite(c.energy[-1]) and c.energy[-1] > e_before
+    c.jaw(0.8)
+    for _ in range(60):
+        c.pose(X, TOP + 0.0202)
+    assert c.grasped[-1] == 0
+    assert abs(c.xy()[i, 1] - y_before) < 0.001  # the flap fell back
+
+
+def test_outside_client_grasps_lifts_and_releases_the_flap(ros_client: Any, start_process: Any) -> None:
+    proc = start_node(start_process, "retract_node")
+    c = Client(ros_client, proc)
+    try:
+        grasp_lift_release(c)
+    finally:
+        c.close()
+    assert "Traceback" not in proc.output()
+
+
+def test_dvrk_names_by_remapping(ros_client: Any, start_process: Any) -> None:
+    proc = start_node(start_process, "retract_dvrk", "-r", "tool/pose:=/PSM1/measured_cp",
+                      "-r", "tool/twist:=/PSM1/measured_cv", "-r", "tool/jaw:=/PSM1/jaw/measured_js")
+    c = Client(ros_client, proc, pose_topic="/PSM1/measured_cp", jaw_topic="/PSM1/jaw/measured_js")
+    try:
+        grasp_lift_release(c)
+    finally:
+        c.close()
+
+
+def test_bad_jaw_messages_are_dropped_counted_and_a_relocated_robot_is_taken_up(ros_client: Any,
+                                                                                  start_process: Any) -> None:
+    proc = start_node(start_process, "retract_bad", "-p", "diagnostics_rate:=20.0")
+    c = Client(ros_client, proc)
+    try:
+        c.jaw(0.8)
+        c.pose(X, TOP + 0.01)
+        c.jaw(float("nan"))
+        c.jaw(0.0, position=[])
+        c.jaw(0.0, frame="nowhere")
+        for k in range(1, 5):
+            c.pose(X, TOP + 0.01 - 0.0025 * k + 0.0002 * (k == 4))
+        c.pose(X, TOP + 0.0002)
+        assert c.grasped[-1] == 0  # none of them closed the jaw
+        c.diagnostics.clear()
+        d = c.ros.spin_until(lambda: c.diagnostics and c.diagnostics[-1], TIMEOUT, proc, "diagnostics")
+        assert int(d["dropped_nonfinite"]) == 1 and int(d["dropped_jaw_empty"]) == 1 and int(d["dropped_frame"]) == 1
+        assert d["jaw_closed"] == "false" and d["grasped_particles"] == "0"
+        # a re-homed robot: 4 cm away (max_tool_jump is 5 mm), a consistent stream; taken up at its 5th pose
+        for k in range(5):  # rejected poses take no step (lock-step); the 5th is taken up and steps
+            c.pose(X + 0.02, TOP + 0.03 + 0.001 * k, wait=k == 4)
+        c.ros.spin_until(lambda: c.diagnostics and c.diagnostics[-1].get("relocations") == "1", TIMEOUT, proc,
+                         "a relocation on /diagnostics")
+        d = c.diagnostics[-1]
+        assert int(d["dropped_tool_jump"]) == 4
+        assert "tool relocated" in proc.output()
+        assert int(d["tool_tunnelled_particles"]) == 0 and d["tool_buried_in_tissue"] == "false"
+        # the tool follows from there (the step after the relocation moved it along the new stream)
+        c.pose(X + 0.02, TOP + 0.035)
+        assert c.grasped[-1] == 0
+    finally:
+        c.close()
