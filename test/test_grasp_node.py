@@ -189,3 +189,31 @@ def test_bad_jaw_messages_are_dropped_counted_and_a_relocated_robot_is_taken_up(
         assert c.grasped[-1] == 0
     finally:
         c.close()
+
+
+def test_a_recorded_grasp_replays_bit_for_bit(ros_client: Any, start_process: Any, tmp_path: Path) -> None:
+    """record_path records tool/jaw in and tool/applied_jaw out; ``replay --mode applied`` steps with that jaw and
+    equals the live run (energy, wrench, points), grasp and release included."""
+    import signal  # noqa: PLC0415
+
+    from test_ros_node import _assert_replay_is_the_live_run  # noqa: PLC0415
+
+    from tissue_sim_ros.ros.bags import Bag  # noqa: PLC0415
+
+    bag = tmp_path / "grasp_bag"
+    proc = start_node(start_process, "retract_rec", "-p", f"record_path:={bag}")
+    c = Client(ros_client, proc)
+    try:
+        grasp_lift_release(c)
+    finally:
+        c.close()
+    assert proc.stop(signal.SIGINT) == 0, proc.output()[-2000:]
+    with Bag(bag) as b:
+        counts = b.message_counts
+    assert counts["/tool/applied_jaw"] == counts["/tool/applied_twist"] and counts["/tool/jaw"] >= 3
+    _assert_replay_is_the_live_run(bag, "", tmp_path / "replay")
+    with Bag(tmp_path / "replay" / "replay_bag") as b:
+        from tissue_sim_ros.ros import messages as M  # noqa: PLC0415
+
+        held = [M.decode_uint32(raw) for _, _, _, raw in b.messages(["/tool/grasped"])]
+    assert max(held) > 0 and held[-1] == 0

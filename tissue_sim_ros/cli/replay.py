@@ -229,7 +229,7 @@ def _replay_config(args: argparse.Namespace) -> tuple[Config, str]:
 
 def _run_applied(args: argparse.Namespace, out: Path, bag_out: Path) -> int:
     """``--mode applied``: the node's own recording, stepped with exactly what the node stepped with."""
-    from ..ros.tool_applied import POSE_TYPE, read_applied_steps  # noqa: PLC0415
+    from ..ros.tool_applied import POSE_TYPE, read_applied_steps, relocations  # noqa: PLC0415
 
     steps = read_applied_steps(args.bag)
     print(f"{steps.n} steps from {steps.twist_topic} ({sum(p is not None for p in steps.poses)} with a tool), "
@@ -254,7 +254,7 @@ def _run_applied(args: argparse.Namespace, out: Path, bag_out: Path) -> int:
             writer.set_custom_data("tissue_sim.params", params_json(cfg))
         sink = ReplayBagSink(writer, sim, points_every=args.points_every) if writer is not None else None
         result = replay_steps(sim, steps.t_ns, steps.items(), sink=sink, snapshot_every=frame_every,
-                              progress=not args.no_progress)
+                              progress=not args.no_progress, before_step=relocations(sim, cfg.node.max_tool_jump))
     finally:
         if writer is not None:
             writer.close()

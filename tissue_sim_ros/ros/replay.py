@@ -204,10 +204,12 @@ def replay(sim: Simulation, track: ToolTrack, mode: str = "per-message", *, sink
                         track_duration=track.duration)
 
 
-def replay_steps(sim: Simulation, t_ns: np.ndarray, items: list[tuple[ToolPose | None, ToolTwist | None]], *,
+def replay_steps(sim: Simulation, t_ns: np.ndarray, items: list[tuple], *,
                  sink: Any = None, snapshot_every: int = 0, progress: bool = True,
-                 track_duration: float | None = None) -> ReplayResult:
-    """Step ``sim`` once per (pose or None, twist or None) of ``items``, at times ``t_ns``; see :func:`replay`."""
+                 track_duration: float | None = None, before_step: Any = None) -> ReplayResult:
+    """Step ``sim`` once per (pose or None, twist or None[, jaw]) of ``items``, at times ``t_ns``; see :func:`replay`.
+
+    ``before_step(item)``, when given, runs just before each step (the applied replay's relocations)."""
     n = len(items)
     snaps: list[int] = []
     if snapshot_every > 0:
@@ -238,7 +240,13 @@ def replay_steps(sim: Simulation, t_ns: np.ndarray, items: list[tuple[ToolPose |
     cpu_start = time.process_time()
     last[0] = start
     try:
-        result = rollout(sim, items, snapshot_steps=[sim.step_count + s for s in snaps], on_step=on_step)
+        def stepped():
+            for item in items:
+                if before_step is not None:
+                    before_step(item)
+                yield item
+
+        result = rollout(sim, stepped(), snapshot_steps=[sim.step_count + s for s in snaps], on_step=on_step)
     finally:
         bar.close()
     wall = time.perf_counter() - start

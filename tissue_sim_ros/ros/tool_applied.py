@@ -9,7 +9,13 @@ tissue/points and tool/wrench):
   (zero when there is no tool);
 * ``tool/applied_pose`` (PoseStamped) on every step that had a tool: its
   position and the orientation quaternion the yaw was computed from, so that
-  an offline replay computes the very same yaw from it.
+  an offline replay computes the very same yaw from it;
+* ``tool/applied_jaw`` (JointState; a grasper only) on every step: ``position[0]`` the jaw angle the step
+  used [rad] (empty before any ``tool/jaw``).
+
+A relocation (the node put the tool at a pose of a stream beyond ``max_tool_jump``, without a step) shows in
+the applied poses as a step farther than ``max_tool_jump`` from the one before; the replay puts the tool there
+first, as the node did (:func:`applied_items`).
 
 :func:`read_applied_steps` turns a bag of those two topics back into one
 (pose or None, twist) per step; ``tissue-sim replay --mode applied`` steps
@@ -33,6 +39,8 @@ POSE_TOPIC = "/tool/applied_pose"
 TWIST_TYPE = "geometry_msgs/msg/TwistStamped"
 TWIST_TOPIC = "/tool/applied_twist"
 POSE_TYPE = "geometry_msgs/msg/PoseStamped"
+JAW_TOPIC = "/tool/applied_jaw"
+JAW_TYPE = "sensor_msgs/msg/JointState"
 
 PLANAR = (0.0, 0.0, 0.0, 1.0)
 
@@ -57,6 +65,27 @@ def encode_applied_twist(stamp: Stamp, frame_id: str, twist: ToolTwist) -> bytes
     w.header(stamp, frame_id)
     w.f64s(twist.vx, twist.vy, 0.0, 0.0, 0.0, twist.wz)
     return w.getvalue()
+
+
+def encode_applied_jaw(stamp: Stamp, frame_id: str, jaw: float | None) -> bytes:
+    """sensor_msgs/JointState: one joint ``jaw``, ``position[0]`` the jaw angle [rad]; no position: none given."""
+    w = CdrWriter()
+    w.header(stamp, frame_id)
+    w.u32(1)
+    w.string("jaw")
+    w.sequence(np.array([] if jaw is None else [jaw], dtype="<f8"), 0 if jaw is None else 1, 8)
+    w.u32(0)
+    w.u32(0)
+    return w.getvalue()
+
+
+def decode_applied_jaw(data: bytes) -> tuple[Stamp, float | None]:
+    r = CdrReader(data)
+    stamp, _ = r.header()
+    for _ in range(r.u32()):
+        r.string()
+    n = r.u32()
+    return stamp, (r.f64s(n)[0] if n else None)
 
 
 def decode_applied_pose(data: bytes) -> tuple[Stamp, ToolPose]:
@@ -86,13 +115,31 @@ class AppliedSteps:
     twists: list[ToolTwist]
     twist_topic: str = TWIST_TOPIC
     pose_topic: str = POSE_TOPIC
+    jaws: list[float | None] | None = None
+    """The jaw angle of each step [rad] (a grasper's recording; None: no ``tool/applied_jaw`` in the bag)."""
 
     @property
     def n(self) -> int:
         return int(self.t_ns.shape[0])
 
-    def items(self) -> list[tuple[ToolPose | None, ToolTwist]]:
-        return list(zip(self.poses, self.twists))
+    def items(self) -> list[tuple]:
+        """(pose, twist) per step, or (pose, twist, jaw) with the jaw recorded."""
+        if self.jaws is None:
+            return list(zip(self.poses, self.twists))
+        return list(zip(self.poses, self.twists, self.jaws))
+
+
+def relocations(sim, max_tool_jump: float):
+    """A ``before_step`` for :func:`~tissue_sim_ros.ros.replay.replay_steps`: puts the tool at a step's pose first
+    (``place_tool``) when it lies farther than ``max_tool_jump`` [m] from the simulation's tool: the node took a
+    relocated stream up there without a step (``ros/node/inputs.py``), so the step that follows starts from it."""
+
+    def before_step(item: tuple) -> None:
+        pose, last = item[0], sim.tool_pose
+        if pose is not None and last is not None and math.hypot(pose.x - last.x, pose.y - last.y) > max_tool_jump:
+            sim.place_tool(pose)
+
+    return before_step
 
 
 def read_applied_steps(path: str | Path, namespace: str | None = None) -> AppliedSteps:
@@ -118,23 +165,29 @@ def read_applied_steps(path: str | Path, namespace: str | None = None) -> Applie
         # in the order written: each step writes its pose (when it had a tool), then its twist. The stamps
         # need not increase (a node that starts following /clock jumps to the bag's time), so a twist takes
         # the pose written just before it when that pose has its stamp
+        jaw_topic = namespace.rstrip("/") + JAW_TOPIC
         poses: list[ToolPose | None] = []
+        jaws: list[float | None] = []
         steps: list[tuple[Stamp, ToolTwist]] = []
         pending: tuple[Stamp, ToolPose] | None = None
-        topics = [twist_topic] + ([pose_topic] if pose_topic in bag.topics else [])
+        pending_jaw: tuple[Stamp, float | None] | None = None
+        topics = [twist_topic] + [t for t in (pose_topic, jaw_topic) if t in bag.topics]
         for topic, _, _, raw in bag.messages(topics):
             data = bytes(raw)
             if topic == pose_topic:
                 pending = decode_applied_pose(data)
+            elif topic == jaw_topic:
+                pending_jaw = decode_applied_jaw(data)
             else:
                 stamp, twist = decode_applied_twist(data)
                 poses.append(pending[1] if pending is not None and pending[0] == stamp else None)
+                jaws.append(pending_jaw[1] if pending_jaw is not None and pending_jaw[0] == stamp else None)
                 steps.append((stamp, twist))
-                pending = None
+                pending = pending_jaw = None
     finally:
         bag.close()
     if not steps:
         raise InputError(f"bag {str(path)!r}: {twist_topic} holds no messages")
     t_ns = np.array([s * 1_000_000_000 + ns for (s, ns), _ in steps], dtype=np.int64)
     return AppliedSteps(t_ns=t_ns, poses=poses, twists=[tw for _, tw in steps], twist_topic=twist_topic,
-                        pose_topic=pose_topic)
+                        pose_topic=pose_topic, jaws=jaws if jaw_topic in bag.topics else None)

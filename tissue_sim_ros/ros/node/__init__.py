@@ -124,6 +124,7 @@ class TissueSimNode(Node):
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", qos.diagnostics())
         self.pub_applied_pose = self.create_publisher(PoseStamped, "tool/applied_pose", qos.state_stream())
         self.pub_applied_twist = self.create_publisher(TwistStamped, "tool/applied_twist", qos.state_stream())
+        self.pub_applied_jaw = self.create_publisher(JointState, "tool/applied_jaw", qos.state_stream())
 
         # inputs; the pose with its message info: its reception time is the pose's arrival for the phase lock
         lock_step = settings.lock_step

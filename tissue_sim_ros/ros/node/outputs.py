@@ -86,6 +86,8 @@ class Outputs:
         frame = node.frame_id
         if pose is not None:
             node.pub_applied_pose.publish(tool_applied.encode_applied_pose(stamp, frame, pose.x, pose.y, quaternion))
+        if self.encoder.grasper:  # the jaw the step used (before the twist: a step's applied tool ends with it)
+            node.pub_applied_jaw.publish(tool_applied.encode_applied_jaw(stamp, frame, node.sim.grasp.jaw))
         node.pub_applied_twist.publish(tool_applied.encode_applied_twist(stamp, frame, twist))
 
     def _publish_state(self, stamp: tuple[int, int], report: StepReport) -> None:

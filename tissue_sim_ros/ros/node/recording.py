@@ -85,7 +85,8 @@ class NodeRecorder:
 
 #: The node's publishers (attributes) whose every message goes into the bag too.
 RECORDED_PUBLISHERS = ("pub_markers", "pub_points", "pub_rest", "pub_wrench", "pub_energy", "pub_energy_bodies",
-                       "pub_contact", "pub_diagnostics", "pub_applied_pose", "pub_applied_twist", "pub_grasped")
+                       "pub_contact", "pub_diagnostics", "pub_applied_pose", "pub_applied_twist", "pub_grasped",
+                       "pub_applied_jaw")
 
 
 def start_recording(node: Any, path: str, storage: str) -> NodeRecorder:
