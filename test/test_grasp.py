@@ -206,3 +206,38 @@ def test_trajectory_files_carry_the_jaw_and_rollouts_take_it(tmp_path):
     names, table = run.energy_table()
     assert "jaw" in names and "grasped" in names and "body0_attach" in names
     np.testing.assert_allclose(run.scene_total, table[:, names.index("energy_total")])
+
+
+def test_batches_carry_the_jaw_serial_equals_pool_equals_stepping():
+    from tissue_sim_ros.core.contact.tool import WaypointTrajectory
+    from tissue_sim_ros.core.sim.batch import BatchScene, RolloutPool, ToolPath, rollout_batch
+
+    dt = 0.01
+    sim = strip_sim()
+    settle_tip(sim)
+    snap = sim.snapshot()
+    lift = WaypointTrajectory([0.0, 0.02, 0.08], [(0.0, REST_TIP, 0.0), (0.0, REST_TIP, 0.0),
+                                                  (0.0, REST_TIP + 0.006, 0.0)], jaws=[1.0, 0.0, 0.0])
+    path = ToolPath.from_trajectory(lift, dt)
+    assert path.jaws is not None and path.jaws[-1] == 0.0
+    no_jaw = ToolPath(path.poses, path.twists, path.start)
+    serial = rollout_batch(snap, [path, no_jaw], scene=BatchScene.from_simulation(sim), final_state=True)
+    with RolloutPool(sim, workers=1) as pool:
+        pooled = rollout_batch(snap, [path, no_jaw], pool=pool, final_state=True)
+    for s, p in zip(serial.candidates, pooled.candidates):
+        assert np.array_equal(s.energy, p.energy)
+        assert np.array_equal(s.final_state.particle_q, p.final_state.particle_q)
+    # the grasping candidate is the one stepped by hand, and it differs from the one that never closes
+    by_hand = strip_sim()
+    by_hand.restore(snap)
+    by_hand.place_tool(path.start)
+    for pose, twist, jaw in lift.steps_with_jaw(dt):
+        by_hand.step(pose, twist, jaw=jaw)
+    np.testing.assert_array_equal(serial.candidates[0].final_state.particle_q, by_hand.state.particle_q)
+    assert not np.array_equal(serial.candidates[0].energy, serial.candidates[1].energy)
+
+
+def test_relocation_check_refuses_a_pose_in_the_tissue():
+    sim = strip_sim()
+    assert sim.tool_overlaps_tissue(ToolPose(0.0, 0.01, 0.0))  # the shaft through the strip
+    assert not sim.tool_overlaps_tissue(ToolPose(0.0, REST_TIP + 0.001, 0.0))

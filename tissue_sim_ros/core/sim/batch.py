@@ -101,11 +101,14 @@ class ToolPath:
         Where the tool is placed before step 1 (no sweep from the snapshot's
         tool pose): a new insertion. None: the path continues from the
         snapshot's tool pose (replanning a motion in progress).
+    jaws : (S,) float64, optional
+        The grasper's jaw angle of each step [rad] (NaN: keep the last); None: the jaw as the snapshot left it.
     """
 
     poses: np.ndarray
     twists: np.ndarray | None = None
     start: ToolPose | None = None
+    jaws: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         poses = np.ascontiguousarray(self.poses, dtype=np.float64)
@@ -119,6 +122,12 @@ class ToolPath:
             if twists.shape != poses.shape or not np.isfinite(twists).all():
                 raise InputError(f"tool path twists have shape {twists.shape}: expected finite {poses.shape}")
             object.__setattr__(self, "twists", twists)
+        if self.jaws is not None:
+            jaws = np.ascontiguousarray(self.jaws, dtype=np.float64).reshape(-1)
+            if jaws.shape != (poses.shape[0],) or np.isinf(jaws).any():
+                raise InputError(f"tool path jaws have shape {jaws.shape}: expected ({poses.shape[0]},) angles [rad] "
+                                 "(NaN: keep the last)")
+            object.__setattr__(self, "jaws", jaws)
 
     @property
     def n_steps(self) -> int:
@@ -155,12 +164,14 @@ class ToolPath:
         """
         if isinstance(traj, StraightInsertion):
             return cls._straight(traj, dt, start)
-        rows = list(traj.steps(dt))
+        rows = list(traj.steps_with_jaw(dt))
         if not rows:
             raise InputError(f"trajectory of {traj.duration} s has no step of dt={dt} s")
-        poses = np.array([(p.x, p.y, p.yaw) for p, _ in rows], dtype=np.float64)
-        twists = np.array([(t.vx, t.vy, t.wz) for _, t in rows], dtype=np.float64)
-        return cls(poses, twists, traj.pose_at(traj.start_time) if start else None)
+        poses = np.array([(p.x, p.y, p.yaw) for p, _, _ in rows], dtype=np.float64)
+        twists = np.array([(t.vx, t.vy, t.wz) for _, t, _ in rows], dtype=np.float64)
+        jaws = (np.array([np.nan if j is None else j for _, _, j in rows], dtype=np.float64)
+                if any(j is not None for _, _, j in rows) else None)
+        return cls(poses, twists, traj.pose_at(traj.start_time) if start else None, jaws)
 
 
 def as_tool_path(candidate: ToolPath | Trajectory | np.ndarray, dt: float) -> ToolPath:
@@ -385,8 +396,11 @@ def rollout_candidate(sim: Simulation, snap: SimSnapshot, path: ToolPath, index:
     poses, twists = path.poses, path.twists
     dt = sim.params.dt
     prev = path.start if path.start is not None else snap.tool_pose
+    jaws = path.jaws
     k = 0
-    if track is not None and n_part and sim.contact is not None:
+    # a path that works the jaw, or a snapshot whose jaw holds particles, is never the tool-free baseline's
+    holding = bool(snap.grasp) and len(snap.grasp.get("idx", ())) > 0
+    if track is not None and n_part and sim.contact is not None and jaws is None and not holding:
         while k < n:
             track.extend(k + 1)
             if len(track.states) < k + 2:
@@ -411,7 +425,7 @@ def rollout_candidate(sim: Simulation, snap: SimSnapshot, path: ToolPath, index:
     for k in range(skipped, n):
         pose = ToolPose(float(poses[k, 0]), float(poses[k, 1]), float(poses[k, 2]))
         twist = None if twists is None else ToolTwist(float(twists[k, 0]), float(twists[k, 1]), float(twists[k, 2]))
-        r = sim.step(pose, twist)
+        r = sim.step(pose, twist, jaw=None if jaws is None or math.isnan(jaws[k]) else float(jaws[k]))
         energy[k] = r.energy.scene_total
         fx, fy = float(r.reaction_force[0]), float(r.reaction_force[1])
         peak_force = max(peak_force, math.sqrt(fx * fx + fy * fy))  # as np.linalg.norm rounds it
