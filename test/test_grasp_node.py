@@ -217,3 +217,25 @@ def test_a_recorded_grasp_replays_bit_for_bit(ros_client: Any, start_process: An
 
         held = [M.decode_uint32(raw) for _, _, _, raw in b.messages(["/tool/grasped"])]
     assert max(held) > 0 and held[-1] == 0
+    # tissue-sim play drives a fresh node through the same grasp (tool/pose, tool/twist and tool/jaw by default)
+    fresh = start_node(start_process, "retract_played")
+    c = Client(ros_client, fresh)
+    try:
+        play = start_process(["tissue-sim", "play", str(bag), "--wait", "30"], name="play")
+        assert play.wait(120) == 0, play.output()[-2000:]
+        assert "/tool/jaw" in play.output()
+        # the steps come as the played poses arrive (best effort: a burst may lose some): wait until they stop
+        seen = [-1]
+
+        def settled() -> bool:
+            if len(c.grasped) == seen[0]:
+                return True
+            seen[0] = len(c.grasped)
+            c.ros.spin_for(1.0)
+            return False
+
+        c.ros.spin_until(settled, TIMEOUT, fresh, "the played steps")
+        assert len(c.grasped) > 0.5 * len(held), (len(c.grasped), len(held))
+        assert max(c.grasped) == max(held) and c.grasped[-1] == 0  # grasped as live, and let go
+    finally:
+        c.close()

@@ -88,12 +88,22 @@ POSE_TYPES = (
 TWIST_TYPES = ("geometry_msgs/msg/TwistStamped", "geometry_msgs/msg/Twist")
 """Message types a tool velocity is read from."""
 
+JAW_TYPE = "sensor_msgs/msg/JointState"
+#: A grasper's jaw in a bag: a JointState topic named the node's ``tool/jaw`` or a dVRK arm's ``jaw/measured_js``.
+JAW_SUFFIXES = ("tool/jaw", "jaw/measured_js")
+
+
+def is_jaw_topic(topic: str, msgtype: str) -> bool:
+    """Whether ``topic`` carries a grasper's jaw angle (a JointState named like :data:`JAW_SUFFIXES`)."""
+    t = topic.rstrip("/")
+    return msgtype == JAW_TYPE and any(t == s or t.endswith("/" + s) for s in JAW_SUFFIXES)
+
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 
 SKIP_REASONS = ("repeated", "out_of_order", "non_finite", "bad_quaternion")
 """Why :func:`read_tool_track` skips a sample (the keys of :attr:`ToolTrack.skipped`)."""
 
-NODE_TOOL_OUTPUTS = ("tool/applied_pose", "tool/applied_twist")
+NODE_TOOL_OUTPUTS = ("tool/applied_pose", "tool/applied_twist", "tool/applied_jaw")
 """The node's own tool outputs (relative names): the pose and twist it stepped with (msg_docs/topics.md).
 They carry a pose and a twist, but they are what the node did, not a tool's input: neither ``read_tool_track``
 without a topic nor ``tissue-sim play`` without ``--topics`` takes them (``replay --mode applied`` does)."""

@@ -39,7 +39,7 @@ from typing import Any
 
 from ..core.errors import InputError
 from ..core.timing.stamps import ns_from_seconds, stamp_from_ns
-from .bags import POSE_TYPES, TWIST_TYPES, Bag, is_node_tool_output
+from .bags import POSE_TYPES, TWIST_TYPES, Bag, is_jaw_topic, is_node_tool_output
 from .record import check_topic_name, message_class
 
 
@@ -49,8 +49,10 @@ def load_messages(bag: Bag, topics: list[str]) -> list[tuple[str, int, bytes]]:
 
 
 def tool_topics(bag: Bag) -> list[str]:
-    """The bag's tool topics, played by default: pose/twist types but the node's own outputs (tool/applied_*)."""
-    return [t for t, ty in sorted(bag.topics.items()) if ty in POSE_TYPES + TWIST_TYPES and not is_node_tool_output(t)]
+    """The bag's tool topics, played by default: pose/twist types and a grasper's jaw (``tool/jaw``, a dVRK's
+    ``jaw/measured_js``), but the node's own outputs (tool/applied_*)."""
+    return [t for t, ty in sorted(bag.topics.items())
+            if (ty in POSE_TYPES + TWIST_TYPES or is_jaw_topic(t, ty)) and not is_node_tool_output(t)]
 
 
 def choose_topics(bag: Bag, requested: list[str] | None) -> list[str]:
