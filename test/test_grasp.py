@@ -264,3 +264,27 @@ def test_fast_lift_and_huge_pull_on_the_retract_scene_stay_finite(speed, distanc
         assert np.isfinite(sim.state.particle_q).all() and np.isfinite(r.reaction_force).all()
         assert np.isfinite(r.energy.total).all() and math.isfinite(r.reaction_torque)
     assert r.reaction_force[1] < 0
+
+
+def test_step_messages_of_a_grasper_carry_the_held_count_the_term_and_the_cyan_markers():
+    from tissue_sim_ros.ros import messages as M
+
+    sim = strip_sim()
+    settle_tip(sim)
+    r = sim.step(ToolPose(0.0, REST_TIP, 0.0), jaw=0.0)
+    r = sim.step(ToolPose(0.0, REST_TIP + 0.002, 0.0))
+    enc = M.StepEncoder(sim.model, sim.tool)
+    out = enc.encode((1, 0), "world", r, sim.state.particle_q, markers=True, tool_pose=(0.0, REST_TIP + 0.002, 0.0))
+    assert M.decode_uint32(out.messages["tool/grasped"]) == r.grasped.size > 0
+    assert M.decode_float64(out.messages["tissue/energy/attach"]) == r.energy.attach.sum() > 0
+    assert M.decode_float64(out.messages["tissue/energy"]) == pytest.approx(r.energy.scene_total, rel=1e-15)
+    markers = {m.ns: m for m in M.decode_marker_array(out.messages["tissue/markers"])}
+    np.testing.assert_allclose(markers["grasped"].points[:, :2], sim.state.particle_q[r.grasped])
+    # the tool marker is the grasper's envelope, from its tip (the pose) up the shaft
+    tool = markers["tool"].points[:, :2]
+    assert tool[:, 1].min() == pytest.approx(REST_TIP + 0.002, abs=1e-9) and tool[:, 1].max() > REST_TIP + 0.04
+    # a box tool's messages are as before: no grasp topics, no grasped marker
+    box = M.StepEncoder(sim.model, ToolShape())
+    out = box.encode((1, 0), "world", r, sim.state.particle_q, markers=True)
+    assert "tool/grasped" not in out.messages and "tissue/energy/attach" not in out.messages
+    assert "grasped" not in {m.ns for m in M.decode_marker_array(out.messages["tissue/markers"])}

@@ -187,6 +187,19 @@ def test_bad_jaw_messages_are_dropped_counted_and_a_relocated_robot_is_taken_up(
         # the tool follows from there (the step after the relocation moved it along the new stream)
         c.pose(X + 0.02, TOP + 0.035)
         assert c.grasped[-1] == 0
+        # holding tissue, a far stream is never taken up: the flap would be torn across the scene
+        for k in range(1, 9):  # down onto the flap, 4.35 mm per step
+            c.pose(X + 0.02, TOP + 0.035 - 0.0043 * k - 0.0001 * (k == 8))
+        c.jaw(0.0)
+        c.pose(X + 0.02, TOP + 0.0002)
+        assert c.grasped[-1] > 0
+        for k in range(6):
+            c.pose(X - 0.02, TOP + 0.03 + 0.001 * k, wait=False)
+        c.pose(X + 0.02, TOP + 0.001)  # within max_tool_jump of the tool: a step, which also flushes the far ones
+        c.diagnostics.clear()
+        d = c.ros.spin_until(lambda: c.diagnostics and c.diagnostics[-1], TIMEOUT, proc, "diagnostics")
+        assert d["relocations"] == "1" and int(d["dropped_tool_jump"]) == 4 + 6
+        assert c.grasped[-1] > 0
     finally:
         c.close()
 

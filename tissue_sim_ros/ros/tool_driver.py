@@ -51,7 +51,7 @@ from .usage import msg_docs_dir, ros_arguments, wants_help
 DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
     "scene": ("paper", "Shipped scene (tissue_sim_ros.core.timing.trajectories.SCENE_EXPERIMENTS: paper, liver_probe) whose experiments the presets play; its parameter file (config/scenes/NAME.yaml) gives the defaults of dt, frame_id and the tool."),
     "trajectory": ("", "A trajectory preset (experiment_a, experiment_b_shallow, experiment_b_steep, authors) or a trajectory file (.csv of time,x,y,yaw; .yaml waypoints or a straight motion); set, it replaces preset."),
-    "preset": ("experiment_a", "A trajectory preset (tissue_sim_ros.core.timing.trajectories.PRESETS: experiment_a, experiment_b_shallow, experiment_b_steep, authors), or 'straight' for the straight insertion the parameters below describe."),
+    "preset": ("experiment_a", "A trajectory preset (tissue_sim_ros.core.timing.trajectories.PRESETS: experiment_a, experiment_b_shallow, experiment_b_steep, authors, retract), or 'straight' for the straight insertion the parameters below describe."),
     "target_x": (0.5, "Tip position at the end of the insertion, x [m]."),
     "target_y": (0.5, "Tip position at the end of the insertion, y [m]."),
     "angle": (0.0, "Insertion direction (the tool's yaw) [deg]; 0 = moving toward +x."),
