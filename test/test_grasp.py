@@ -288,3 +288,13 @@ def test_step_messages_of_a_grasper_carry_the_held_count_the_term_and_the_cyan_m
     out = box.encode((1, 0), "world", r, sim.state.particle_q, markers=True)
     assert "tool/grasped" not in out.messages and "tissue/energy/attach" not in out.messages
     assert "grasped" not in {m.ns for m in M.decode_marker_array(out.messages["tissue/markers"])}
+
+
+def test_grasp_stability_runs_read_a_grasper_in_its_own_frame():
+    """bench stability --grasp: a fast lift of the retract scene's grasp is stable (the failure checks place the
+    grasper's box up its shaft: read at the pose, its held particles looked tunnelled)."""
+    from tissue_sim_ros.bench.grasp_stability import run_grasp
+
+    fast = run_grasp("neo_hookean", 10, 1e-4, 0.005, 0.02, hold_steps=5)
+    assert fast["outcome"] == "stable" and fast["held"] > 0 and fast["released_step"] == ""
+    assert fast["diverged_steps"] == 0 and abs(fast["lag_mm"]) < 0.1 and fast["max_force_n"] > 0

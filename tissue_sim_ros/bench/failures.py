@@ -81,9 +81,12 @@ def inverted_triangles(x: np.ndarray, tri_indices: np.ndarray) -> np.ndarray:
     return np.flatnonzero(~(area2 > 0.0))
 
 
-def _to_tool_frame(x: np.ndarray, pose: ToolPose) -> np.ndarray:
-    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-    d = x - np.array([pose.x, pose.y])
+def _to_tool_frame(x: np.ndarray, pose: ToolPose, shape: ToolShape | None = None) -> np.ndarray:
+    """Points in the frame of the tool's rounded box (:meth:`ToolShape.contact_pose`: the pose itself but for the
+    grasper, whose box is centred up its shaft)."""
+    px, py, yaw = shape.contact_pose(pose) if shape is not None else (pose.x, pose.y, pose.yaw)
+    c, s = math.cos(yaw), math.sin(yaw)
+    d = x - np.array([px, py])
     return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)
 
 
@@ -99,7 +102,7 @@ def penetration_depth(x: np.ndarray, pose: ToolPose, shape: ToolShape, movable: 
     """
     hx, hy, radius = shape.rounded_box()
     hx, hy = hx + radius, hy + radius
-    p = _to_tool_frame(x, pose)
+    p = _to_tool_frame(x, pose, shape)
     depth = np.minimum(hx - np.abs(p[:, 0]), hy - np.abs(p[:, 1]))
     if movable is not None:
         depth = depth[movable]
@@ -141,8 +144,8 @@ def tunnelled_particles(x0: np.ndarray, x1: np.ndarray, pose0: ToolPose, pose1: 
     hx, hy = hx + radius - tolerance, hy + radius - tolerance
     if hx <= 0 or hy <= 0:
         return np.zeros(0, dtype=np.int64)
-    p0 = _to_tool_frame(x0, pose0)
-    p1 = _to_tool_frame(x1, pose1)
+    p0 = _to_tool_frame(x0, pose0, shape)
+    p1 = _to_tool_frame(x1, pose1, shape)
     d = p1 - p0
     # slab test of the segment p0 + t d, t in [0, 1], against |x| < hx, |y| < hy
     t_lo = np.zeros(len(p0))

@@ -16,8 +16,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--material", action="store_true",
                         help="instead: the neo_hookean material over dt, E 1 kPa-1 MPa, tool speed and mesh quality "
                              "on a real-size strip (bench/material_stability.py)")
+    parser.add_argument("--grasp", action="store_true",
+                        help="instead: a grasp on the retract scene, lifted fast and pulled far, over material, "
+                             "substeps and the grasp's compliance (bench/grasp_stability.py)")
     add_backend_arguments(parser, jobs_default=1, jobs_help="worker processes (default 1: in this process)")
 
 
 def run(args: argparse.Namespace) -> int:
-    return stability.run(args.out, quick=args.quick, material=args.material, **backend_kwargs(args))
+    return stability.run(args.out, quick=args.quick, material=args.material, grasp=args.grasp,
+                         **backend_kwargs(args))
