@@ -6,8 +6,9 @@ no jump farther than ``max_tool_jump``), taken into the plane's frame
 (:class:`~tissue_sim_ros.ros.tf_input.FrameInput`) and kept as the newest
 tool; a bad one is dropped and counted (``dropped_*`` on /diagnostics) with a
 throttled warning. In lock-step every accepted pose is one step, paired with
-the twist of its own stamp among those that arrived before it, and the newest jaw angle
-(``tool/jaw``, sensor_msgs/JointState ``position[0]`` [rad]) received before it.
+the twist of its own stamp among those that arrived before it, and with the jaw angle (``tool/jaw``,
+sensor_msgs/JointState ``position[0]`` [rad]) stamped last at or before it among those that arrived before it
+(unstamped jaws: the newest received); timer mode steps with the newest jaw.
 
 A relocated robot (``relocate_poses``): poses farther than ``max_tool_jump`` from the tool are rejected, but
 when the tool grasps nothing and ``relocate_poses`` of them in a row each lie within ``max_tool_jump`` of the
@@ -54,6 +55,25 @@ class ToolInput:
     jaw: float | None = None
     """The newest accepted jaw angle [rad] (None: none yet; the grasper counts as open)."""
     jaw_stamp: tuple[int, int] = (0, 0)
+    recent_jaws: list = field(default_factory=list)
+    """The newest accepted jaws as (stamp, angle), oldest first (at most ``TWIST_HISTORY``): lock-step gives a
+    pose the jaw of its time, however the two topics' messages interleave on arrival."""
+
+    def jaw_at(self, stamp: tuple[int, int]) -> float | None:
+        """The jaw angle for a lock-step pose stamped ``stamp``: the last accepted jaw stamped at or before it;
+        the newest one when the pose or a jaw is unstamped; None (the simulation keeps its jaw) when every
+        jaw is stamped later."""
+        if stamp == (0, 0) or any(s == (0, 0) for s, _ in self.recent_jaws):
+            return self.jaw
+        for s, value in reversed(self.recent_jaws):
+            if s <= stamp:
+                return value
+        return None
+
+    def keep_jaw(self, stamp: tuple[int, int], value: float) -> None:
+        self.recent_jaws.append((stamp, value))
+        if len(self.recent_jaws) > TWIST_HISTORY:
+            del self.recent_jaws[0]
     recent_twists: dict = field(default_factory=dict)
     """The newest accepted twists by stamp (at most ``TWIST_HISTORY``, oldest forgotten first): lock-step pairs a
     pose with the twist of its own stamp among those that arrived before it, as ``tissue-sim replay`` does,
@@ -102,6 +122,7 @@ class ToolInputs:
         self.tool.pose_stamp = self.tool.twist_stamp = self.tool.jaw_stamp = (0, 0)
         self.tool.twist_received = -math.inf
         self.tool.recent_twists.clear()
+        self.tool.recent_jaws.clear()
 
     # ------------------------------------------------------------------ checks
 
@@ -265,6 +286,7 @@ class ToolInputs:
             return
         self.tool.jaw = value
         self.tool.jaw_stamp = stamp
+        self.tool.keep_jaw(stamp, value)
 
     def on_twist(self, msg: TwistStamped) -> None:
         node = self.node

@@ -119,7 +119,9 @@ class Stepper:
             # derived here, by the Simulation's own formula, so the twist used can be published and replayed
             twist = twist_from_poses(sim.tool_pose, pose, sim.params.dt)
         quaternion = node.inputs.tool.quaternion
-        report = sim.step(pose, twist, jaw=node.inputs.tool.jaw)
+        # the jaw: the newest (timer mode), or the one of the pose's time (lock-step, as twists are paired)
+        jaw = node.inputs.tool.jaw if from_timer else node.inputs.tool.jaw_at(stamp)
+        report = sim.step(pose, twist, jaw=jaw)
         node.last_report = report
         s = node.stats
         s.steps += 1
