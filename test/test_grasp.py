@@ -319,3 +319,17 @@ def test_release_restores_free_motion_exactly():
         np.testing.assert_array_equal(sim.state.particle_q, free.state.particle_q)
         np.testing.assert_array_equal(a.reaction_force, b.reaction_force)
         assert a.energy.scene_total == b.energy.scene_total
+
+
+def test_contacts_carry_the_attachments_as_plain_arrays():
+    """The solvers' interface: attach_idx (K,) int64, attach_target (K, 2) float64, attach_compliance [m/N] and its
+    inverse attach_stiffness [N/m] on the step's Contacts."""
+    sim = strip_sim()
+    settle_tip(sim)
+    sim.step(ToolPose(0.0, REST_TIP, 0.0), jaw=0.0)
+    r = sim.step(ToolPose(0.0, REST_TIP + 0.001, 0.0), detail=True)
+    c = r.detail.contacts
+    assert c.attach_idx.dtype == np.int64 and c.attach_idx.shape == (r.grasped.size,)
+    assert c.attach_target.dtype == np.float64 and c.attach_target.shape == (r.grasped.size, 2)
+    assert c.attach_compliance == sim.params.grasp_compliance and c.attach_stiffness == 1.0 / c.attach_compliance
+    np.testing.assert_allclose(c.attach_target, sim.grasp.targets(ToolPose(0.0, REST_TIP + 0.001, 0.0)))

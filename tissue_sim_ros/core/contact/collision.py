@@ -120,6 +120,11 @@ class Contacts:
     attach_compliance: float = 0.0
     """Compliance of the attachment springs [m/N] (energy |x - target|^2 / (2 compliance))."""
 
+    @property
+    def attach_stiffness(self) -> float:
+        """1 / ``attach_compliance`` [N/m] (0 without attachments): the form an energy-minimising solver reads."""
+        return 1.0 / self.attach_compliance if self.attach_compliance > 0.0 else 0.0
+
     @classmethod
     def empty(cls, n_bodies: int) -> "Contacts":
         z7 = np.zeros(7)
