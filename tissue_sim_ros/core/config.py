@@ -301,7 +301,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("scheme", str, _SIM.scheme, "", f"Constraint order: {', '.join(SCHEMES)}.", False, "solver"),
     ParamSpec("iterations", int, _SIM.iterations, "", "Solver iterations per (sub)step (Table I: 30).", False, "solver"),
     ParamSpec("substeps", int, _SIM.substeps, "", "Substeps per step.", False, "solver"),
-    ParamSpec("solve_tolerance", float, _SIM.solve_tolerance, "", "Material: relative optimality residual of a step at which its solve counts as converged (quasi_newton stops there; the node warns beyond it).", False, "solver"),
+    ParamSpec("solve_tolerance", float, _SIM.solve_tolerance, "", "Material: estimated relative error of a step (its last correction over its motion) at which its solve counts as converged (quasi_newton stops there; the node warns beyond it).", False, "solver"),
     ParamSpec("relaxation", float, _SIM.relaxation, "", "Jacobi relaxation factor in (0, 1].", False, "solver"),
     ParamSpec("jacobi_averaging", str, _SIM.jacobi_averaging, "", f"PBD Jacobi: violated (the authors': spring and area corrections each averaged over the particle's violated constraints of that type, then added) or all (divided by all its constraints); one of {', '.join(JACOBI_AVERAGINGS)}.", False, "solver"),
     ParamSpec("jacobi_spring_tolerance", float, _SIM.jacobi_spring_tolerance, "m", "PBD Jacobi violated: a spring counts when ||x_i - x_j| - d0| >= this (the authors' 1e-4).", False, "solver"),

@@ -87,8 +87,8 @@ class SimParams:
     substeps: int = 1
     """Substeps per step (Macklin 2019: many substeps of one iteration)."""
     solve_tolerance: float = 1e-3
-    """Material: the step's optimality residual |P grad E| relative to its load at which a solve counts as
-    converged (method quasi_newton stops there; every method with the material reports it, and the node warns
+    """Material: the step's estimated relative error (the last correction over the step's motion) at which a
+    solve counts as converged (method quasi_newton stops there; every method with the material reports it, and the node warns
     beyond it; core/physics/quasi_newton.py)."""
     relaxation: float = 0.9
     """XPBD Jacobi relaxation in (0, 1]: the fraction of the largest step with guaranteed convergence.

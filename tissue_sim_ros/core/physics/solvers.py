@@ -46,8 +46,9 @@ import numpy as np
 
 from ..contact.collision import Contacts
 from ..errors import InputError
-from . import kernels, material, quasi_newton
+from . import kernels, material
 from .model import Model, State
+from .quasi_newton import MaterialSolve
 from .violated_jacobi import apply_walls, violated_jacobi_iterations
 
 #: Smallest mesh for which ``parallel=True`` is worth trying: below it the
@@ -69,8 +70,6 @@ ORDERS = ("mesh", "colour", "stored")
 WAVEFRONT_BLOCK = 4096
 PARALLEL_MODES = ("partition", "colour")
 JACOBI_RELAXATIONS = ("stiffness", "uniform")
-#: L-BFGS pairs kept by the quasi-Newton solve (Liu et al. 2017 use 5-7; measured 5 with ``bench material``).
-QN_HISTORY = 5
 
 
 @dataclass
@@ -89,8 +88,9 @@ class SolveInfo:
     solve_iterations: int = 0
     """Material: iterations the solve took (quasi_newton; the other methods their fixed count)."""
     solve_residual: float = math.nan
-    """Material: the step's optimality residual |P grad E| relative to its load (core/physics/quasi_newton.py;
-    xpbd: of its last substep's potential); NaN for the constraint model."""
+    """Material: the step's estimated relative error against its exact (implicit Euler) step: the correction a
+    quasi-Newton iteration would still make, over the step's motion (core/physics/quasi_newton.py; xpbd: of its
+    last substep); NaN for the constraint model."""
     solve_converged: bool = True
     """Material: ``solve_residual <= params.solve_tolerance``."""
 
@@ -335,27 +335,8 @@ class Solver:
         self._shape0 = np.zeros(7)
         self._shape1 = np.zeros(7)
         self.quasi_newton = p.method == "quasi_newton"
-        if self.is_material:
-            self._qn_kind = np.zeros(n, dtype=np.int8)
-            self._qn_normal = np.zeros((n, 2))
-            self._qn_vectors = np.zeros((5, 2 * n))  # g, g_new, d, x_old, z
-            self._qn_out = np.zeros(3)
-            self._x_pred_h = np.zeros((n, 2))
-        if self.quasi_newton:
-            self._prefactor: quasi_newton.Prefactor | None = None
-            # the active set the previous step ended with: (particles, normals); refactor when it held two steps
-            self._qn_held: tuple[np.ndarray, np.ndarray] = (np.zeros(0, dtype=np.int64), np.zeros((0, 2)))
-            self._qn_last_key = b""
-            self.refactors = 0
-            """How many times A0 was factored (the first, a new dt, a changed active set)."""
-            m_hist = QN_HISTORY
-            self._hist_s = np.zeros((m_hist, 2 * n))
-            self._hist_y = np.zeros((m_hist, 2 * n))
-            self._hist_rho = np.zeros(m_hist)
-            self._alpha_buf = np.zeros(m_hist)
-            self._scratch_dx = np.zeros((n, 2))
-        self._no_attach_idx = np.zeros(0, dtype=np.int64)
-        self._no_attach_target = np.zeros((0, 2))
+        # the material's step minimised (quasi_newton) and every material step's convergence report
+        self.material_solve = MaterialSolve(model, self.tris, self.elastic) if self.is_material else None
         self._shapes = np.zeros((0, 7))
         self._no_shapes = np.zeros((0, 7))
         self._no_edge_set = (self._no_edges, self._no_float, self.edge_offsets)
@@ -567,7 +548,7 @@ class Solver:
                 cand, surf = self._no_index, self._no_edges
             if self.is_material:
                 if sub == n_sub - 1:
-                    np.copyto(self._x_pred_h, x)
+                    np.copyto(self.material_solve.x_pred_h, x)
                 self._material_iterations(x, w, h, cand, surf, float(contacts.edge_side_tol))
                 if self.walls:
                     apply_walls(x, p.wall_y_bottom, p.wall_y_top)
@@ -605,46 +586,11 @@ class Solver:
         residual = kernels.constraint_residual(x, self.edges, self.rest, self.tris, self.area0, self.signed)
         info = self._finish(contacts, held_idx, projection, residual)
         if self.is_material:
-            # the last substep's optimality residual (particles the tool, a line or a wall moved excluded)
             info.solve_iterations = p.iterations
-            info.solve_residual = float(quasi_newton.substep_residual(
-                x, self._x_pred_h, model.particle_mass, w, self.tris, self.elastic, h * h, p.gravity,
-                self.contact_dx if projection else self._scratch_or_zero(), p.boundary_y_top, p.boundary_y_bottom,
-                p.wall_y_bottom, p.wall_y_top, *self._attachments(contacts), self._qn_kind, self._qn_vectors[0],
-                self._qn_vectors[1]))
+            info.solve_residual = self.material_solve.sweep_residual(
+                x, self.x_start, w, h, self.contact_dx if projection else None, contacts)
             info.solve_converged = info.solve_residual <= p.solve_tolerance
         return info
-
-    def _scratch_or_zero(self) -> np.ndarray:
-        self._dx_acc.fill(0.0)
-        return self._dx_acc
-
-    @staticmethod
-    def _attachments_of(contacts: Contacts | None):
-        return getattr(contacts, "attach_idx", None), getattr(contacts, "attach_target", None), \
-            float(getattr(contacts, "attach_stiffness", 0.0) or 0.0)
-
-    def _attachments(self, contacts: Contacts | None) -> tuple[np.ndarray, np.ndarray, float]:
-        """(indices, targets [m], stiffness 1/compliance [N/m]) of the particles held to the tool this step."""
-        idx, target, k = self._attachments_of(contacts)
-        if idx is None or len(idx) == 0 or k <= 0.0:
-            return self._no_attach_idx, self._no_attach_target, 0.0
-        return (np.ascontiguousarray(idx, dtype=np.int64),
-                np.ascontiguousarray(target, dtype=np.float64).reshape(-1, 2), k)
-
-    def prefactor(self, dt: float) -> quasi_newton.Prefactor:
-        """The quasi-Newton solve's factored matrix A0 = M + dt^2 K0 for this dt (made on first use, kept), with
-        the active set the last steps held (:attr:`_qn_held`: refactored when it changed and then stayed)."""
-        held, normal = self._qn_held
-        key = quasi_newton.active_key(held, normal)
-        if self._prefactor is None or self._prefactor.dt != float(dt) or (
-                key != self._prefactor.held_key and key == self._qn_last_key):
-            m = self.model
-            self._prefactor = quasi_newton.Prefactor(m.particle_q0, self.tris, self.elastic, m.particle_mass,
-                                                     m.particle_inv_mass, dt, held, normal)
-            self.refactors += 1
-        self._qn_last_key = key
-        return self._prefactor
 
     def _step_quasi_newton(self, state_in: State, state_out: State, contacts: Contacts, dt: float) -> SolveInfo:
         """One material step as the minimiser of its incremental potential (core/physics/quasi_newton.py)."""
@@ -665,23 +611,14 @@ class Solver:
             cand, surf = candidates, surface_edges
         else:
             cand, surf = self._no_index, self._no_edges
-        pre = self.prefactor(dt)
-        np.copyto(x, self.x_pred)
-        g, g_new, d, x_old, z = self._qn_vectors
-        quasi_newton.quasi_newton_solve(
-            x, x0, self.x_pred, model.particle_mass, self.inv_mass_eff, self.tris, self.elastic, dt * dt,
-            p.gravity, pre.l_ptr, pre.l_idx, pre.l_val, pre.u_ptr, pre.u_idx, pre.u_val, pre.perm_r, pre.perm_c,
-            self._hist_s, self._hist_y, self._hist_rho, self._alpha_buf, self._qn_kind, self._qn_normal,
-            cand, surf, self._shape0, self._shape1, float(contacts.edge_side_tol), self._scratch_dx,
-            self.contact_dx, p.boundary_y_top, p.boundary_y_bottom, p.wall_y_bottom, p.wall_y_top,
-            *self._attachments(contacts), p.solve_tolerance, p.iterations, g, g_new, d, x_old, z, self._qn_out)
+        iterations, solve_residual = self.material_solve.minimise(
+            x0, v0, x, self.x_pred, self.inv_mass_eff, dt, self.damp_factor(dt), cand, surf, self._shape0,
+            self._shape1, float(contacts.edge_side_tol), self.contact_dx, contacts)
         kernels.update_velocity(x, x0, dt, v)
         kernels.apply_boundary_lines(x, v, inv_mass, p.boundary_y_top, p.boundary_y_bottom)
         residual = kernels.constraint_residual(x, self.edges, self.rest, self.tris, self.area0, self.signed)
         info = self._finish(contacts, held_idx, projection, residual)
-        active = np.flatnonzero((self._qn_kind == quasi_newton.TOOL) | (self._qn_kind == quasi_newton.LINE))
-        self._qn_held = (active, self._qn_normal[active].copy())
-        info.solve_iterations = int(self._qn_out[0])
-        info.solve_residual = float(self._qn_out[1])
+        info.solve_iterations = iterations
+        info.solve_residual = solve_residual
         info.solve_converged = info.solve_residual <= p.solve_tolerance
         return info

@@ -143,8 +143,9 @@ class StepReport:
     solve_iterations: int = 0
     """Material: iterations the step's solve took (quasi_newton; xpbd its fixed count); 0 for the constraint model."""
     solve_residual: float = math.nan
-    """Material: the step's optimality residual |P grad E| relative to its load (``core/physics/quasi_newton.py``;
-    xpbd: of its last substep); NaN for the constraint model."""
+    """Material: the step's estimated relative error against its exact (implicit Euler) step: the correction a
+    quasi-Newton iteration would still make, over the step's motion (``core/physics/quasi_newton.py``; xpbd: of its
+    last substep); NaN for the constraint model."""
     solve_converged: bool = True
     """Material: ``solve_residual <= solve_tolerance``. False: the step stopped short of its own minimiser (a
     softer tissue than the material, or a stiffer one); the node warns and counts it."""

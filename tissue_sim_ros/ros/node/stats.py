@@ -18,6 +18,8 @@ class NodeStats:
     missed_ticks: int = 0
     """Timer ticks skipped because the previous one ran late."""
     divergences: int = 0
+    unconverged_steps: int = 0
+    """Material steps whose solve stopped short of solve_tolerance (StepReport.solve_converged False)."""
     dropped: dict[str, int] = field(default_factory=lambda: {
         "nonfinite": 0, "frame": 0, "stale": 0, "future": 0, "out_of_order": 0, "tool_jump": 0,
         "unpublished_nonfinite": 0})
