@@ -11,9 +11,26 @@ for ``steps`` steps (3 s). For each mesh spacing it runs
 * ``quasi_newton``: the material with the default solve (core/physics/quasi_newton.py);
 
 and prints, for each, the median solver time per step [ms], the ratio to the paper PBD step, the mean sag's
-error against the static FEM (``bench/fem_reference.hanging_strip``; the run's last state, at rest when
-``at_rest``), the median and max iterations and the largest reported ``solve_residual``. The times are measured
-in one run, one after the other, one core. Writes ``material_speed.csv`` and ``material_speed.png``.
+error against the static FEM (``bench/fem_reference.hanging_strip``; the run's last state), when it came to rest
+(no particle faster than 10 um/s), the median and max iterations and the largest reported ``solve_residual``.
+The times are measured in one run, one after the other, one core.
+
+Then, for the two material solves on each mesh:
+
+* ``punch``: a 30 cm x 1 cm plate pressed 0.4 mm into the block's top, bottom edge on its line, no gravity,
+  stepped to rest (at most 3 s): the reaction against the FEM's force (``fem_reference.flat_punch``);
+* ``dynamics`` (quasi_newton; two meshes): each step of a run with contact against the exact implicit Euler
+  step from the same start, the minimiser of the step's incremental potential by damped Newton on
+  ``bench/material_reference.MembraneEnergy`` (the formula, not the kernels). Two runs: the paper contact
+  (held particles displaced and fixed: the reference fixes them too) and the projection contact with a 2 cm
+  box pressed 1.5 mm in and dragged 1 cm sideways (the reference holds the particles the solve ended on the
+  tool, the bottom line, along their normals' dominant axis at the tool's face: an equality-constrained
+  minimiser; it reports the held particles whose multiplier pulls instead of pushes, which would mean a wrong
+  active set). Error per step ||x - x_ref|| / ||x_ref - x_start||, median and max over the steps that move
+  more than 1 nm RMS.
+
+Writes ``material_speed.csv``, ``material_accuracy_punch.csv``, ``material_dynamics.csv`` and
+``material_speed.png``.
 """
 from __future__ import annotations
 
@@ -71,6 +88,131 @@ def measure(variant: str, spacing: float, steps: int, dt: float = 0.01, damping:
             "solve_ms_median": 1e3 * float(np.median(times)), "iterations_median": float(np.median(its)),
             "iterations_max": int(np.max(its)), "solve_residual_max": float(np.nanmax(res)) if variant != "paper pbd"
             else math.nan, "mean_sag_m": mean_sag, "rest_time_s": rest_step * dt if rest_step > 0 else math.nan}
+
+
+def punch(variant: str, spacing: float, depth: float = 4e-4, max_steps: int = 300) -> dict[str, Any]:
+    """The plate pressed ``depth`` into the block's top, stepped to rest: reaction force [N], time to rest."""
+    from ..core.contact.tool import ToolPose  # noqa: PLC0415
+
+    values = {"dt": 0.01, "damping": 20.0, "gravity": 0.0, "boundary_y_top": math.nan, "boundary_y_bottom": 1e-9,
+              "contact_model": "projection", "contact_margin": 0.0, "tool_shape": "box", "tool_length": 0.3,
+              "tool_width": 0.01, **BLOCK, "material": "neo_hookean"}
+    if variant == "xpbd 10x10":
+        values.update(method="xpbd", substeps=10, iterations=10)
+    sim = Simulation.from_config(resolve_config(values, source="--set"), mesh=mesh_rectangle(WIDTH, HEIGHT, spacing))
+    pose = ToolPose(0.5 * WIDTH, HEIGHT + 0.005 - depth, 0.0)
+    rest = -1
+    times = []
+    r = None
+    for k in range(1, max_steps + 1):
+        r = sim.step(pose)
+        times.append(r.timings["solve"])
+        if k > 5 and float(np.abs(sim.state.particle_qd).max()) < REST_SPEED:
+            rest = k
+            break
+    return {"variant": variant, "spacing_mm": 1e3 * spacing, "particles": sim.model.n_particles,
+            "force_n": float(r.reaction_force[1]), "rest_time_s": rest * 0.01 if rest > 0 else math.nan,
+            "solve_ms_median": 1e3 * float(np.median(times)), "penetrating": int(r.n_penetrating)}
+
+
+def _constrained_minimiser(energy, x_init: np.ndarray, fixed: np.ndarray, held: np.ndarray, normal: np.ndarray,
+                           rtol: float = 1e-10, max_iterations: int = 100) -> np.ndarray:
+    """Damped Newton on ``energy`` (value, gradient, hessian) with ``fixed`` (N,) particles at ``x_init`` and
+    ``held`` particles free only along the tangent of their ``normal`` (x = x_init + Z u, Newton on u)."""
+    import scipy.sparse as sp  # noqa: PLC0415
+    import scipy.sparse.linalg as sla  # noqa: PLC0415
+
+    n = x_init.shape[0]
+    rows, cols, vals = [], [], []
+    col = 0
+    tangent = {int(i): (-float(nv[1]), float(nv[0])) for i, nv in zip(held, normal)}
+    for i in range(n):
+        if fixed[i]:
+            continue
+        if i in tangent:
+            tx, ty = tangent[i]
+            rows += [2 * i, 2 * i + 1]
+            cols += [col, col]
+            vals += [tx, ty]
+            col += 1
+        else:
+            rows += [2 * i, 2 * i + 1]
+            cols += [col, col + 1]
+            vals += [1.0, 1.0]
+            col += 2
+    z = sp.csr_matrix((vals, (rows, cols)), shape=(2 * n, col))
+    x = x_init.copy()
+    g0 = float(np.linalg.norm(z.T @ energy.gradient(x).ravel()))
+    for _ in range(max_iterations):
+        g = z.T @ energy.gradient(x).ravel()
+        if float(np.linalg.norm(g)) <= rtol * max(g0, 1e-300):
+            break
+        for project in (False, True):
+            h = (z.T @ energy.hessian(x, project=project) @ z).tocsc()
+            d = sla.spsolve(h, -g)
+            if float(g @ d) < 0.0:
+                break
+        f = energy.value(x)
+        step = 1.0
+        while step > 1e-8:
+            trial = x + (z @ (step * d)).reshape(-1, 2)
+            if energy.value(trial) <= f + 1e-4 * step * float(g @ d):
+                break
+            step *= 0.5
+        x = trial
+    return x
+
+
+def dynamics(spacing: float, contact: str, steps: int = 60) -> dict[str, Any]:
+    """Each quasi_newton step of a run with contact against the exact step from the same start (module doc)."""
+    from ..core.contact.tool import ToolPose  # noqa: PLC0415
+    from ..core.physics import quasi_newton as qn  # noqa: PLC0415
+    from .material_reference import MembraneEnergy  # noqa: PLC0415
+
+    values = {"dt": 0.01, "damping": 20.0, "gravity": -GRAVITY, "boundary_y_top": math.nan,
+              "boundary_y_bottom": 1e-9, "contact_model": contact, "contact_margin": 0.0, "tool_shape": "box",
+              "tool_length": 0.02, "tool_width": 0.01, **BLOCK, "material": "neo_hookean"}
+    sim = Simulation.from_config(resolve_config(values, source="--set"), mesh=mesh_rectangle(WIDTH, HEIGHT, spacing))
+    n = sim.model.n_particles
+    floor = 1e-9 * math.sqrt(n)
+    errors, its, wrong_sign, excluded, worst = [], [], 0, 0, []
+    top = HEIGHT + 0.005
+    for k in range(steps):
+        # press 1.5 mm over the first third, drag 1 cm sideways over the second, hold
+        a = min(1.0, k / (steps / 3))
+        b = min(1.0, max(0.0, (k - steps / 3) / (steps / 3)))
+        pose = ToolPose(0.04 + 0.01 * b, top - 1.5e-3 * a + 1e-4, 0.0)
+        start = sim.state.copy()
+        r = sim.step(pose)
+        its.append(r.solve_iterations)
+        energy = MembraneEnergy(sim.model, r.x_pred, sim.params.dt)
+        ms = sim.solver.material_solve
+        fixed = (sim.model.particle_inv_mass == 0.0) | (ms.kind == qn.CORNER)
+        if contact == "paper" and r.held_idx.size:
+            fixed[r.held_idx] = True
+        held = np.flatnonzero((ms.kind == qn.TOOL) | (ms.kind == qn.LINE) | (ms.kind == qn.EDGE))
+        normal = ms.normal[held].copy()
+        # start: x*, with the held particles where the solve put them (on the tool's surface, their lines)
+        x_init = r.x_pred.copy()
+        x_init[held] = sim.state.particle_q[held]
+        x_init[ms.kind == qn.CORNER] = sim.state.particle_q[ms.kind == qn.CORNER]
+        x_ref = _constrained_minimiser(energy, x_init, fixed, held, normal)
+        g = energy.gradient(x_ref)
+        push = (g[held] * normal).sum(axis=1)  # the held particle's gradient along its normal: > 0 pushes
+        wrong_sign += int(np.count_nonzero(push < -1e-9 * max(float(np.abs(g).max()), 1e-300)))
+        motion = float(np.linalg.norm(x_ref - start.particle_q))
+        if motion <= floor:
+            excluded += 1
+            continue
+        errors.append(float(np.linalg.norm(sim.state.particle_q - x_ref)) / motion)
+        worst.append((errors[-1], k, r.solve_iterations, r.solve_residual, r.solve_converged))
+    return {"contact": contact, "spacing_mm": 1e3 * spacing, "particles": n, "steps": steps,
+            "steps_measured": len(errors), "err_step_median": float(np.median(errors)) if errors else math.nan,
+            "err_step_max": float(np.max(errors)) if errors else math.nan,
+            "iterations_median": float(np.median(its)), "iterations_max": int(np.max(its)),
+            "wrong_sign_holds": wrong_sign, "worst_steps": sorted(worst, reverse=True)[:3],
+            "unconverged_steps": sum(1 for w in worst if not w[4]),
+            "err_step_max_converged": max((w[0] for w in worst if w[4]), default=math.nan)}
 
 
 def plot(path: Path, rows: Sequence[dict[str, Any]]) -> None:
@@ -139,12 +281,35 @@ def run(out: str | Path, *, spacings: Sequence[float] = SPACINGS, steps: int = 3
         for row in by.values():
             row["vs_paper_pbd"] = row["solve_ms_median"] / by["paper pbd"]["solve_ms_median"]
             row["err_sag"] = row["mean_sag_m"] / ref.mean_sag - 1.0 if row["variant"] != "paper pbd" else math.nan
+    punch_ref = fem.flat_punch(WIDTH, HEIGHT, BLOCK["young_modulus"], BLOCK["poisson_ratio"], BLOCK["thickness"],
+                               depth=4e-4).force
+    punch_rows = []
+    for spacing in spacings:
+        for variant in ("xpbd 10x10", "quasi_newton"):
+            print(f"  punch, {variant} at h = {1e3 * spacing:g} mm ...", flush=True)
+            row = punch(variant, spacing)
+            row["err_force"] = row["force_n"] / punch_ref - 1.0
+            punch_rows.append(row)
+    dyn_rows = []
+    for spacing in spacings[:2]:
+        for contact in ("projection",):
+            print(f"  dynamics, {contact} contact at h = {1e3 * spacing:g} mm (exact steps by Newton) ...", flush=True)
+            dyn_rows.append(dynamics(spacing, contact, steps=30 if quick else 60))
     load = os.getloadavg()[0]
     write_csv(out / "material_speed.csv", rows)
+    write_csv(out / "material_accuracy_punch.csv", punch_rows)
+    write_csv(out / "material_dynamics.csv", dyn_rows)
     plot(out / "material_speed.png", rows)
     cols = ["variant", "spacing_mm", "particles", "solve_ms_median", "vs_paper_pbd", "err_sag", "rest_time_s",
             "iterations_median", "iterations_max", "solve_residual_max"]
     print(f"hanging block, dt 10 ms, {steps} steps, FEM mean sag {ref.mean_sag:.6g} m; load {load:.2f} at the end")
     print(format_table(rows, cols))
-    print(f"wrote {out / 'material_speed.csv'}, {out / 'material_speed.png'}")
+    print(f"\npunch 0.4 mm, FEM force {punch_ref:.6g} N:")
+    print(format_table(punch_rows, ["variant", "spacing_mm", "particles", "force_n", "err_force", "rest_time_s",
+                                    "solve_ms_median", "penetrating"]))
+    print("\ndynamics (quasi_newton): each step against the exact implicit Euler step from the same start:")
+    print(format_table(dyn_rows, ["contact", "spacing_mm", "particles", "steps_measured", "err_step_median",
+                                  "err_step_max", "iterations_median", "iterations_max", "wrong_sign_holds"]))
+    print(f"wrote {out / 'material_speed.csv'}, material_accuracy_punch.csv, material_dynamics.csv, "
+          f"{out / 'material_speed.png'}")
     return 0

@@ -57,17 +57,27 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as sla
 from numba import njit
 
-from ..contact.kernels import project_edges, project_tool
+from ..contact.kernels import _rounded_box_sdf, project_edges, project_tool
 from .material import _deformation_gradient, element_hessians
 
 #: Constraint kinds per particle in the solve.
-FREE, TOOL, FIXED, LINE = 0, 1, 2, 3
+FREE, TOOL, FIXED, LINE, EDGE, CORNER = 0, 1, 2, 3, 4, 5
 #: Backtracking halvings of the line search at most.
 MAX_HALVINGS = 12
 #: Armijo constant of the line search.
 ARMIJO = 1e-4
 #: Motion below this RMS per particle [m] counts as none when the error is measured against the step's motion.
 FLOOR_RMS = 1e-9
+#: A held particle pushed along a direction this far (cosine) from its normal is held in both directions.
+CORNER_COS = 0.9
+#: A held particle's normal that turns (cosine below this) changes the active set.
+NORMAL_SAME = 1.0 - 1e-9
+#: Turns of one particle's normal within a step after which it is held in both directions.
+MAX_TURNS = 3
+#: A particle this close to the tool's surface [m] at a step's start is held along it from the first iteration.
+TOUCH_EPS = 1e-9
+#: Pushes of the contacts at or below this [m] are round-off and hold nothing.
+PUSH_EPS = 1e-12
 #: Stiffness along a held particle's normal in the preconditioner, relative to its row's diagonal.
 HELD_STIFFNESS = 1e4
 #: Normals are compared to 1/NORMAL_QUANTUM when deciding whether the active set changed.
@@ -237,13 +247,14 @@ def potential_and_gradient(x: np.ndarray, x_pred: np.ndarray, mass: np.ndarray, 
 
 @njit(cache=True, nogil=True)
 def project_vector(v: np.ndarray, kind: np.ndarray, normal: np.ndarray) -> None:
-    """Remove from ``v`` (2N,) what the active set forbids: all of a FIXED particle, the normal part at TOOL/LINE."""
+    """Remove from ``v`` (2N,) what the active set forbids: all of a FIXED or CORNER particle, the normal part at
+    TOOL, LINE and EDGE particles."""
     for i in range(kind.shape[0]):
         k = kind[i]
-        if k == FIXED:
+        if k == FIXED or k == CORNER:
             v[2 * i] = 0.0
             v[2 * i + 1] = 0.0
-        elif k == TOOL or k == LINE:
+        elif k == TOOL or k == LINE or k == EDGE:
             s = v[2 * i] * normal[i, 0] + v[2 * i + 1] * normal[i, 1]
             v[2 * i] -= s * normal[i, 0]
             v[2 * i + 1] -= s * normal[i, 1]
@@ -278,48 +289,85 @@ def _dot(a: np.ndarray, b: np.ndarray) -> float:
 
 
 @njit(cache=True, nogil=True)
+def _join(i: int, k: int, kind: np.ndarray, normal: np.ndarray, scratch: np.ndarray, turns: np.ndarray) -> int:
+    """Particle i was pushed by ``scratch[i]``: held along that direction as kind ``k``; 1 if the active set
+    changed (it was not held, or its normal turned).
+
+    A held particle whose push turns from its normal by more than acos(CORNER_COS), or turns at all for the
+    MAX_TURNS-th time in the step (an edge's normal rocking between two tool faces), is held in both directions
+    where it is (CORNER) for the rest of the step: so the set settles and the solve converges."""
+    dx = scratch[i, 0]
+    dy = scratch[i, 1]
+    scratch[i, 0] = 0.0
+    scratch[i, 1] = 0.0
+    d = math.sqrt(dx * dx + dy * dy)
+    if d <= PUSH_EPS or kind[i] == FIXED or kind[i] == CORNER:
+        return 0  # (a push of round-off size, an edge already on the tool's face, has no direction to hold)
+    nx = dx / d
+    ny = dy / d
+    joined = 1 if (kind[i] == FREE or kind[i] == LINE) else 0
+    if kind[i] == TOOL or kind[i] == EDGE:
+        c = nx * normal[i, 0] + ny * normal[i, 1]
+        if c < NORMAL_SAME:
+            turns[i] += 1
+            if c < CORNER_COS or turns[i] >= MAX_TURNS:
+                kind[i] = CORNER
+                return 1
+            joined = 1
+    normal[i, 0] = nx
+    normal[i, 1] = ny
+    kind[i] = k  # the last push decides: an edge push moves a particle off the tool's surface
+    return joined
+
+
+@njit(cache=True, nogil=True)
+def touching(x: np.ndarray, kind: np.ndarray, normal: np.ndarray, candidates: np.ndarray, shape1: np.ndarray,
+             eps: float) -> None:
+    """The active set's start: a free candidate within ``eps`` [m] of the tool's surface (``shape1``; a particle
+    the last step left on it) is held along the surface's normal there from the first iteration."""
+    for k in range(candidates.shape[0]):
+        i = candidates[k]
+        if kind[i] != FREE:
+            continue
+        d, gx, gy = _rounded_box_sdf(x[i, 0], x[i, 1], shape1)
+        if abs(d) <= eps:
+            kind[i] = TOOL
+            normal[i, 0] = gx
+            normal[i, 1] = gy
+
+
+@njit(cache=True, nogil=True)
 def enforce_bounds(x: np.ndarray, x_start: np.ndarray, w: np.ndarray, kind: np.ndarray, normal: np.ndarray,
                    candidates: np.ndarray, surface_edges: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
                    side_tol: float, scratch: np.ndarray, y_top: float, y_bottom: float, wall_bottom: float,
-                   wall_top: float) -> int:
+                   wall_top: float, turns: np.ndarray) -> int:
     """Put back every free particle past the tool, a line or a wall, and hold it along the push (its normal).
 
     The tool: ``project_tool`` / ``project_edges`` (swept from ``x_start`` and ``shape0`` to ``x`` and
     ``shape1``), the push's direction its normal (kind TOOL). Lines and walls: y clamped, normal +-y (LINE).
-    Returns how many particles moved.
+    Returns how many particles joined the active set (a particle already held is moved back but not counted).
     """
     n = x.shape[0]
     moved = 0
-    if candidates.shape[0] > 0 or surface_edges.shape[0] > 0:
+    if candidates.shape[0] > 0:
         for k in range(candidates.shape[0]):
             i = candidates[k]
             scratch[i, 0] = 0.0
             scratch[i, 1] = 0.0
+        project_tool(x, x_start, w, candidates, shape0, shape1, scratch)
+        for k in range(candidates.shape[0]):
+            i = candidates[k]
+            moved += _join(i, TOOL, kind, normal, scratch, turns)
+    if surface_edges.shape[0] > 0:
         for k in range(surface_edges.shape[0]):
             for j in range(2):
                 i = surface_edges[k, j]
                 scratch[i, 0] = 0.0
                 scratch[i, 1] = 0.0
-        if candidates.shape[0] > 0:
-            project_tool(x, x_start, w, candidates, shape0, shape1, scratch)
-        if surface_edges.shape[0] > 0:
-            project_edges(x, x_start, w, surface_edges, shape0, shape1, side_tol, scratch)
-        for k in range(candidates.shape[0] + 2 * surface_edges.shape[0]):
-            if k < candidates.shape[0]:
-                i = candidates[k]
-            else:
-                kk = k - candidates.shape[0]
-                i = surface_edges[kk // 2, kk % 2]
-            dx = scratch[i, 0]
-            dy = scratch[i, 1]
-            d = math.sqrt(dx * dx + dy * dy)
-            if d > 0.0 and kind[i] != FIXED:
-                normal[i, 0] = dx / d
-                normal[i, 1] = dy / d
-                kind[i] = TOOL
-                scratch[i, 0] = 0.0
-                scratch[i, 1] = 0.0
-                moved += 1
+        project_edges(x, x_start, w, surface_edges, shape0, shape1, side_tol, scratch)
+        for k in range(surface_edges.shape[0]):
+            for j in range(2):
+                moved += _join(surface_edges[k, j], EDGE, kind, normal, scratch, turns)
     has_top = not math.isnan(y_top)
     has_bottom = not math.isnan(y_bottom)
     has_wb = not math.isnan(wall_bottom)
@@ -343,12 +391,108 @@ def enforce_bounds(x: np.ndarray, x_start: np.ndarray, w: np.ndarray, kind: np.n
                 ny = 1.0
             else:
                 continue
-            if kind[i] != TOOL:
+            if kind[i] == FREE:
                 kind[i] = LINE
                 normal[i, 0] = 0.0
                 normal[i, 1] = ny
-            moved += 1
+                moved += 1
     return moved
+
+
+@njit(cache=True, nogil=True)
+def build_constraints(kind: np.ndarray, normal: np.ndarray, inv_mass: np.ndarray, in_factor: np.ndarray,
+                      l_ptr: np.ndarray, l_idx: np.ndarray, l_val: np.ndarray, u_ptr: np.ndarray, u_idx: np.ndarray,
+                      u_val: np.ndarray, perm_r: np.ndarray, perm_c: np.ndarray, wcol: np.ndarray,
+                      wkey: np.ndarray, cur_slot: np.ndarray, cur_i: np.ndarray, cur_n: np.ndarray,
+                      smat: np.ndarray, sinv: np.ndarray, used: np.ndarray, b: np.ndarray, z: np.ndarray) -> int:
+    """The active set's rows C for the preconditioner's exact elimination (:func:`apply_preconditioner`).
+
+    Rows, in particle order: n_i at a TOOL or LINE particle the factor does not already hold
+    (``in_factor``), and the unit x and y rows at a FIXED particle that is not pinned (``inv_mass > 0``: held
+    by the paper contact, asleep); pinned ones are identity rows of A0. Each row's column W = A0^-1 c is kept in
+    ``wcol`` under its key (particle, n_x, n_y) in ``wkey`` and reused while the factor is the same (its value
+    is a function of the key alone, so reuse changes no bit). S = C W and its inverse go to ``smat``, ``sinv``.
+    Returns the number of rows k, or -1 when they would exceed the workspace (no elimination then).
+    """
+    n = kind.shape[0]
+    cap = wcol.shape[0]
+    k = 0
+    for i in range(n):
+        k_rows = 0
+        if (kind[i] == TOOL or kind[i] == LINE or kind[i] == EDGE) and not in_factor[i]:
+            k_rows = 1
+        elif (kind[i] == FIXED and inv_mass[i] > 0.0) or kind[i] == CORNER:
+            k_rows = 2
+        for r in range(k_rows):
+            if k == cap:
+                return -1
+            cur_i[k] = i
+            if k_rows == 1:
+                cur_n[k, 0] = normal[i, 0]
+                cur_n[k, 1] = normal[i, 1]
+            else:
+                cur_n[k, 0] = 1.0 if r == 0 else 0.0
+                cur_n[k, 1] = 0.0 if r == 0 else 1.0
+            k += 1
+    for s in range(cap):
+        used[s] = False
+    for a in range(k):
+        cur_slot[a] = -1
+        for s in range(cap):
+            if (not used[s] and wkey[s, 0] == cur_i[a] and wkey[s, 1] == cur_n[a, 0]
+                    and wkey[s, 2] == cur_n[a, 1]):
+                cur_slot[a] = s
+                used[s] = True
+                break
+    free = 0
+    for a in range(k):
+        if cur_slot[a] >= 0:
+            continue
+        while used[free]:
+            free += 1
+        i = cur_i[a]
+        b[2 * i] = cur_n[a, 0]
+        b[2 * i + 1] = cur_n[a, 1]
+        apply_inverse(l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, perm_r, perm_c, b, z, wcol[free])
+        b[2 * i] = 0.0
+        b[2 * i + 1] = 0.0
+        wkey[free, 0] = i
+        wkey[free, 1] = cur_n[a, 0]
+        wkey[free, 2] = cur_n[a, 1]
+        cur_slot[a] = free
+        used[free] = True
+    if k == 0:
+        return 0
+    for a in range(k):
+        ia = cur_i[a]
+        for c in range(k):
+            col = wcol[cur_slot[c]]
+            smat[a, c] = cur_n[a, 0] * col[2 * ia] + cur_n[a, 1] * col[2 * ia + 1]
+    sinv[:k, :k] = np.linalg.inv(smat[:k, :k])
+    return k
+
+
+@njit(cache=True, nogil=True)
+def apply_preconditioner(l_ptr: np.ndarray, l_idx: np.ndarray, l_val: np.ndarray, u_ptr: np.ndarray,
+                         u_idx: np.ndarray, u_val: np.ndarray, perm_r: np.ndarray, perm_c: np.ndarray, q: np.ndarray,
+                         z: np.ndarray, out: np.ndarray, k: int, wcol: np.ndarray, cur_slot: np.ndarray,
+                         cur_i: np.ndarray, cur_n: np.ndarray, sinv: np.ndarray, t: np.ndarray) -> None:
+    """out = (A0^-1 - W S^-1 W^T) q with W = A0^-1 C^T, S = C W: the inverse of A0 on the active set's null
+    space (the Newton step of the quadratic model min 1/2 d^T A0 d - q^T d subject to C d = 0), from the
+    rows :func:`build_constraints` made (k <= 0: A0^-1 q)."""
+    apply_inverse(l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, perm_r, perm_c, q, z, out)
+    if k <= 0:
+        return
+    for a in range(k):
+        i = cur_i[a]
+        t[a] = cur_n[a, 0] * out[2 * i] + cur_n[a, 1] * out[2 * i + 1]
+    for a in range(k):
+        u = 0.0
+        for c in range(k):
+            u += sinv[a, c] * t[c]
+        col = wcol[cur_slot[a]]
+        for j in range(out.shape[0]):
+            out[j] -= u * col[j]
 
 
 @njit(cache=True, nogil=True)
@@ -362,11 +506,17 @@ def quasi_newton_solve(x: np.ndarray, x_start: np.ndarray, x_pred: np.ndarray, m
                        contact_dx: np.ndarray, y_top: float, y_bottom: float, wall_bottom: float, wall_top: float,
                        attach_idx: np.ndarray, attach_target: np.ndarray, attach_k: float,
                        tolerance: float, max_iterations: int, x_guess: np.ndarray, g: np.ndarray, g_new: np.ndarray,
-                       d: np.ndarray, x_old: np.ndarray, z: np.ndarray, out: np.ndarray) -> None:
+                       d: np.ndarray, x_old: np.ndarray, z: np.ndarray, out: np.ndarray, inv_mass: np.ndarray,
+                       in_factor: np.ndarray, wcol: np.ndarray, wkey: np.ndarray, cur_slot: np.ndarray,
+                       cur_i: np.ndarray, cur_n: np.ndarray, smat: np.ndarray, sinv: np.ndarray, used: np.ndarray,
+                       b_unit: np.ndarray, t: np.ndarray, released_once: np.ndarray, turns: np.ndarray) -> None:
     """One step's minimisation (module docstring), from ``x_guess`` (free particles; the others stay at ``x`` = x*
     on entry) to the minimiser in ``x``.
 
-    ``x_start`` (N, 2): positions at the start of the step (the tool's swept test). ``kind`` (N,) int8,
+    ``x_start`` (N, 2): positions at the start of the step (the tool's swept test). ``inv_mass`` (N,): the model's
+    (0: pinned, an identity row of A0); ``in_factor`` (N,) bool: particles A0 already holds along their normal;
+    ``wcol`` ... ``t``: the active set's elimination (:func:`build_constraints`, kept across calls while the
+    factor is the same). ``kind`` (N,) int8,
     ``normal`` (N, 2): the active set, set here (FIXED where ``w == 0``). ``hist_*``: L-BFGS history, (m, 2N),
     (m,), and ``alpha_buf`` (m,). ``contact_dx`` (N, 2) is written: the tool's push per particle as
     (g . n) n / m. ``g``, ``g_new``, ``d``, ``x_old``, ``z`` (2N,) scratch. ``out`` (3,): iterations, the
@@ -377,6 +527,8 @@ def quasi_newton_solve(x: np.ndarray, x_start: np.ndarray, x_pred: np.ndarray, m
     m_hist = hist_rho.shape[0]
     n_free = 0
     for i in range(n):
+        released_once[i] = 0
+        turns[i] = 0
         kind[i] = FIXED if w[i] == 0.0 else FREE
         if w[i] != 0.0:
             n_free += 1
@@ -386,8 +538,10 @@ def quasi_newton_solve(x: np.ndarray, x_start: np.ndarray, x_pred: np.ndarray, m
         normal[i, 1] = 0.0
         contact_dx[i, 0] = 0.0
         contact_dx[i, 1] = 0.0
+    if candidates.shape[0] > 0:
+        touching(x, kind, normal, candidates, shape1, TOUCH_EPS)
     enforce_bounds(x, x_start, w, kind, normal, candidates, surface_edges, shape0, shape1, side_tol, scratch,
-                   y_top, y_bottom, wall_bottom, wall_top)
+                   y_top, y_bottom, wall_bottom, wall_top, turns)
     # the load: the gradient at x* (inertia is zero there: strain + attachments), or gravity's dt^2 m g
     f = potential_and_gradient(x_pred, x_pred, mass, w, tris, elastic, dt2, attach_idx, attach_target, attach_k, g)
     project_vector(g, kind, normal)
@@ -401,10 +555,12 @@ def quasi_newton_solve(x: np.ndarray, x_start: np.ndarray, x_pred: np.ndarray, m
     # ... or what the contacts carry at the start (the gradient before their normal parts are taken out)
     load = max(load, _norm(g))
     for i in range(n):  # release a particle whose force points away from its surface
-        if kind[i] == TOOL or kind[i] == LINE:
+        if kind[i] == TOOL or kind[i] == LINE or kind[i] == EDGE:
             if -(g[2 * i] * normal[i, 0] + g[2 * i + 1] * normal[i, 1]) > 0.0:
                 kind[i] = FREE
     project_vector(g, kind, normal)
+    n_rows = build_constraints(kind, normal, inv_mass, in_factor, l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, perm_r,
+                               perm_c, wcol, wkey, cur_slot, cur_i, cur_n, smat, sinv, used, b_unit, z)
     floor = FLOOR_RMS * math.sqrt(max(n_free, 1))
     res = math.inf
     n_hist = 0
@@ -420,7 +576,8 @@ def quasi_newton_solve(x: np.ndarray, x_start: np.ndarray, x_pred: np.ndarray, m
             alpha_buf[j] = a
             for k in range(n_dof):
                 d[k] -= a * hist_y[j, k]
-        apply_inverse(l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, perm_r, perm_c, d, z, g_new)
+        apply_preconditioner(l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, perm_r, perm_c, d, z, g_new, n_rows, wcol,
+                             cur_slot, cur_i, cur_n, sinv, t)
         for k in range(n_dof):
             d[k] = g_new[k]
         project_vector(d, kind, normal)
@@ -435,7 +592,8 @@ def quasi_newton_solve(x: np.ndarray, x_start: np.ndarray, x_pred: np.ndarray, m
         slope = _dot(g, d)
         if slope >= 0.0:  # not a descent direction (history spoilt by the active set): start it again
             n_hist = 0
-            apply_inverse(l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, perm_r, perm_c, g, z, d)
+            apply_preconditioner(l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, perm_r, perm_c, g, z, d, n_rows, wcol,
+                                 cur_slot, cur_i, cur_n, sinv, t)
             project_vector(d, kind, normal)
             for k in range(n_dof):
                 d[k] = -d[k]
@@ -456,47 +614,67 @@ def quasi_newton_solve(x: np.ndarray, x_start: np.ndarray, x_pred: np.ndarray, m
             if f_new <= f + ARMIJO * step * slope:
                 break
             step *= 0.5
-        if enforce_bounds(x, x_start, w, kind, normal, candidates, surface_edges, shape0, shape1, side_tol,
-                          scratch, y_top, y_bottom, wall_bottom, wall_top) > 0:
-            f_new = potential_and_gradient(x, x_pred, mass, w, tris, elastic, dt2, attach_idx, attach_target,
-                                           attach_k, g_new)
-        for i in range(n):
-            if kind[i] == TOOL or kind[i] == LINE:
-                if -(g_new[2 * i] * normal[i, 0] + g_new[2 * i + 1] * normal[i, 1]) > 0.0:
-                    kind[i] = FREE
-        project_vector(g_new, kind, normal)
-        # history: s = x_new - x_old, y = g_new - g (both projected)
+        # the contacts: a particle that went past the tool, a line or a wall joins the active set (always)
+        joined = enforce_bounds(x, x_start, w, kind, normal, candidates, surface_edges, shape0, shape1, side_tol,
+                                scratch, y_top, y_bottom, wall_bottom, wall_top, turns)
+
+        f_new = potential_and_gradient(x, x_pred, mass, w, tris, elastic, dt2, attach_idx, attach_target,
+                                       attach_k, g_new)
+        # the correction just made (its free, tangential part) against the step's motion: the estimate of the
+        # step's relative error
         j = head
         for i in range(n):
             hist_s[j, 2 * i] = x[i, 0] - x_old[2 * i]
             hist_s[j, 2 * i + 1] = x[i, 1] - x_old[2 * i + 1]
-        for k in range(n_dof):
-            hist_y[j, k] = g_new[k] - g[k]
         project_vector(hist_s[j], kind, normal)
-        project_vector(hist_y[j], kind, normal)
-        sy = _dot(hist_s[j], hist_y[j])
-        if sy > 1e-300:
-            hist_rho[j] = 1.0 / sy
-            head = (head + 1) % m_hist
-            n_hist = min(n_hist + 1, m_hist)
+        # (the whole direction, not the line search's fraction of it: a short step is no sign of convergence)
+        res = max(_norm(hist_s[j]), _norm(d)) / max(_motion(x, x_start, w), floor)
+        it += 1
+        released = 0
+        if res <= tolerance and joined == 0:
+            # converged with this active set: release the particles whose force points away from their surface
+            # (one active-set step at a time, so the set does not flicker within the quasi-Newton updates)
+            # (at most once per particle and step: one that comes back is held to the end, so the set cannot
+            # cycle between a release and the projection that undoes it)
+            for i in range(n):
+                if (kind[i] == TOOL or kind[i] == LINE or kind[i] == EDGE) and released_once[i] == 0:
+                    if -(g_new[2 * i] * normal[i, 0] + g_new[2 * i + 1] * normal[i, 1]) > 0.0:
+                        kind[i] = FREE
+                        released_once[i] = 1
+                        released += 1
+        project_vector(g_new, kind, normal)
+        if joined or released:
+            n_hist = 0  # the pairs belong to another set's subspace: start the history again
+            n_rows = build_constraints(kind, normal, inv_mass, in_factor, l_ptr, l_idx, l_val, u_ptr, u_idx, u_val,
+                                       perm_r, perm_c, wcol, wkey, cur_slot, cur_i, cur_n, smat, sinv, used, b_unit, z)
+        else:
+            # history: s = x_new - x_old, y = g_new - g (both projected)
+            for k in range(n_dof):
+                hist_y[j, k] = g_new[k] - g[k]
+            project_vector(hist_y[j], kind, normal)
+            sy = _dot(hist_s[j], hist_y[j])
+            if sy > 1e-300:
+                hist_rho[j] = 1.0 / sy
+                head = (head + 1) % m_hist
+                n_hist = min(n_hist + 1, m_hist)
         for k in range(n_dof):
             g[k] = g_new[k]
         f = f_new
-        it += 1
-        # the correction just made against the step's motion: the estimate of its relative error
-        res = _norm(hist_s[j]) / max(_motion(x, x_start, w), floor)
-        if res <= tolerance:
+        if res <= tolerance and joined == 0 and released == 0:
             break
     # the tool's push on each touching particle: the normal part of its gradient, as a PBD correction
     if candidates.shape[0] > 0 or surface_edges.shape[0] > 0:
         f = potential_and_gradient(x, x_pred, mass, w, tris, elastic, dt2, attach_idx, attach_target, attach_k,
                                    g_new)
         for i in range(n):
-            if kind[i] == TOOL:
+            if kind[i] == TOOL or kind[i] == EDGE:
                 s = g_new[2 * i] * normal[i, 0] + g_new[2 * i + 1] * normal[i, 1]
                 if s > 0.0:
                     contact_dx[i, 0] = s * normal[i, 0] / mass[i]
                     contact_dx[i, 1] = s * normal[i, 1] / mass[i]
+            elif kind[i] == CORNER:  # held in both directions: the tool takes its whole gradient
+                contact_dx[i, 0] = g_new[2 * i] / mass[i]
+                contact_dx[i, 1] = g_new[2 * i + 1] / mass[i]
     out[0] = it
     out[1] = res if load > 0.0 and it > 0 else 0.0
     out[2] = load
@@ -543,6 +721,8 @@ def substep_residual(x: np.ndarray, x_start: np.ndarray, x_pred: np.ndarray, mas
 FACTORS_KEPT = 4
 #: L-BFGS pairs kept (Liu et al. 2017 use 5-7).
 HISTORY = 5
+#: Active-set rows the preconditioner eliminates exactly at most (a tool's contacts; more: projected only).
+ELIMINATED_ROWS = 128
 
 
 def attachments(contacts) -> tuple[np.ndarray, np.ndarray, float]:
@@ -585,6 +765,21 @@ class MaterialSolve:
         self.hist_y = np.zeros((HISTORY, 2 * n))
         self.hist_rho = np.zeros(HISTORY)
         self.alpha = np.zeros(HISTORY)
+        cap = ELIMINATED_ROWS
+        self.wcol = np.zeros((cap, 2 * n))
+        self.wkey = np.full((cap, 3), -1.0)
+        self.cur_slot = np.zeros(cap, dtype=np.int64)
+        self.cur_i = np.zeros(cap, dtype=np.int64)
+        self.cur_n = np.zeros((cap, 2))
+        self.smat = np.zeros((cap, cap))
+        self.sinv = np.zeros((cap, cap))
+        self.used = np.zeros(cap, dtype=np.bool_)
+        self.b = np.zeros(2 * n)
+        self.t = np.zeros(cap)
+        self.in_factor = np.zeros(n, dtype=np.bool_)
+        self.released_once = np.zeros(n, dtype=np.int8)
+        self.turns = np.zeros(n, dtype=np.int8)
+        self._columns_of: Prefactor | None = None
         self.factors: dict[tuple[float, bytes], Prefactor] = {}
         self.refactors = 0
         """How many times a matrix was factored (the first, a new dt, a new set of held particles)."""
@@ -630,14 +825,22 @@ class MaterialSolve:
         np.copyto(x, x_pred)
         np.multiply(v0, dt * damp, out=self.guess)
         self.guess += x0
-        pre = self.prefactor(dt, *self.line_set(self.guess, w))
+        held, normal = self.line_set(self.guess, w)
+        pre = self.prefactor(dt, held, normal)
+        if pre is not self._columns_of:  # the kept columns A0^-1 c belong to the factor they were solved with
+            self.wkey.fill(-1.0)
+            self._columns_of = pre
+        self.in_factor.fill(False)
+        self.in_factor[held] = True
         g, g_new, d, x_old, z = self.vectors
         quasi_newton_solve(
             x, x0, x_pred, m.particle_mass, w, self.tris, self.elastic, dt * dt, p.gravity, pre.l_ptr, pre.l_idx,
             pre.l_val, pre.u_ptr, pre.u_idx, pre.u_val, pre.perm_r, pre.perm_c, self.hist_s, self.hist_y,
             self.hist_rho, self.alpha, self.kind, self.normal, candidates, surface_edges, shape0, shape1, side_tol,
             self.scratch, contact_dx, p.boundary_y_top, p.boundary_y_bottom, p.wall_y_bottom, p.wall_y_top,
-            *attachments(contacts), p.solve_tolerance, p.iterations, self.guess, g, g_new, d, x_old, z, self.out)
+            *attachments(contacts), p.solve_tolerance, p.iterations, self.guess, g, g_new, d, x_old, z, self.out,
+            m.particle_inv_mass, self.in_factor, self.wcol, self.wkey, self.cur_slot, self.cur_i, self.cur_n,
+            self.smat, self.sinv, self.used, self.b, self.t, self.released_once, self.turns)
         return int(self.out[0]), float(self.out[1])
 
     def sweep_residual(self, x: np.ndarray, x_start: np.ndarray, w: np.ndarray, h: float,
