@@ -49,7 +49,7 @@ from ..core.sim.simulation import Simulation
 WIDTH, HEIGHT = 0.10, 0.04
 BLOCK = {"young_modulus": 50e3, "poisson_ratio": 0.45, "thickness": 0.005, "density": 1060.0}
 GRAVITY = 9.8
-SPACINGS = (0.0025, 0.00125, 0.0007)
+SPACINGS = (0.0025, 0.002, 0.001, 0.1 / 140)
 QUICK_SPACINGS = (0.005, 0.0025)
 #: at rest: no particle faster than this [m/s]
 REST_SPEED = 1e-5

@@ -11,7 +11,7 @@ DESCRIPTION = material_speed.__doc__
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="bench_out/material_speed", help="output directory (CSV, PNG)")
-    parser.add_argument("--spacings", default=",".join(str(s) for s in material_speed.SPACINGS),
+    parser.add_argument("--spacings", default=",".join(f"{s:.6g}" for s in material_speed.SPACINGS),
                         help="comma-separated mesh spacings [m]")
     parser.add_argument("--steps", type=int, default=300, help="steps per run (default 300: 3 s)")
     parser.add_argument("--quick", action="store_true", help="two coarse meshes, 60 steps")

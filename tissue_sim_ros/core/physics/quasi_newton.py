@@ -722,7 +722,7 @@ FACTORS_KEPT = 4
 #: L-BFGS pairs kept (Liu et al. 2017 use 5-7).
 HISTORY = 5
 #: Active-set rows the preconditioner eliminates exactly at most (a tool's contacts; more: projected only).
-ELIMINATED_ROWS = 128
+ELIMINATED_ROWS = 256
 
 
 def attachments(contacts) -> tuple[np.ndarray, np.ndarray, float]:
