@@ -12,177 +12,67 @@ its packed rest data: :mod:`~tissue_sim_ros.core.physics.material`). Its
 optimality condition is grad E = 0 on the free coordinates, with the contact
 forces taking up the normal components where a particle touches.
 
-The solve is L-BFGS (Liu, Bouaziz and Kavan 2017) whose initial inverse Hessian
-is a fixed, prefactored matrix: A0 = M + dt^2 K0, with K0 the exact Hessian of
-the strain energy at the rest shape (``material.element_hessians`` at q0). The
-deviatoric part of Psi is exactly quadratic in x, so K0 holds it exactly at
-every shape; only the hydrostatic term (det F - 1)^2 departs from it, by the
-strain and the rotation, and the quasi-Newton updates take that up. A0 is
-factored once per (model, dt) by SuperLU (SciPy, a symmetric minimum-degree
-ordering, no pivoting: A0 is symmetric positive definite) and applied by two
-triangular solves in the compiled loop. Pinned particles are eliminated (their
-rows of A0 are the identity).
+The solve is L-BFGS (Liu, Bouaziz and Kavan 2017, five pairs) whose initial
+inverse Hessian is a fixed, prefactored matrix A0 = M + dt^2 K0, K0 the exact
+Hessian of the strain energy at the rest shape
+(:mod:`~tissue_sim_ros.core.physics.prefactor`), with a backtracking (Armijo)
+line search. Measured (``tissue-sim bench material-speed``): one iteration
+per step at rest and 3-8 while the tissue moves, on meshes of 700 to 8,000
+particles: the count does not grow with the mesh, unlike Gauss-Seidel sweeps.
 
-Measured (``tissue-sim bench material``): 3-6 iterations per 10 ms step at
-tolerance 1e-3 on the hanging strip at h = 2 mm and 1 mm: the count does not
-grow with the mesh, unlike Gauss-Seidel sweeps.
-
-Contacts, lines and walls are an active set. After each update the tool
-projection (``contact.kernels.project_tool`` / ``project_edges``), the lines and
-the walls put back every particle that went past them; such a particle is
-then held in the direction n it was pushed (its normal): the normal
-components of its gradient and of the search direction are removed, so it
-slides along the surface (frictionless), until its force points away from the
-surface (-grad E . n > 0), when it is released. At the end the tool's force on
-a touching particle is the normal part of its gradient over dt^2, which is
-what the Simulation's reaction expects as ``contact_dx = (g . n) n / m``.
-Particles with zero effective inverse mass (pinned, held by the paper contact,
-asleep) stay at x*.
+Contacts, lines and walls are an active set
+(:mod:`~tissue_sim_ros.core.physics.active_set`): after each update the tool's
+projection, the lines and the walls put back every particle that went past
+them, and such a particle is held along the direction it was pushed (its
+normal), sliding along the surface (frictionless), until the solve has
+converged with that set and its force points away from the surface, when it
+is released (once per step). The preconditioner eliminates the held rows
+exactly. At the end the tool's force on a touching particle is the normal
+part of its gradient over dt^2: what the Simulation's reaction expects as
+``contact_dx = (g . n) n / m``. Particles with zero effective inverse mass
+(pinned, held by the paper contact, asleep) stay at x*.
 
 Convergence, reported on every step (``SolveInfo.solve_residual``, the
-``StepReport`` and ``/diagnostics``): the estimated relative error of the step,
-the last correction ||x_k - x_k-1|| against the step's motion ||x - x_n|| (the
-optimality residual grad E preconditioned into a position, so it reads as "how
-far from the exact step, as a fraction of the step"; motion below 1 nm RMS per
-particle counts as 1 nm). The loop stops when it falls to ``solve_tolerance``
-or after ``iterations`` iterations; ``solve_converged`` says which. It starts
-from x_n + dt damp v_n (the motion continued, gravity aside): at rest that is
-the answer, and a resting tissue costs one iteration. """
+``StepReport`` and ``/diagnostics``): the estimated relative error of the
+step, the last quasi-Newton direction against the step's motion ||x - x_n||
+(the optimality residual grad E preconditioned into a position, so it reads as
+"how far from the exact step, as a fraction of the step"; motion below 1 nm
+RMS per particle counts as 1 nm). The loop stops when it falls to
+``solve_tolerance`` with no change of the active set, or after ``iterations``
+iterations; ``solve_converged`` says which. It starts from x_n + dt damp v_n
+(the motion continued, gravity aside): at rest that is the answer, and a
+resting tissue costs one iteration.
+"""
 from __future__ import annotations
 
 import math
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as sla
 from numba import njit
 
-from ..contact.kernels import _rounded_box_sdf, project_edges, project_tool
-from .material import _deformation_gradient, element_hessians
+from .active_set import (  # noqa: F401
+    CORNER,
+    EDGE,
+    FIXED,
+    FREE,
+    LINE,
+    TOOL,
+    TOUCH_EPS,
+    apply_preconditioner,
+    build_constraints,
+    enforce_bounds,
+    project_vector,
+    touching,
+)
+from .material import _deformation_gradient
+from .prefactor import Prefactor, active_key, apply_inverse  # noqa: F401
 
-#: Constraint kinds per particle in the solve.
-FREE, TOOL, FIXED, LINE, EDGE, CORNER = 0, 1, 2, 3, 4, 5
 #: Backtracking halvings of the line search at most.
 MAX_HALVINGS = 12
 #: Armijo constant of the line search.
 ARMIJO = 1e-4
 #: Motion below this RMS per particle [m] counts as none when the error is measured against the step's motion.
 FLOOR_RMS = 1e-9
-#: A held particle pushed along a direction this far (cosine) from its normal is held in both directions.
-CORNER_COS = 0.9
-#: A held particle's normal that turns (cosine below this) changes the active set.
-NORMAL_SAME = 1.0 - 1e-9
-#: Turns of one particle's normal within a step after which it is held in both directions.
-MAX_TURNS = 3
-#: A particle this close to the tool's surface [m] at a step's start is held along it from the first iteration.
-TOUCH_EPS = 1e-9
-#: Pushes of the contacts at or below this [m] are round-off and hold nothing.
-PUSH_EPS = 1e-12
-#: Stiffness along a held particle's normal in the preconditioner, relative to its row's diagonal.
-HELD_STIFFNESS = 1e4
-#: Normals are compared to 1/NORMAL_QUANTUM when deciding whether the active set changed.
-NORMAL_QUANTUM = 20.0
-
-
-def active_key(held: np.ndarray | None, normal: np.ndarray | None) -> bytes:
-    """A signature of an active set: the held particles and their normals to 1/NORMAL_QUANTUM."""
-    if held is None or len(held) == 0:
-        return b""
-    q = np.round(np.asarray(normal, dtype=np.float64).reshape(-1, 2) * NORMAL_QUANTUM).astype(np.int64)
-    return np.asarray(held, dtype=np.int64).tobytes() + q.tobytes()
-
-
-# ----------------------------------------------------------------------------- the prefactored matrix
-
-
-class Prefactor:
-    """A0 = M + dt^2 K0 (rest Hessian) over the model's free coordinates, factored (SuperLU: Pr A0 Pc = L U).
-
-    Parameters
-    ----------
-    q0 : (N, 2) rest positions [m]; tris (T, 3); elastic (T, 6) packed rest data; mass (N,) [kg];
-    inv_mass : (N,) (0 = pinned: an identity row); dt : the step [s].
-    """
-
-    def __init__(self, q0: np.ndarray, tris: np.ndarray, elastic: np.ndarray, mass: np.ndarray,
-                 inv_mass: np.ndarray, dt: float, held: np.ndarray | None = None,
-                 held_normal: np.ndarray | None = None) -> None:
-        n = q0.shape[0]
-        self.dt = float(dt)
-        t = tris.shape[0]
-        he = np.zeros((t, 6, 6))
-        if t:
-            element_hessians(np.ascontiguousarray(q0, dtype=np.float64), np.ascontiguousarray(tris, dtype=np.int32),
-                             np.ascontiguousarray(elastic, dtype=np.float64), he)
-        dofs = np.stack([2 * tris[:, k].astype(np.int64) + d for k in range(3) for d in range(2)], axis=1)
-        rows = np.repeat(dofs, 6, axis=1).ravel()
-        cols = np.tile(dofs, (1, 6)).ravel()
-        pinned = np.repeat(np.asarray(inv_mass) == 0.0, 2)
-        keep = ~(pinned[rows] | pinned[cols])
-        diag = np.where(pinned, 1.0, np.repeat(mass, 2))
-        a = sp.csc_matrix((np.concatenate([diag, (dt * dt) * he.ravel()[keep]]),
-                           (np.concatenate([np.arange(2 * n), rows[keep]]),
-                            np.concatenate([np.arange(2 * n), cols[keep]]))), shape=(2 * n, 2 * n))
-        if held is not None and held.size:
-            # particles the contacts hold along a normal n: A0 + kappa n n^T there, so the preconditioner is
-            # (nearly) the constrained system's (kappa: HELD_STIFFNESS times the particle's row)
-            idx = np.asarray(held, dtype=np.int64)
-            nn = np.asarray(held_normal, dtype=np.float64).reshape(-1, 2)
-            kappa = HELD_STIFFNESS * np.asarray(a.diagonal()).reshape(-1, 2)[idx].max(axis=1)
-            r = np.stack([2 * idx, 2 * idx, 2 * idx + 1, 2 * idx + 1], axis=1).ravel()
-            c = np.stack([2 * idx, 2 * idx + 1, 2 * idx, 2 * idx + 1], axis=1).ravel()
-            v = (kappa[:, None] * np.stack([nn[:, 0] * nn[:, 0], nn[:, 0] * nn[:, 1], nn[:, 1] * nn[:, 0],
-                                            nn[:, 1] * nn[:, 1]], axis=1)).ravel()
-            a = (a + sp.csc_matrix((v, (r, c)), shape=a.shape)).tocsc()
-        self.held_key = active_key(held, held_normal)
-        lu = sla.splu(a, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
-        lo, up = lu.L.tocsc(), lu.U.tocsc()
-        lo.sort_indices()
-        up.sort_indices()
-        self.l_ptr, self.l_idx, self.l_val = (lo.indptr.astype(np.int64), lo.indices.astype(np.int64),
-                                              lo.data.astype(np.float64))
-        self.u_ptr, self.u_idx, self.u_val = (up.indptr.astype(np.int64), up.indices.astype(np.int64),
-                                              up.data.astype(np.float64))
-        self.perm_r = lu.perm_r.astype(np.int64)
-        self.perm_c = lu.perm_c.astype(np.int64)
-        self.nnz = int(lo.nnz + up.nnz)
-        self.matrix = a
-        self.scratch = np.zeros(2 * n)
-
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        """A0^-1 b for a (2N,) vector (the compiled loop's own triangular solves, from Python; for tests)."""
-        out = np.zeros_like(b, dtype=np.float64)
-        apply_inverse(self.l_ptr, self.l_idx, self.l_val, self.u_ptr, self.u_idx, self.u_val, self.perm_r,
-                      self.perm_c, np.ascontiguousarray(b, dtype=np.float64), self.scratch, out)
-        return out
-
-
-@njit(cache=True, nogil=True)
-def apply_inverse(l_ptr: np.ndarray, l_idx: np.ndarray, l_val: np.ndarray, u_ptr: np.ndarray, u_idx: np.ndarray,
-                  u_val: np.ndarray, perm_r: np.ndarray, perm_c: np.ndarray, b: np.ndarray, z: np.ndarray,
-                  out: np.ndarray) -> None:
-    """out = A0^-1 b with Pr A0 Pc = L U (SuperLU's convention): z = Pr b, L y = z, U w = y, out = Pc w.
-
-    L, U in CSC with sorted row indices; L's diagonal is each column's first entry, U's its last.
-    ``z`` (2N,) is scratch.
-    """
-    n = b.shape[0]
-    for j in range(n):
-        z[perm_r[j]] = b[j]
-    for j in range(n):  # forward: L y = z (column-oriented)
-        start = l_ptr[j]
-        yj = z[j] / l_val[start]
-        z[j] = yj
-        for k in range(start + 1, l_ptr[j + 1]):
-            z[l_idx[k]] -= l_val[k] * yj
-    for j in range(n - 1, -1, -1):  # backward: U w = y
-        stop = u_ptr[j + 1] - 1
-        wj = z[j] / u_val[stop]
-        z[j] = wj
-        for k in range(u_ptr[j], stop):
-            z[u_idx[k]] -= u_val[k] * wj
-    for j in range(n):
-        out[j] = z[perm_c[j]]
 
 
 # ----------------------------------------------------------------------------- energy and gradient
@@ -246,21 +136,6 @@ def potential_and_gradient(x: np.ndarray, x_pred: np.ndarray, mass: np.ndarray, 
 
 
 @njit(cache=True, nogil=True)
-def project_vector(v: np.ndarray, kind: np.ndarray, normal: np.ndarray) -> None:
-    """Remove from ``v`` (2N,) what the active set forbids: all of a FIXED or CORNER particle, the normal part at
-    TOOL, LINE and EDGE particles."""
-    for i in range(kind.shape[0]):
-        k = kind[i]
-        if k == FIXED or k == CORNER:
-            v[2 * i] = 0.0
-            v[2 * i + 1] = 0.0
-        elif k == TOOL or k == LINE or k == EDGE:
-            s = v[2 * i] * normal[i, 0] + v[2 * i + 1] * normal[i, 1]
-            v[2 * i] -= s * normal[i, 0]
-            v[2 * i + 1] -= s * normal[i, 1]
-
-
-@njit(cache=True, nogil=True)
 def _norm(v: np.ndarray) -> float:
     s = 0.0
     for i in range(v.shape[0]):
@@ -286,213 +161,6 @@ def _dot(a: np.ndarray, b: np.ndarray) -> float:
     for i in range(a.shape[0]):
         s += a[i] * b[i]
     return s
-
-
-@njit(cache=True, nogil=True)
-def _join(i: int, k: int, kind: np.ndarray, normal: np.ndarray, scratch: np.ndarray, turns: np.ndarray) -> int:
-    """Particle i was pushed by ``scratch[i]``: held along that direction as kind ``k``; 1 if the active set
-    changed (it was not held, or its normal turned).
-
-    A held particle whose push turns from its normal by more than acos(CORNER_COS), or turns at all for the
-    MAX_TURNS-th time in the step (an edge's normal rocking between two tool faces), is held in both directions
-    where it is (CORNER) for the rest of the step: so the set settles and the solve converges."""
-    dx = scratch[i, 0]
-    dy = scratch[i, 1]
-    scratch[i, 0] = 0.0
-    scratch[i, 1] = 0.0
-    d = math.sqrt(dx * dx + dy * dy)
-    if d <= PUSH_EPS or kind[i] == FIXED or kind[i] == CORNER:
-        return 0  # (a push of round-off size, an edge already on the tool's face, has no direction to hold)
-    nx = dx / d
-    ny = dy / d
-    joined = 1 if (kind[i] == FREE or kind[i] == LINE) else 0
-    if kind[i] == TOOL or kind[i] == EDGE:
-        c = nx * normal[i, 0] + ny * normal[i, 1]
-        if c < NORMAL_SAME:
-            turns[i] += 1
-            if c < CORNER_COS or turns[i] >= MAX_TURNS:
-                kind[i] = CORNER
-                return 1
-            joined = 1
-    normal[i, 0] = nx
-    normal[i, 1] = ny
-    kind[i] = k  # the last push decides: an edge push moves a particle off the tool's surface
-    return joined
-
-
-@njit(cache=True, nogil=True)
-def touching(x: np.ndarray, kind: np.ndarray, normal: np.ndarray, candidates: np.ndarray, shape1: np.ndarray,
-             eps: float) -> None:
-    """The active set's start: a free candidate within ``eps`` [m] of the tool's surface (``shape1``; a particle
-    the last step left on it) is held along the surface's normal there from the first iteration."""
-    for k in range(candidates.shape[0]):
-        i = candidates[k]
-        if kind[i] != FREE:
-            continue
-        d, gx, gy = _rounded_box_sdf(x[i, 0], x[i, 1], shape1)
-        if abs(d) <= eps:
-            kind[i] = TOOL
-            normal[i, 0] = gx
-            normal[i, 1] = gy
-
-
-@njit(cache=True, nogil=True)
-def enforce_bounds(x: np.ndarray, x_start: np.ndarray, w: np.ndarray, kind: np.ndarray, normal: np.ndarray,
-                   candidates: np.ndarray, surface_edges: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
-                   side_tol: float, scratch: np.ndarray, y_top: float, y_bottom: float, wall_bottom: float,
-                   wall_top: float, turns: np.ndarray) -> int:
-    """Put back every free particle past the tool, a line or a wall, and hold it along the push (its normal).
-
-    The tool: ``project_tool`` / ``project_edges`` (swept from ``x_start`` and ``shape0`` to ``x`` and
-    ``shape1``), the push's direction its normal (kind TOOL). Lines and walls: y clamped, normal +-y (LINE).
-    Returns how many particles joined the active set (a particle already held is moved back but not counted).
-    """
-    n = x.shape[0]
-    moved = 0
-    if candidates.shape[0] > 0:
-        for k in range(candidates.shape[0]):
-            i = candidates[k]
-            scratch[i, 0] = 0.0
-            scratch[i, 1] = 0.0
-        project_tool(x, x_start, w, candidates, shape0, shape1, scratch)
-        for k in range(candidates.shape[0]):
-            i = candidates[k]
-            moved += _join(i, TOOL, kind, normal, scratch, turns)
-    if surface_edges.shape[0] > 0:
-        for k in range(surface_edges.shape[0]):
-            for j in range(2):
-                i = surface_edges[k, j]
-                scratch[i, 0] = 0.0
-                scratch[i, 1] = 0.0
-        project_edges(x, x_start, w, surface_edges, shape0, shape1, side_tol, scratch)
-        for k in range(surface_edges.shape[0]):
-            for j in range(2):
-                moved += _join(surface_edges[k, j], EDGE, kind, normal, scratch, turns)
-    has_top = not math.isnan(y_top)
-    has_bottom = not math.isnan(y_bottom)
-    has_wb = not math.isnan(wall_bottom)
-    has_wt = not math.isnan(wall_top)
-    if has_top or has_bottom or has_wb or has_wt:
-        for i in range(n):
-            if w[i] == 0.0:
-                continue
-            y = x[i, 1]
-            if has_top and y > y_top:
-                x[i, 1] = y_top
-                ny = -1.0
-            elif has_wt and y > wall_top:
-                x[i, 1] = wall_top
-                ny = -1.0
-            elif has_bottom and y < y_bottom:
-                x[i, 1] = y_bottom
-                ny = 1.0
-            elif has_wb and y < wall_bottom:
-                x[i, 1] = wall_bottom
-                ny = 1.0
-            else:
-                continue
-            if kind[i] == FREE:
-                kind[i] = LINE
-                normal[i, 0] = 0.0
-                normal[i, 1] = ny
-                moved += 1
-    return moved
-
-
-@njit(cache=True, nogil=True)
-def build_constraints(kind: np.ndarray, normal: np.ndarray, inv_mass: np.ndarray, in_factor: np.ndarray,
-                      l_ptr: np.ndarray, l_idx: np.ndarray, l_val: np.ndarray, u_ptr: np.ndarray, u_idx: np.ndarray,
-                      u_val: np.ndarray, perm_r: np.ndarray, perm_c: np.ndarray, wcol: np.ndarray,
-                      wkey: np.ndarray, cur_slot: np.ndarray, cur_i: np.ndarray, cur_n: np.ndarray,
-                      smat: np.ndarray, sinv: np.ndarray, used: np.ndarray, b: np.ndarray, z: np.ndarray) -> int:
-    """The active set's rows C for the preconditioner's exact elimination (:func:`apply_preconditioner`).
-
-    Rows, in particle order: n_i at a TOOL or LINE particle the factor does not already hold
-    (``in_factor``), and the unit x and y rows at a FIXED particle that is not pinned (``inv_mass > 0``: held
-    by the paper contact, asleep); pinned ones are identity rows of A0. Each row's column W = A0^-1 c is kept in
-    ``wcol`` under its key (particle, n_x, n_y) in ``wkey`` and reused while the factor is the same (its value
-    is a function of the key alone, so reuse changes no bit). S = C W and its inverse go to ``smat``, ``sinv``.
-    Returns the number of rows k, or -1 when they would exceed the workspace (no elimination then).
-    """
-    n = kind.shape[0]
-    cap = wcol.shape[0]
-    k = 0
-    for i in range(n):
-        k_rows = 0
-        if (kind[i] == TOOL or kind[i] == LINE or kind[i] == EDGE) and not in_factor[i]:
-            k_rows = 1
-        elif (kind[i] == FIXED and inv_mass[i] > 0.0) or kind[i] == CORNER:
-            k_rows = 2
-        for r in range(k_rows):
-            if k == cap:
-                return -1
-            cur_i[k] = i
-            if k_rows == 1:
-                cur_n[k, 0] = normal[i, 0]
-                cur_n[k, 1] = normal[i, 1]
-            else:
-                cur_n[k, 0] = 1.0 if r == 0 else 0.0
-                cur_n[k, 1] = 0.0 if r == 0 else 1.0
-            k += 1
-    for s in range(cap):
-        used[s] = False
-    for a in range(k):
-        cur_slot[a] = -1
-        for s in range(cap):
-            if (not used[s] and wkey[s, 0] == cur_i[a] and wkey[s, 1] == cur_n[a, 0]
-                    and wkey[s, 2] == cur_n[a, 1]):
-                cur_slot[a] = s
-                used[s] = True
-                break
-    free = 0
-    for a in range(k):
-        if cur_slot[a] >= 0:
-            continue
-        while used[free]:
-            free += 1
-        i = cur_i[a]
-        b[2 * i] = cur_n[a, 0]
-        b[2 * i + 1] = cur_n[a, 1]
-        apply_inverse(l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, perm_r, perm_c, b, z, wcol[free])
-        b[2 * i] = 0.0
-        b[2 * i + 1] = 0.0
-        wkey[free, 0] = i
-        wkey[free, 1] = cur_n[a, 0]
-        wkey[free, 2] = cur_n[a, 1]
-        cur_slot[a] = free
-        used[free] = True
-    if k == 0:
-        return 0
-    for a in range(k):
-        ia = cur_i[a]
-        for c in range(k):
-            col = wcol[cur_slot[c]]
-            smat[a, c] = cur_n[a, 0] * col[2 * ia] + cur_n[a, 1] * col[2 * ia + 1]
-    sinv[:k, :k] = np.linalg.inv(smat[:k, :k])
-    return k
-
-
-@njit(cache=True, nogil=True)
-def apply_preconditioner(l_ptr: np.ndarray, l_idx: np.ndarray, l_val: np.ndarray, u_ptr: np.ndarray,
-                         u_idx: np.ndarray, u_val: np.ndarray, perm_r: np.ndarray, perm_c: np.ndarray, q: np.ndarray,
-                         z: np.ndarray, out: np.ndarray, k: int, wcol: np.ndarray, cur_slot: np.ndarray,
-                         cur_i: np.ndarray, cur_n: np.ndarray, sinv: np.ndarray, t: np.ndarray) -> None:
-    """out = (A0^-1 - W S^-1 W^T) q with W = A0^-1 C^T, S = C W: the inverse of A0 on the active set's null
-    space (the Newton step of the quadratic model min 1/2 d^T A0 d - q^T d subject to C d = 0), from the
-    rows :func:`build_constraints` made (k <= 0: A0^-1 q)."""
-    apply_inverse(l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, perm_r, perm_c, q, z, out)
-    if k <= 0:
-        return
-    for a in range(k):
-        i = cur_i[a]
-        t[a] = cur_n[a, 0] * out[2 * i] + cur_n[a, 1] * out[2 * i + 1]
-    for a in range(k):
-        u = 0.0
-        for c in range(k):
-            u += sinv[a, c] * t[c]
-        col = wcol[cur_slot[a]]
-        for j in range(out.shape[0]):
-            out[j] -= u * col[j]
 
 
 @njit(cache=True, nogil=True)
