@@ -938,3 +938,51 @@ def project_attachments(x, inv_mass, attach_idx, attach_target, alpha_tilde, lam
         lam[k] += dlam
         x[i] += w * dlam
     return x, lam
+
+
+# ----------------------------------------------------------------------------- the quasi-Newton step
+
+
+def incremental_potential(x, x_pred, mass, inv_mass, q0, tris, young_modulus, poisson_ratio, thickness, dt,
+                          attach_idx=(), attach_target=(), attach_k=0.0):
+    """(E, grad E) of one implicit Euler step, from the formula (E and nu directly, per triangle)::
+
+        E = 1/2 sum m |x - x*|^2 + dt^2 sum_t |A0| t Psi(F_t) + dt^2 sum_k k/2 |x_k - t_k|^2
+        Psi = mu/2 (|F|^2 - 2 det F) + lambda'/2 (det F - 1)^2,   dPsi/dF = mu (F - cof F) + lambda' (J - 1) cof F
+
+    grad E is zero at particles with inv_mass 0. Returns (float, (N, 2)).
+    """
+    mu, lam = material_lame(young_modulus, poisson_ratio)
+    r = x - x_pred
+    e = 0.5 * float(np.sum(mass[:, None] * r * r))
+    g = mass[:, None] * r
+    scale = np.mean([abs(material_rest(q0, t)[1]) for t in tris]) if len(tris) else 0.0
+    for tri in tris:
+        dinv, a0 = material_rest(q0, tri)
+        if dinv is None or abs(a0) <= 1e-12 * scale:
+            continue
+        F = np.column_stack([x[tri[1]] - x[tri[0]], x[tri[2]] - x[tri[0]]]) @ dinv
+        J = np.linalg.det(F)
+        cof = np.array([[F[1, 1], -F[1, 0]], [-F[0, 1], F[0, 0]]])
+        v0 = abs(a0) * thickness
+        e += dt * dt * v0 * (0.5 * mu * (np.sum(F * F) - 2.0 * J) + 0.5 * lam * (J - 1.0) ** 2)
+        P = mu * (F - cof) + lam * (J - 1.0) * cof
+        for p, gr in zip(tri, _grads(P, dinv)):
+            g[p] += dt * dt * v0 * gr
+    for i, t in zip(attach_idx, attach_target):
+        d = x[i] - np.asarray(t)
+        e += 0.5 * dt * dt * attach_k * float(d @ d)
+        g[i] += dt * dt * attach_k * d
+    g[np.asarray(inv_mass) == 0.0] = 0.0
+    return e, g
+
+
+def project_vector(v, kind, normal):
+    """v (N, 2) with FIXED (2) rows zeroed and the normal part removed at TOOL (1) and LINE (3) rows."""
+    v = np.array(v, dtype=np.float64).reshape(-1, 2)
+    for i, k in enumerate(kind):
+        if k == 2:
+            v[i] = 0.0
+        elif k in (1, 3):
+            v[i] -= (v[i] @ normal[i]) * normal[i]
+    return v

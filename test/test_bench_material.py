@@ -228,3 +228,21 @@ def test_graded_scene_parameters_are_checked():
     assert resolve_config(base).scene.grading is None
     assert resolve_config({**base, "grade_spacing": 0.001, "grade_x": 0.1, "grade_y": 0.2,
                            "grade_radius": 0.01}).scene.grading == (0.1, 0.2, 0.01, 0.001)
+
+def test_bench_material_speed_quick(tmp_path, capsys):
+    """The command runs end to end; on its two coarse meshes the default solve is converged (within 1% of the FEM
+    sag, the punch within 2%) where xpbd 10 x 10 at dt 10 ms is not, and each contact step is within 1% of the
+    exact step. Its times are printed, never asserted."""
+    assert main(["bench", "material-speed", "--quick", "--out", str(tmp_path)]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "material_speed.csv")))
+    qn = [r for r in rows if r["variant"] == "quasi_newton"]
+    assert len(qn) == 2 and all(abs(float(r["err_sag"])) < 0.01 for r in qn)
+    assert all(float(r["solve_residual_max"]) <= 1e-3 for r in qn)
+    xpbd = [r for r in rows if r["variant"] == "xpbd 10x10"]
+    assert float(xpbd[-1]["solve_residual_max"]) > 1e-3  # the former default says it stopped short
+    punch = [r for r in csv.DictReader(open(tmp_path / "material_accuracy_punch.csv")) if r["variant"] == "quasi_newton"]
+    assert all(abs(float(r["err_force"])) < 0.02 and int(r["penetrating"]) == 0 for r in punch)
+    dyn = list(csv.DictReader(open(tmp_path / "material_dynamics.csv")))
+    assert all(float(r["err_step_max"]) < 0.01 for r in dyn)
+    assert (tmp_path / "material_speed.png").stat().st_size > 0
+    assert "wrote" in capsys.readouterr().out

@@ -16,7 +16,7 @@ from tissue_sim_ros.cli import main
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_from_arrays, mesh_rectangle
 from tissue_sim_ros.core.physics import material
-from tissue_sim_ros.core.physics.model import MATERIAL_DEFAULTS, Model, SimParams
+from tissue_sim_ros.core.physics.model import MATERIAL_DEFAULTS, MATERIAL_METHOD_DEFAULTS, Model, SimParams
 from tissue_sim_ros.core.physics.solvers import Solver
 from tissue_sim_ros.core.sim.scene import build_simulation
 from tissue_sim_ros.core.sim.simulation import Simulation
@@ -41,8 +41,14 @@ def material_params(**changes) -> SimParams:
 
 
 def params(**values) -> SimParams:
-    """SimParams with the material's own solver defaults under the given values (as the front door does)."""
-    return SimParams(**{**MATERIAL_DEFAULTS.get(values.get("material", "constraints"), {}), **values})
+    """SimParams with the material's own solver defaults under the given values (as the front door does: substeps
+    or a scheme given without a method mean the sweeps, xpbd)."""
+    defaults = dict(MATERIAL_DEFAULTS.get(values.get("material", "constraints"), {}))
+    if defaults and "method" not in values and {"substeps", "scheme"} & set(values):
+        defaults["method"] = "xpbd"
+    method = values.get("method", defaults.get("method"))
+    defaults.update(MATERIAL_METHOD_DEFAULTS.get(values.get("material", "constraints"), {}).get(method, {}))
+    return SimParams(**{**defaults, **values})
 
 
 def random_elements(seed: int, n: int = 20, n_tris: int = 16) -> dict:
@@ -253,7 +259,12 @@ def test_neo_hookean_brings_its_solver_defaults_and_the_paper_stays_default() ->
     assert (paper.params.material, paper.params.method, paper.params.contact_model) == ("constraints", "pbd", "paper")
     sim = build_simulation({"material": "neo_hookean"}, mesh=mesh_rectangle(0.04, 0.02, 0.01))
     p = sim.params
-    assert (p.method, p.substeps, p.iterations, p.contact_model) == ("xpbd", 10, 10, "projection")
+    assert (p.method, p.substeps, p.iterations, p.contact_model) == ("quasi_newton", 1, 50, "projection")
+    # choosing xpbd brings xpbd's own substeps and iterations
+    p = build_simulation({"material": "neo_hookean", "method": "xpbd"}, mesh=mesh_rectangle(0.04, 0.02, 0.01)).params
+    assert (p.method, p.substeps, p.iterations) == ("xpbd", 10, 10)
+    with pytest.raises(InputError, match="quasi_newton"):
+        SimParams(material="constraints", method="quasi_newton")
     # what the caller sets wins
     sim = build_simulation({"material": "neo_hookean", "contact_model": "paper", "substeps": 4},
                            mesh=mesh_rectangle(0.04, 0.02, 0.01))
@@ -463,7 +474,7 @@ def test_punch_reaction_is_the_elastic_force_and_converges_to_the_fem_force() ->
     for spacing in SPACINGS:
         p = params(**dict(material="neo_hookean", dt=0.002, damping=30.0, gravity=0.0,
                                         boundary_y_bottom=1e-9, contact_margin=0.0, **STRIP))
-        assert p.substeps == 10 and p.contact_model == "projection"
+        assert p.method == "quasi_newton" and p.contact_model == "projection"
         sim = Simulation(Model.from_mesh(mesh_rectangle(0.1, 0.04, spacing), p),
                          tool=ToolShape(kind="box", length=0.14, width=0.01))
         r = run_to_rest(sim, ToolPose(0.05, 0.04 + 0.005 - depth, 0.0))
@@ -483,10 +494,13 @@ def test_material_defaults_through_the_front_door(tmp_path) -> None:
 
     cfg = resolve_config({"material": "neo_hookean"})
     assert (cfg.sim.method, cfg.sim.substeps, cfg.sim.iterations, cfg.sim.contact_model) == \
-        ("xpbd", 10, 10, "projection")
+        ("quasi_newton", 1, 50, "projection")
     # a value set later is the user's (the material's defaults are applied once, when it is chosen)
     assert cfg.replace(iterations=30).sim.iterations == 30
-    assert resolve_config().replace(material="neo_hookean").sim.method == "xpbd"
+    assert resolve_config().replace(material="neo_hookean").sim.method == "quasi_newton"
+    # substeps without a method: the sweeps they belong to
+    swept = resolve_config({"material": "neo_hookean", "substeps": 4}).sim
+    assert (swept.method, swept.substeps, swept.iterations) == ("xpbd", 4, 10)
     # an alias keeps its own substeps; explicit values win
     sub = resolve_config({"material": "neo_hookean", "method": "xpbd_substep"}).sim
     assert (sub.substeps, sub.iterations) == (30, 1)

@@ -47,6 +47,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
         "stability": ("tissue_sim_ros.cli.bench.stability", "where each method fails over dt, stiffness, tool speed and mesh quality"),
         "spacing": ("tissue_sim_ros.cli.bench.spacing", "effective spring and area moduli, mass per area and sag against mesh spacing"),
         "refinement": ("tissue_sim_ros.cli.bench.refinement", "the material run to rest vs the scikit-fem reference: errors vs mesh spacing and dt"),
+        "material-speed": ("tissue_sim_ros.cli.bench.material_speed", "the material's default solve: cost per step vs accuracy at three meshes, beside the paper PBD step"),
         "material": ("tissue_sim_ros.cli.bench.material", "the material's solve vs its exact Newton minimiser: step and response errors (median, max) vs time, Pareto"),
         "plan": ("tissue_sim_ros.cli.bench.plan", "batch rollouts per second (serial, 1 and 2 workers); the planner service's latency and node rate"),
         "fit": ("tissue_sim_ros.cli.bench.fit", "fit known parameters back from simulated recordings on another mesh: error, coverage, time"),

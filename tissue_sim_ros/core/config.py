@@ -14,7 +14,7 @@ simulation's configuration::
         -> unknown names refused (with the closest known name)
         -> values coerced to their type (an integer is accepted for a float)
         -> method aliases resolved by the one rule below
-        -> a material's own solver settings (neo_hookean: xpbd, 10 x 10 substeps, projection contact)
+        -> a material's own solver settings (neo_hookean: quasi_newton, projection contact)
         -> every value checked (SimParams, SceneConfig, ToolShape, the node's checks)
         -> Config (frozen): .sim (SimParams, the Model's record), .scene, .tool, .node
 
@@ -59,6 +59,7 @@ from .physics.model import (
     DAMPING_MODES,
     JACOBI_AVERAGINGS,
     MATERIAL_DEFAULTS,
+    MATERIAL_METHOD_DEFAULTS,
     MATERIALS,
     METHODS,
     SCHEMES,
@@ -285,7 +286,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     # physics (Table I)
     ParamSpec("mass", float, _SIM.mass, "kg", "Mass of each particle (Table I: 1e-4).", True, "physics"),
     ParamSpec("mass_per_area", float, _SIM.mass_per_area, "kg/m^2", "Areal density: > 0 lumps a third of each triangle's area times it on its corners (refined or graded meshes keep the same tissue); 0 = every particle has mass (the paper).", True, "physics"),
-    ParamSpec("material", str, _SIM.material, "", f"Tissue model: {', '.join(MATERIALS)} (constraints = the paper's springs and areas; neo_hookean = a plane-stress membrane from young_modulus, poisson_ratio, thickness, density, which brings method xpbd, substeps 10, iterations 10 and contact_model projection unless they are given).", True, "physics"),
+    ParamSpec("material", str, _SIM.material, "", f"Tissue model: {', '.join(MATERIALS)} (constraints = the paper's springs and areas; neo_hookean = a plane-stress membrane from young_modulus, poisson_ratio, thickness, density, which brings method quasi_newton (iterations 50 at most, substeps 1) and contact_model projection unless they are given).", True, "physics"),
     ParamSpec("young_modulus", float, _SIM.young_modulus, "Pa", "neo_hookean: Young's modulus E (> 0); ignored by constraints.", False, "physics"),
     ParamSpec("poisson_ratio", float, _SIM.poisson_ratio, "", "neo_hookean: Poisson's ratio nu in [0, 0.5); ignored by constraints.", False, "physics"),
     ParamSpec("thickness", float, _SIM.thickness, "m", "neo_hookean: membrane thickness (> 0); ignored by constraints.", True, "physics"),
@@ -300,6 +301,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("scheme", str, _SIM.scheme, "", f"Constraint order: {', '.join(SCHEMES)}.", False, "solver"),
     ParamSpec("iterations", int, _SIM.iterations, "", "Solver iterations per (sub)step (Table I: 30).", False, "solver"),
     ParamSpec("substeps", int, _SIM.substeps, "", "Substeps per step.", False, "solver"),
+    ParamSpec("solve_tolerance", float, _SIM.solve_tolerance, "", "Material: estimated relative error of a step (its last correction over its motion) at which its solve counts as converged (quasi_newton stops there; the node warns beyond it).", False, "solver"),
     ParamSpec("relaxation", float, _SIM.relaxation, "", "Jacobi relaxation factor in (0, 1].", False, "solver"),
     ParamSpec("jacobi_averaging", str, _SIM.jacobi_averaging, "", f"PBD Jacobi: violated (the authors': spring and area corrections each averaged over the particle's violated constraints of that type, then added) or all (divided by all its constraints); one of {', '.join(JACOBI_AVERAGINGS)}.", False, "solver"),
     ParamSpec("jacobi_spring_tolerance", float, _SIM.jacobi_spring_tolerance, "m", "PBD Jacobi violated: a spring counts when ||x_i - x_j| - d0| >= this (the authors' 1e-4).", False, "solver"),
@@ -606,17 +608,32 @@ def method_options(method: str, count: int | None = None) -> dict[str, Any]:
     return values
 
 
+#: Solver keys that only the sweeping methods read: given without a method, the material is swept (xpbd).
+SWEEP_KEYS = frozenset({"substeps", "scheme", "relaxation"})
+
+
 def resolve_material_defaults(values: dict[str, Any], shipped: Mapping[str, Any], chosen: Iterable[str]) -> None:
     """A material's own solver settings (:data:`~tissue_sim_ros.core.physics.model.MATERIAL_DEFAULTS`), in place.
 
     The shipped file is the paper's scene (``method: pbd``, one step of 30 iterations, the paper's
-    contact); ``material: neo_hookean`` sets ``method: xpbd``, 10 substeps of 10 iterations and
-    projection contact for each of them that was not ``chosen`` (given by a file, the overrides or a
-    command's defaults) and still holds its shipped value (so an alias's own substeps stay).
+    contact); ``material: neo_hookean`` sets ``method: quasi_newton`` and projection contact, then the
+    method's own substeps and iterations (quasi_newton: 1 step, at most 50 iterations; xpbd: 10 substeps of
+    10; substeps, scheme or relaxation given without a method choose xpbd, the method they belong to), each
+    for what was not ``chosen`` (given by a file, the overrides or a command's defaults) and still
+    holds its shipped value (so an alias's own substeps stay).
     """
     material = values.get("material")
     chosen = set(chosen)
-    for key, value in MATERIAL_DEFAULTS.get(material, {}).items() if isinstance(material, str) else ():
+    if not isinstance(material, str):
+        return
+    for key, value in MATERIAL_DEFAULTS.get(material, {}).items():
+        if key not in chosen and _same(values.get(key), _reference_default(key, shipped)):
+            if key == "method" and chosen & SWEEP_KEYS and material == "neo_hookean":
+                value = "xpbd"  # substeps or a sweep order asked for: the sweeps they belong to
+            values[key] = value
+    method = values.get("method")
+    for key, value in MATERIAL_METHOD_DEFAULTS.get(material, {}).get(method, {}).items() \
+            if isinstance(method, str) else ():
         if key not in chosen and _same(values.get(key), _reference_default(key, shipped)):
             values[key] = value
 

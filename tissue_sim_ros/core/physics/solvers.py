@@ -49,6 +49,7 @@ from ..errors import InputError
 from . import kernels, material
 from .attach import project_attachments
 from .model import Model, State
+from .quasi_newton import MaterialSolve
 from .violated_jacobi import apply_walls, violated_jacobi_iterations
 
 #: Smallest mesh for which ``parallel=True`` is worth trying: below it the
@@ -85,6 +86,14 @@ class SolveInfo:
     """Sum of the contact model's position corrections per particle over the step [m], shape (N, 2), or None."""
     residual: float
     """RMS constraint violation after the solve (edges relative to rest length, areas relative to rest area)."""
+    solve_iterations: int = 0
+    """Material: iterations the solve took (quasi_newton; the other methods their fixed count)."""
+    solve_residual: float = math.nan
+    """Material: the step's estimated relative error against its exact (implicit Euler) step: the correction a
+    quasi-Newton iteration would still make, over the step's motion (core/physics/quasi_newton.py; xpbd: of its
+    last substep); NaN for the constraint model."""
+    solve_converged: bool = True
+    """Material: ``solve_residual <= params.solve_tolerance``."""
 
 
 def colour_constraints(indices: np.ndarray, n_particles: int) -> tuple[np.ndarray, np.ndarray]:
@@ -326,6 +335,9 @@ class Solver:
             self.omega_t[:] = p.relaxation
         self._shape0 = np.zeros(7)
         self._shape1 = np.zeros(7)
+        self.quasi_newton = p.method == "quasi_newton"
+        # the material's step minimised (quasi_newton) and every material step's convergence report
+        self.material_solve = MaterialSolve(model, self.tris, self.elastic) if self.is_material else None
         self._shapes = np.zeros((0, 7))
         self._no_shapes = np.zeros((0, 7))
         self._no_edge_set = (self._no_edges, self._no_float, self.edge_offsets)
@@ -408,6 +420,8 @@ class Solver:
         One compiled call where :attr:`compiled`, else :meth:`step_reference`; the same numbers bit for bit
         (``test/test_step_kernels.py``). Arguments as :meth:`step_reference`.
         """
+        if self.quasi_newton:
+            return self._step_quasi_newton(state_in, state_out, contacts, dt)
         if not self.compiled:
             return self.step_reference(state_in, state_out, contacts, dt)
         from .step_kernels import solve_step  # noqa: PLC0415
@@ -515,6 +529,8 @@ class Solver:
         dt : float
             Time step [s].
         """
+        if self.quasi_newton:
+            return self._step_quasi_newton(state_in, state_out, contacts, dt)
         p = self.params
         model = self.model
         held_idx, held_dx, candidates, surface_edges, projection = self._check_step(state_in, state_out, contacts,
@@ -567,6 +583,8 @@ class Solver:
             else:
                 cand, surf = self._no_index, self._no_edges
             if self.is_material:
+                if sub == n_sub - 1:
+                    np.copyto(self.material_solve.x_pred_h, x)
                 self._material_iterations(x, w, h, cand, surf, float(contacts.edge_side_tol), attach)
                 if self.walls:
                     apply_walls(x, p.wall_y_bottom, p.wall_y_top)
@@ -607,4 +625,41 @@ class Solver:
             kernels.apply_boundary_lines(x, v, inv_mass, p.boundary_y_top, p.boundary_y_bottom)
 
         residual = kernels.constraint_residual(x, self.edges, self.rest, self.tris, self.area0, self.signed)
-        return self._finish(contacts, held_idx, projection, residual)
+        info = self._finish(contacts, held_idx, projection, residual)
+        if self.is_material:
+            info.solve_iterations = p.iterations
+            info.solve_residual = self.material_solve.sweep_residual(
+                x, self.x_start, w, h, self.contact_dx if projection else None, contacts)
+            info.solve_converged = info.solve_residual <= p.solve_tolerance
+        return info
+
+    def _step_quasi_newton(self, state_in: State, state_out: State, contacts: Contacts, dt: float) -> SolveInfo:
+        """One material step as the minimiser of its incremental potential (core/physics/quasi_newton.py)."""
+        p = self.params
+        model = self.model
+        held_idx, held_dx, candidates, surface_edges, projection = self._check_step(state_in, state_out, contacts,
+                                                                                    dt)
+        inv_mass = model.particle_inv_mass
+        x0, v0 = state_in.particle_q, state_in.particle_qd
+        x, v = state_out.particle_q, state_out.particle_qd
+        kernels.predict(x0, v0, inv_mass, dt, p.gravity, self.damp_factor(dt), self.x_pred)
+        kernels.hold_displaced(self.x_pred, inv_mass, held_idx, held_dx, 1.0, self.inv_mass_eff)
+        if self.walls:
+            apply_walls(self.x_pred, p.wall_y_bottom, p.wall_y_top)
+        if projection:
+            np.copyto(self._shape0, np.asarray(contacts.tool_shape0, dtype=np.float64))
+            np.copyto(self._shape1, np.asarray(contacts.tool_shape1, dtype=np.float64))
+            cand, surf = candidates, surface_edges
+        else:
+            cand, surf = self._no_index, self._no_edges
+        iterations, solve_residual = self.material_solve.minimise(
+            x0, v0, x, self.x_pred, self.inv_mass_eff, dt, self.damp_factor(dt), cand, surf, self._shape0,
+            self._shape1, float(contacts.edge_side_tol), self.contact_dx, contacts)
+        kernels.update_velocity(x, x0, dt, v)
+        kernels.apply_boundary_lines(x, v, inv_mass, p.boundary_y_top, p.boundary_y_bottom)
+        residual = kernels.constraint_residual(x, self.edges, self.rest, self.tris, self.area0, self.signed)
+        info = self._finish(contacts, held_idx, projection, residual)
+        info.solve_iterations = iterations
+        info.solve_residual = solve_residual
+        info.solve_converged = info.solve_residual <= p.solve_tolerance
+        return info

@@ -19,6 +19,7 @@ beyond the report::
 from __future__ import annotations
 
 import copy
+import math
 import threading
 import time
 from dataclasses import dataclass, field
@@ -84,7 +85,8 @@ def _detached(info: Any) -> Any:
     """A shallow copy of a solver's info with its arrays copied (they are the solver's workspaces)."""
     if isinstance(info, SolveInfo):
         return SolveInfo(x_pred=info.x_pred.copy(), contact_dx=None if info.contact_dx is None else
-                         info.contact_dx.copy(), residual=info.residual)
+                         info.contact_dx.copy(), residual=info.residual, solve_iterations=info.solve_iterations,
+                         solve_residual=info.solve_residual, solve_converged=info.solve_converged)
     out = copy.copy(info)
     for name, value in vars(out).items() if hasattr(out, "__dict__") else ():
         if isinstance(value, np.ndarray):
@@ -145,6 +147,15 @@ class StepReport:
     attach_force: np.ndarray = field(default_factory=lambda: np.zeros(2))
     """The held particles' pull on the tool [N], (2,): sum (x - target) / grasp_compliance (included in
     ``reaction_force``)."""
+    solve_iterations: int = 0
+    """Material: iterations the step's solve took (quasi_newton; xpbd its fixed count); 0 for the constraint model."""
+    solve_residual: float = math.nan
+    """Material: the step's estimated relative error against its exact (implicit Euler) step: the correction a
+    quasi-Newton iteration would still make, over the step's motion (``core/physics/quasi_newton.py``; xpbd: of its
+    last substep); NaN for the constraint model."""
+    solve_converged: bool = True
+    """Material: ``solve_residual <= solve_tolerance``. False: the step stopped short of its own minimiser (a
+    softer tissue than the material, or a stiffer one); the node warns and counts it."""
     detail: StepDetail | None = None
     """The step's start State, Contacts and solver info when asked (``Simulation.step(..., detail=True)``), else None."""
 
@@ -520,7 +531,10 @@ class Simulation:
             x_pred=info.x_pred.copy(), held_idx=np.asarray(contacts.held_idx, dtype=np.int32).copy(),
             held_dx=np.asarray(contacts.held_dx, dtype=np.float64).reshape(-1, 2).copy(),
             n_penetrating=checks[0], penetration_depth=checks[1], deepest_particle=checks[2],
-            n_tunnelled=checks[3], tool_buried=checks[4], detail=detail,
+            n_tunnelled=checks[3], tool_buried=checks[4],
+            solve_iterations=int(getattr(info, "solve_iterations", 0)),
+            solve_residual=float(getattr(info, "solve_residual", math.nan)),
+            solve_converged=bool(getattr(info, "solve_converged", True)), detail=detail,
             grasped=np.asarray(contacts.attach_idx, dtype=np.int64).copy(), attach_force=attach_force,
         )
 

@@ -190,6 +190,7 @@ class Outputs:
             "missed_ticks": s.missed_ticks,
             "divergences": s.divergences,
             "relocations": s.relocations,
+            "unconverged_steps": s.unconverged_steps,
             "markers_published": w.published,
             "markers_skipped": w.skipped,
             "marker_encode_ms_mean": 1e3 * w.encode_seconds / max(w.published + w.errors, 1),
@@ -227,7 +228,13 @@ class Outputs:
                 "grasped_particles": int(r.grasped.size),
                 "jaw_angle": "none" if sim.grasp.jaw is None else sim.grasp.jaw,
                 "jaw_closed": sim.grasp.closed,
+                "solve_iterations": r.solve_iterations,
+                "solve_residual": r.solve_residual,
+                "solve_converged": r.solve_converged,
             })
+            if not r.solve_converged and level == DiagnosticStatus.OK:
+                level, message = DiagnosticStatus.WARN, (f"{message}; the last step's solve stopped short "
+                                                         f"(estimated error {r.solve_residual:.3g} > solve_tolerance)")
             if r.tool_buried and level == DiagnosticStatus.OK:
                 level, message = DiagnosticStatus.WARN, f"{message}; the tool is buried in the tissue"
         status = DiagnosticStatus(level=level, name=f"{node.get_fully_qualified_name()}: simulation",

@@ -20,6 +20,8 @@ class NodeStats:
     divergences: int = 0
     relocations: int = 0
     """Streams of poses far from the tool taken up (a relocated robot; ``relocate_poses``)."""
+    unconverged_steps: int = 0
+    """Material steps whose solve stopped short of solve_tolerance (StepReport.solve_converged False)."""
     dropped: dict[str, int] = field(default_factory=lambda: {
         "nonfinite": 0, "frame": 0, "stale": 0, "future": 0, "out_of_order": 0, "tool_jump": 0,
         "unpublished_nonfinite": 0, "jaw_empty": 0})

@@ -129,6 +129,14 @@ class Stepper:
             s.divergences += 1
             node.warnings.warn("diverged", f"step {report.step}: the solver diverged; restored the last good state "
                                            f"({s.divergences} divergences so far)")
+        if not report.solve_converged:
+            s.unconverged_steps += 1
+            node.warnings.warn("unconverged", f"step {report.step}: the material's solve stopped short of its own "
+                                              f"step (estimated error {report.solve_residual:.3g} of the step > "
+                                              f"solve_tolerance {sim.params.solve_tolerance:g} after "
+                                              f"{report.solve_iterations} iterations): the tissue is softer or "
+                                              f"stiffer than its material ({s.unconverged_steps} such steps in "
+                                              f"{s.steps})")
         # whole or not at all: a signal ending the node waits for the step's last message (shutdown.py)
         with node.output_gate as open_:
             if open_:
