@@ -167,12 +167,16 @@ def build_constraints(kind: np.ndarray, normal: np.ndarray, inv_mass: np.ndarray
                       l_ptr: np.ndarray, l_idx: np.ndarray, l_val: np.ndarray, u_ptr: np.ndarray, u_idx: np.ndarray,
                       u_val: np.ndarray, perm_r: np.ndarray, perm_c: np.ndarray, wcol: np.ndarray,
                       wkey: np.ndarray, cur_slot: np.ndarray, cur_i: np.ndarray, cur_n: np.ndarray,
-                      smat: np.ndarray, sinv: np.ndarray, used: np.ndarray, b: np.ndarray, z: np.ndarray) -> int:
+                      smat: np.ndarray, sinv: np.ndarray, used: np.ndarray, b: np.ndarray, z: np.ndarray,
+                      attach_idx: np.ndarray, attach_c: float, cur_c: np.ndarray) -> int:
     """The active set's rows C for the preconditioner's exact elimination (:func:`apply_preconditioner`).
 
     Rows, in particle order: n_i at a TOOL or LINE particle the factor does not already hold
     (``in_factor``), and the unit x and y rows at a FIXED particle that is not pinned (``inv_mass > 0``: held
-    by the paper contact, asleep); pinned ones are identity rows of A0. Each row's column W = A0^-1 c is kept in
+    by the paper contact, asleep); pinned ones are identity rows of A0. Then the unit x and y rows of each
+    particle held to the tool by an attachment (``attach_idx``): a spring, not a constraint, of compliance
+    ``attach_c`` = 1 / (dt^2 k) in these units, which enters S's diagonal (``cur_c``), so the preconditioner is
+    the inverse of A0 + C^T diag(1/c) C for them (Woodbury) and a stiff grasp does not slow the solve. Each row's column W = A0^-1 c is kept in
     ``wcol`` under its key (particle, n_x, n_y) in ``wkey`` and reused while the factor is the same (its value
     is a function of the key alone, so reuse changes no bit). S = C W and its inverse go to ``smat``, ``sinv``.
     Returns the number of rows k, or -1 when they would exceed the workspace (no elimination then).
@@ -196,7 +200,18 @@ def build_constraints(kind: np.ndarray, normal: np.ndarray, inv_mass: np.ndarray
             else:
                 cur_n[k, 0] = 1.0 if r == 0 else 0.0
                 cur_n[k, 1] = 0.0 if r == 0 else 1.0
+            cur_c[k] = 0.0
             k += 1
+    if attach_c > 0.0:
+        for j in range(attach_idx.shape[0]):
+            for r in range(2):
+                if k == cap:
+                    return -1
+                cur_i[k] = attach_idx[j]
+                cur_n[k, 0] = 1.0 if r == 0 else 0.0
+                cur_n[k, 1] = 0.0 if r == 0 else 1.0
+                cur_c[k] = attach_c
+                k += 1
     for s in range(cap):
         used[s] = False
     for a in range(k):
@@ -231,6 +246,7 @@ def build_constraints(kind: np.ndarray, normal: np.ndarray, inv_mass: np.ndarray
         for c in range(k):
             col = wcol[cur_slot[c]]
             smat[a, c] = cur_n[a, 0] * col[2 * ia] + cur_n[a, 1] * col[2 * ia + 1]
+        smat[a, a] += cur_c[a]
     sinv[:k, :k] = np.linalg.inv(smat[:k, :k])
     return k
 

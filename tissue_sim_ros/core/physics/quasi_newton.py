@@ -36,8 +36,8 @@ Convergence, reported on every step (``SolveInfo.solve_residual``, the
 ``StepReport`` and ``/diagnostics``): the estimated relative error of the
 step, the last quasi-Newton direction against the step's motion ||x - x_n||
 (the optimality residual grad E preconditioned into a position, so it reads as
-"how far from the exact step, as a fraction of the step"; motion below 1 nm
-RMS per particle counts as 1 nm). The loop stops when it falls to
+"how far from the exact step, as a fraction of the step"; a motion below 1e-6
+of the tissue's size, RMS per particle, counts as that much). The loop stops when it falls to
 ``solve_tolerance`` with no change of the active set, or after ``iterations``
 iterations; ``solve_converged`` says which. It starts from x_n + dt damp v_n
 (the motion continued, gravity aside): at rest that is the answer, and a
@@ -71,8 +71,9 @@ from .prefactor import Prefactor, active_key, apply_inverse  # noqa: F401
 MAX_HALVINGS = 12
 #: Armijo constant of the line search.
 ARMIJO = 1e-4
-#: Motion below this RMS per particle [m] counts as none when the error is measured against the step's motion.
-FLOOR_RMS = 1e-9
+#: Motion below this fraction of the tissue's size (RMS per particle) counts as that much when a step's error is
+#: measured against its motion: a resting tissue's step is judged to 1e-6 of its size, not to nanometres.
+FLOOR_REL = 1e-6
 
 
 # ----------------------------------------------------------------------------- energy and gradient
@@ -177,7 +178,8 @@ def quasi_newton_solve(x: np.ndarray, x_start: np.ndarray, x_pred: np.ndarray, m
                        d: np.ndarray, x_old: np.ndarray, z: np.ndarray, out: np.ndarray, inv_mass: np.ndarray,
                        in_factor: np.ndarray, wcol: np.ndarray, wkey: np.ndarray, cur_slot: np.ndarray,
                        cur_i: np.ndarray, cur_n: np.ndarray, smat: np.ndarray, sinv: np.ndarray, used: np.ndarray,
-                       b_unit: np.ndarray, t: np.ndarray, released_once: np.ndarray, turns: np.ndarray) -> None:
+                       b_unit: np.ndarray, t: np.ndarray, released_once: np.ndarray, turns: np.ndarray,
+                       cur_c: np.ndarray, floor_rms: float) -> None:
     """One step's minimisation (module docstring), from ``x_guess`` (free particles; the others stay at ``x`` = x*
     on entry) to the minimiser in ``x``.
 
@@ -228,8 +230,9 @@ def quasi_newton_solve(x: np.ndarray, x_start: np.ndarray, x_pred: np.ndarray, m
                 kind[i] = FREE
     project_vector(g, kind, normal)
     n_rows = build_constraints(kind, normal, inv_mass, in_factor, l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, perm_r,
-                               perm_c, wcol, wkey, cur_slot, cur_i, cur_n, smat, sinv, used, b_unit, z)
-    floor = FLOOR_RMS * math.sqrt(max(n_free, 1))
+                               perm_c, wcol, wkey, cur_slot, cur_i, cur_n, smat, sinv, used, b_unit, z,
+                               attach_idx, 1.0 / (dt2 * attach_k) if attach_k > 0.0 else 0.0, cur_c)
+    floor = floor_rms * math.sqrt(max(n_free, 1))
     res = math.inf
     n_hist = 0
     head = 0
@@ -314,7 +317,8 @@ def quasi_newton_solve(x: np.ndarray, x_start: np.ndarray, x_pred: np.ndarray, m
         if joined or released:
             n_hist = 0  # the pairs belong to another set's subspace: start the history again
             n_rows = build_constraints(kind, normal, inv_mass, in_factor, l_ptr, l_idx, l_val, u_ptr, u_idx, u_val,
-                                       perm_r, perm_c, wcol, wkey, cur_slot, cur_i, cur_n, smat, sinv, used, b_unit, z)
+                                       perm_r, perm_c, wcol, wkey, cur_slot, cur_i, cur_n, smat, sinv, used, b_unit, z,
+                               attach_idx, 1.0 / (dt2 * attach_k) if attach_k > 0.0 else 0.0, cur_c)
         else:
             # history: s = x_new - x_old, y = g_new - g (both projected)
             for k in range(n_dof):
@@ -354,7 +358,8 @@ def substep_residual(x: np.ndarray, x_start: np.ndarray, x_pred: np.ndarray, mas
                      y_bottom: float, wall_bottom: float, wall_top: float, attach_idx: np.ndarray,
                      attach_target: np.ndarray, attach_k: float, l_ptr: np.ndarray, l_idx: np.ndarray,
                      l_val: np.ndarray, u_ptr: np.ndarray, u_idx: np.ndarray, u_val: np.ndarray, perm_r: np.ndarray,
-                     perm_c: np.ndarray, kind: np.ndarray, g: np.ndarray, z: np.ndarray, e: np.ndarray) -> float:
+                     perm_c: np.ndarray, kind: np.ndarray, g: np.ndarray, z: np.ndarray, e: np.ndarray,
+                     floor_rms: float) -> float:
     """The estimated relative error of a (sub)step another method solved, as :func:`quasi_newton_solve` reports
     it: the correction a quasi-Newton iteration would still make, |P A0^-1 P grad E(x)|, against the step's
     motion |x - x_start| (E: the incremental potential of a step h, ``h2`` = h^2, from ``x_pred``; A0 factored
@@ -379,7 +384,7 @@ def substep_residual(x: np.ndarray, x_start: np.ndarray, x_pred: np.ndarray, mas
     project_vector(g, kind, x_start)
     apply_inverse(l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, perm_r, perm_c, g, z, e)
     project_vector(e, kind, x_start)
-    return _norm(e) / max(_motion(x, x_start, w), FLOOR_RMS * math.sqrt(max(n_free, 1)))
+    return _norm(e) / max(_motion(x, x_start, w), floor_rms * math.sqrt(max(n_free, 1)))
 
 
 # ----------------------------------------------------------------------------- the Solver's part
@@ -439,6 +444,7 @@ class MaterialSolve:
         self.cur_slot = np.zeros(cap, dtype=np.int64)
         self.cur_i = np.zeros(cap, dtype=np.int64)
         self.cur_n = np.zeros((cap, 2))
+        self.cur_c = np.zeros(cap)
         self.smat = np.zeros((cap, cap))
         self.sinv = np.zeros((cap, cap))
         self.used = np.zeros(cap, dtype=np.bool_)
@@ -449,6 +455,11 @@ class MaterialSolve:
         self.turns = np.zeros(n, dtype=np.int8)
         self._columns_of: Prefactor | None = None
         self.factors: dict[tuple[float, bytes], Prefactor] = {}
+        q0 = np.asarray(model.particle_q0)
+        size = float(np.hypot(*np.ptp(q0, axis=0))) if len(q0) else 0.0
+        self.floor_rms = max(FLOOR_REL * size, 1e-12)
+        """Motion below this RMS per particle [m] counts as this much when a step's error is measured against its
+        motion: FLOOR_REL of the rest shape's diagonal (0.1 um for a 10 cm tissue)."""
         self.rest_lines = self.line_set(np.asarray(model.particle_q0), np.asarray(model.particle_inv_mass))
         """The free particles at or past a line or a wall in the rest shape, and their normals: in the factor."""
         self.refactors = 0
@@ -513,7 +524,8 @@ class MaterialSolve:
             self.scratch, contact_dx, p.boundary_y_top, p.boundary_y_bottom, p.wall_y_bottom, p.wall_y_top,
             *attachments(contacts), p.solve_tolerance, p.iterations, self.guess, g, g_new, d, x_old, z, self.out,
             m.particle_inv_mass, self.in_factor, self.wcol, self.wkey, self.cur_slot, self.cur_i, self.cur_n,
-            self.smat, self.sinv, self.used, self.b, self.t, self.released_once, self.turns)
+            self.smat, self.sinv, self.used, self.b, self.t, self.released_once, self.turns, self.cur_c,
+            self.floor_rms)
         return int(self.out[0]), float(self.out[1])
 
     def sweep_residual(self, x: np.ndarray, x_start: np.ndarray, w: np.ndarray, h: float,
@@ -531,4 +543,4 @@ class MaterialSolve:
             x, x_start, self.x_pred_h, m.particle_mass, w, self.tris, self.elastic, h * h, contact_dx,
             p.boundary_y_top, p.boundary_y_bottom, p.wall_y_bottom, p.wall_y_top, *attachments(contacts),
             pre.l_ptr, pre.l_idx, pre.l_val, pre.u_ptr, pre.u_idx, pre.u_val, pre.perm_r, pre.perm_c, self.kind,
-            g, z, e))
+            g, z, e, self.floor_rms))
