@@ -245,3 +245,22 @@ def test_a_recorded_grasp_replays_bit_for_bit(ros_client: Any, start_process: An
         assert c.grasped == held  # the same grasp, step for step
     finally:
         c.close()
+
+
+def test_a_step_that_stops_short_is_reported_and_warned(ros_client: Any, start_process: Any) -> None:
+    """issue 29: a material step whose solve ends beyond solve_tolerance says so on /diagnostics (WARN level,
+    solve_converged false, unconverged_steps counted) and in a throttled log line; converged steps say nothing."""
+    proc = start_node(start_process, "grasp_unconverged", "-p", "iterations:=1", "-p", "solve_tolerance:=1e-9")
+    c = Client(ros_client, proc)
+    try:
+        c.jaw(0.8)
+        for k in range(10):  # the open grasper comes down onto the flap: each step a real motion
+            c.pose(X, TOP + 0.010 - 0.0008 * k)
+        c.diagnostics.clear()
+        d = c.ros.spin_until(lambda: c.diagnostics and c.diagnostics[-1], TIMEOUT, proc, "diagnostics")
+        assert d["solve_converged"] == "false" and int(d["unconverged_steps"]) >= 1, d
+        assert int(d["solve_iterations"]) == 1 and float(d["solve_residual"]) > 1e-9
+        c.ros.spin_until(lambda: "stopped short of its own step" in proc.output(), TIMEOUT, proc,
+                         "the node's warning")
+    finally:
+        c.close()
