@@ -37,6 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="worker processes for the candidates' rollouts (default 1: serially in this process)")
     parser.add_argument("--timing", action="store_true",
                         help="also time one replan against the number of candidates (4, 8, 16, 32; 50 steps each)")
+    parser.add_argument("--sweep", action="store_true",
+                        help="also run the world E factors 0.5 0.7 1 1.3 1.5 at noise 0, 0.5, 1 mm and chart success "
+                             "and final error with the replan times (implies --timing)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,10 +63,24 @@ def run(args: argparse.Namespace) -> int:
         print("control:")
         for k, v in res.summary.items():
             print(f"  {k}: {v}")
-        if args.timing:
+        if args.timing or args.sweep:
             print("replan time against candidates (sync + candidates x 50 steps + choice):")
-            for row in control.replan_timing(cfg, pool=pool):
+            timing = control.replan_timing(cfg, pool=pool)
+            for row in timing:
                 print("  " + ", ".join(f"{k} {v:.1f}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()))
+            res.files.append(control.write_rows(f"{args.out}/control_timing.csv", timing))
+        if args.sweep:
+            sweep = control.sweep_control(cfg, seed=args.seed, settings=settings, pool=pool, max_time=args.max_time)
+            print("sweep (world E factor, noise): reached, final error")
+            for row in sweep:
+                print(f"  E x{row['world_e_factor']:g}, noise {row['noise_mm']:g} mm: reached {row['reached']} at "
+                      f"{row['reached_at_s']} s, final error {row['final_error_mm']} mm")
+            res.files.append(control.write_rows(f"{args.out}/control_sweep.csv", sweep))
+            from ..render.control import plot_control_sweep  # noqa: PLC0415
+
+            res.files.append(plot_control_sweep(f"{args.out}/control_sweep.png", sweep, timing,
+                                                tolerance=args.tolerance,
+                                                title="The controller against a world it does not know exactly"))
     finally:
         if pool is not None:
             pool.close()

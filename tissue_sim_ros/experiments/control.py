@@ -192,3 +192,29 @@ def replan_timing(cfg: Config, counts: tuple[int, ...] = (4, 8, 16, 32), horizon
                      "choose_ms": 1e3 * float(np.mean([r.choose_s for r in times])),
                      "total_ms": 1e3 * float(np.mean([r.total_s for r in times]))})
     return rows
+
+
+def sweep_control(cfg: Config, *, factors: tuple[float, ...] = (0.5, 0.7, 1.0, 1.3, 1.5),
+                  noises: tuple[float, ...] = (0.0, 0.0005, 0.001), seed: int = 0,
+                  settings: ControlSettings | None = None, pool: RolloutPool | None = None,
+                  max_time: float = 10.0) -> list[dict[str, Any]]:
+    """One run per (world E factor, noise): reached, when, and the final error (a row each)."""
+    rows = []
+    for noise in noises:
+        for f in factors:
+            s = run_control(cfg, world_young_factor=f, noise=noise, seed=seed, settings=settings, pool=pool,
+                            max_time=max_time).summary
+            rows.append({"world_e_factor": f, "noise_mm": noise * 1e3, "reached": s["reached"],
+                         "reached_at_s": s["reached at [s]"], "final_error_mm": s["final error [mm]"],
+                         "pull_replan_mean_ms": s["pull replan mean [ms]"]})
+    return rows
+
+
+def write_rows(path: str | Path, rows: list[dict[str, Any]]) -> Path:
+    """Rows of dicts as a CSV (the keys of the first row as its header)."""
+    path = Path(path)
+    with path.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    return path
