@@ -38,6 +38,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
     "replay": ("tissue_sim_ros.cli.replay", "run the simulation offline on a bag's tool trajectory; write a bag, CSV, plots, frames"),
     "play": ("tissue_sim_ros.cli.play", "publish a bag's tool topics into a live ROS graph with the recorded timing"),
     "fit": ("tissue_sim_ros.cli.fit", "identify the tissue's material from a recording (tracked points + tool poses)"),
+    "control": ("tissue_sim_ros.cli.control", "drive a point of the tissue to a target with the model-predictive grasp controller, offline"),
     "tune": ("tissue_sim_ros.cli.tune", "pick the cheapest mesh spacing/method/iterations meeting an error tolerance"),
     "bench": {
         "solver": ("tissue_sim_ros.cli.bench.solver", "ms per step, ns per projection and ratio to NumPy, per method and mesh size"),

@@ -1,0 +1,90 @@
+"""``tissue-sim control``: the command line of experiments/control.py (the controller against a simulated world)."""
+from __future__ import annotations
+
+import argparse
+
+from ..core.config import parse_assignments, resolve_config
+from ..core.errors import InputError, output_dir
+from ..core.plan.control import ControlSettings
+from ..core.resources import scene_params_file
+from ..experiments import control
+from .options import positive_floats
+
+HELP = "drive a point of the tissue to a target with the model-predictive grasp controller, offline"
+DESCRIPTION = control.__doc__
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--out", default="out/control", help="output directory (default: out/control)")
+    parser.add_argument("--params", default=None, metavar="FILE",
+                        help="parameter file over config/scenes/retract.yaml (the controller's model)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="a parameter of the controller's model (repeatable)")
+    parser.add_argument("--world-e", type=float, default=1.3, metavar="FACTOR",
+                        help="the world's Young's modulus over the model's (default 1.3: 30%% off)")
+    parser.add_argument("--noise", type=float, default=0.0005,
+                        help="standard deviation of the noise on the observed points [m] (default 0.0005)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the noise (default 0)")
+    parser.add_argument("--lift", type=float, default=0.02, help="goal: this far above the start [m] (default 0.02)")
+    parser.add_argument("--side", type=float, default=0.01, help="goal: this far right of the start [m] (default 0.01)")
+    parser.add_argument("--max-time", type=float, default=10.0, help="simulated seconds at most (default 10)")
+    parser.add_argument("--tolerance", type=float, default=0.002, help="goal tolerance [m] (default 0.002)")
+    parser.add_argument("--replan-every", type=int, default=10, metavar="N", help="steps per plan (default 10)")
+    parser.add_argument("--horizon", type=int, default=30, metavar="S", help="steps per candidate (default 30)")
+    parser.add_argument("--speeds", default="0.02,0.04", metavar="V,...",
+                        help="pull speeds [m/s] of the candidates (default 0.02,0.04)")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="worker processes for the candidates' rollouts (default 1: serially in this process)")
+    parser.add_argument("--timing", action="store_true",
+                        help="also time one replan against the number of candidates (4, 8, 16, 32; 50 steps each)")
+    parser.add_argument("--sweep", action="store_true",
+                        help="also run the world E factors 0.5 0.7 1 1.3 1.5 at noise 0, 0.5, 1 mm and chart success "
+                             "and final error with the replan times (implies --timing)")
+
+
+def run(args: argparse.Namespace) -> int:
+    files = [scene_params_file("retract")] + ([args.params] if args.params else [])
+    cfg = resolve_config(overrides=parse_assignments(args.set), params_file=files, source="--set")
+    if args.jobs < 1:
+        raise InputError(f"--jobs {args.jobs}: expected at least 1")
+    settings = ControlSettings(tolerance=args.tolerance, replan_every=args.replan_every, horizon=args.horizon,
+                               pull_speeds=tuple(positive_floats(args.speeds, "--speeds")))
+    output_dir(args.out, "--out")
+    pool = None
+    try:
+        if args.jobs > 1:
+            from ..core.sim.batch import BatchScene, RolloutPool  # noqa: PLC0415
+            from ..core.sim.simulation import Simulation  # noqa: PLC0415
+
+            pool = RolloutPool(BatchScene.from_simulation(Simulation.from_config(cfg)), workers=args.jobs)
+        res = control.run_control(cfg, world_young_factor=args.world_e, noise=args.noise, seed=args.seed,
+                                  lift=args.lift, side=args.side, max_time=args.max_time, settings=settings,
+                                  pool=pool, out=args.out)
+        print("control:")
+        for k, v in res.summary.items():
+            print(f"  {k}: {v}")
+        if args.timing or args.sweep:
+            print("replan time against candidates (sync + candidates x 50 steps + choice):")
+            timing = control.replan_timing(cfg, pool=pool)
+            for row in timing:
+                print("  " + ", ".join(f"{k} {v:.1f}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()))
+            res.files.append(control.write_rows(f"{args.out}/control_timing.csv", timing))
+        if args.sweep:
+            sweep = control.sweep_control(cfg, seed=args.seed, settings=settings, pool=pool, max_time=args.max_time)
+            print("sweep (world E factor, noise): reached, final error")
+            for row in sweep:
+                print(f"  E x{row['world_e_factor']:g}, noise {row['noise_mm']:g} mm: reached {row['reached']} at "
+                      f"{row['reached_at_s']} s, final error {row['final_error_mm']} mm")
+            res.files.append(control.write_rows(f"{args.out}/control_sweep.csv", sweep))
+            from ..render.control import plot_control_sweep  # noqa: PLC0415
+
+            res.files.append(plot_control_sweep(f"{args.out}/control_sweep.png", sweep, timing,
+                                                tolerance=args.tolerance,
+                                                title="The controller against a world it does not know exactly"))
+    finally:
+        if pool is not None:
+            pool.close()
+    print("wrote:")
+    for f in res.files:
+        print(f"  {f}")
+    return 0 if res.summary["reached"] else 1
