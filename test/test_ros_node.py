@@ -1008,11 +1008,14 @@ def test_poses_in_other_frames_are_projected_onto_the_placed_plane(ros_client: R
     msg = node.pose(0.0, 0.0, frame="base_link", stamp=t0.to_msg())
     msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = position
     (msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z, msg.pose.orientation.w) = q
-    # sent again every 0.5 s until a step takes it: on a loaded machine the node may not yet hold its own static
-    # transforms when the first copy arrives (it then drops that copy, counted, as it should)
+    # sent again every 0.5 s, each copy 0.1 ms later (a lock-step node drops a repeated stamp), until a step takes
+    # it: on a loaded machine, just after start, the node may not take the first copy
     deadline = time.monotonic() + TIMEOUT
+    copies = 0
     while not applied.messages and time.monotonic() < deadline and proc.alive():
+        msg.header.stamp = (t0 + rclpy_duration(1e-4 * copies)).to_msg()
         node.pose_pub.publish(msg)
+        copies += 1
         ros_client.spin_for(0.5)
     ros_client.spin_until(lambda: applied.messages, 1.0, proc, "the step of the base_link pose")
     ros_client.spin_for(0.3)  # every copy in flight has arrived before the counts below
