@@ -450,7 +450,6 @@ class MaterialSolve:
         self.used = np.zeros(cap, dtype=np.bool_)
         self.b = np.zeros(2 * n)
         self.t = np.zeros(cap)
-        self.in_factor = np.zeros(n, dtype=np.bool_)
         self.released_once = np.zeros(n, dtype=np.int8)
         self.turns = np.zeros(n, dtype=np.int8)
         self._columns_of: Prefactor | None = None
@@ -462,6 +461,9 @@ class MaterialSolve:
         motion: FLOOR_REL of the rest shape's diagonal (0.1 um for a 10 cm tissue)."""
         self.rest_lines = self.line_set(np.asarray(model.particle_q0), np.asarray(model.particle_inv_mass))
         """The free particles at or past a line or a wall in the rest shape, and their normals: in the factor."""
+        self.in_factor = np.zeros(n, dtype=np.bool_)
+        self.in_factor[self.rest_lines[0]] = True
+        """(N,) True for those particles: the factor holds them, so the active set needs no rows for them."""
         self.refactors = 0
         """How many times a matrix was factored (the first, a new dt, a new set of held particles)."""
 
@@ -514,8 +516,6 @@ class MaterialSolve:
         if pre is not self._columns_of:  # the kept columns A0^-1 c belong to the factor they were solved with
             self.wkey.fill(-1.0)
             self._columns_of = pre
-        self.in_factor.fill(False)
-        self.in_factor[self.rest_lines[0]] = True
         g, g_new, d, x_old, z = self.vectors
         quasi_newton_solve(
             x, x0, x_pred, m.particle_mass, w, self.tris, self.elastic, dt * dt, p.gravity, pre.l_ptr, pre.l_idx,
