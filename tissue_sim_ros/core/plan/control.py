@@ -477,6 +477,35 @@ class TissueController:
             queue.append((ToolPose(target.x, target.y, 0.0), s.open_jaw))
         self.queue = queue
 
+    def planned_path(self, points: Any, tool_pose: ToolPose, jaw: float, *, t: float | None = None,
+                     ids: Any = None) -> np.ndarray:
+        """The plan as it stands, as tool poses (K, 3) [m, m, rad]: from ``tool_pose`` above the grasp site, down
+        onto it, then the straight pull by the goal's displacement (the pull the site was chosen by). Syncs to the
+        observation and chooses the grasp site first when it is not chosen yet (:meth:`set_goal` resets it); the
+        pull phase's plan is the committed part of the best candidate, then the rest of the displacement."""
+        if self.goal_ids.size == 0:
+            raise InputError("no goal: call set_goal first")
+        s = self.settings
+        t = self.steps * self.dt if t is None else float(t)
+        pts = [(tool_pose.x, tool_pose.y, tool_pose.yaw)]
+        if self.phase in ("approach", "close"):
+            if self.site is None:
+                self.sync(points, tool_pose, t, ids)
+                rec = ReplanRecord(self.steps, self.phase, 0.0, 0.0, 0.0, 0, 0, goal_error=self.goal_error(self.x))
+                self._choose_site(tool_pose, jaw, rec)
+                self.records.append(rec)
+            site = self._site_pose(self.site)
+            pts += [(site.x, site.y + s.approach_hover, 0.0), (site.x, site.y, 0.0)]
+        else:
+            pts += [(p.x, p.y, p.yaw) for p, _ in self.queue]
+        disp = (self.goals - self.x[self.goal_ids]).mean(axis=0)
+        last = pts[-1]
+        if self.phase in ("approach", "close"):
+            pts.append((last[0] + disp[0], last[1] + disp[1], 0.0))
+        elif self.phase == "pull":
+            pts.append((tool_pose.x + disp[0], tool_pose.y + disp[1], tool_pose.yaw))
+        return np.array(pts, dtype=np.float64)
+
     def pull_candidates(self, tool_pose: ToolPose) -> list[ToolPath]:
         """The pull phase's candidate tool paths from ``tool_pose`` (module docstring); the last holds still."""
         s = self.settings
