@@ -286,11 +286,19 @@ def quasi_newton_solve(x: np.ndarray, x_start: np.ndarray, x_pred: np.ndarray, m
                 break
             step *= 0.5
         # the contacts: a particle that went past the tool, a line or a wall joins the active set (always)
+        for i in range(n):  # (z is free until the next direction: x as the line search left it)
+            z[2 * i] = x[i, 0]
+            z[2 * i + 1] = x[i, 1]
         joined = enforce_bounds(x, x_start, w, kind, normal, candidates, surface_edges, shape0, shape1, side_tol,
                                 scratch, y_top, y_bottom, wall_bottom, wall_top, turns)
-
-        f_new = potential_and_gradient(x, x_pred, mass, w, tris, elastic, dt2, attach_idx, attach_target,
-                                       attach_k, g_new)
+        moved_back = False
+        for i in range(n):
+            if x[i, 0] != z[2 * i] or x[i, 1] != z[2 * i + 1]:
+                moved_back = True
+                break
+        if moved_back:  # else f_new and g_new are the line search's last evaluation, at this x
+            f_new = potential_and_gradient(x, x_pred, mass, w, tris, elastic, dt2, attach_idx, attach_target,
+                                           attach_k, g_new)
         # the correction just made (its free, tangential part) against the step's motion: the estimate of the
         # step's relative error
         j = head
