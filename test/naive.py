@@ -986,3 +986,26 @@ def project_vector(v, kind, normal):
         elif k in (1, 3):
             v[i] -= (v[i] @ normal[i]) * normal[i]
     return v
+
+
+def rollout_stepped(sim, snap, poses, start):
+    """Twin of core/sim/fused.py:fused_quasi_newton_rollout: the path stepped one Simulation.step at a time (each
+    step's kernels have their own twins above). Returns (positions, velocities, per-step scene energy, force (S, 2),
+    penetration (S,) as max -sdf of the margin-free tool)."""
+    from tissue_sim_ros.core.contact.kernels import points_sdf
+    from tissue_sim_ros.core.contact.tool import ToolPose, tool_shape_array
+
+    sim.restore(snap)
+    sim.place_tool(start)
+    n = snap.particle_q.shape[0]
+    sdf, grad = np.empty(n), np.empty((n, 2))
+    energy, force, pen = [], [], []
+    for p in poses:
+        pose = ToolPose(float(p[0]), float(p[1]), float(p[2]))
+        r = sim.step(pose)
+        energy.append(r.energy.scene_total)
+        force.append(r.reaction_force.copy())
+        points_sdf(sim.state.particle_q, tool_shape_array(sim.tool, pose, 0.0), sdf, grad)
+        pen.append(-sdf.min())
+    return (sim.state.particle_q.copy(), sim.state.particle_qd.copy(), np.array(energy), np.array(force),
+            np.array(pen))

@@ -180,7 +180,7 @@ class RayRolloutPool:
         self._ray.get([a.set_scene.remote(ref) for a in self._actors])
 
     def run(self, snap: SimSnapshot, candidates: Sequence[ToolPath | Trajectory | np.ndarray], *,
-            final_state: bool = False) -> BatchResult:
+            final_state: bool = False, baseline: bool = True) -> BatchResult:
         """As :meth:`RolloutPool.run`: the same numbers, bit for bit."""
         ray = self._ray
         if not self._actors:
@@ -192,7 +192,8 @@ class RayRolloutPool:
         snap_ref = ray.put(snap)  # once per batch, shared by every actor
         self._batch += 1
         batch = self._batch
-        tasks: list[tuple] = [("baseline", max(p.n_steps for p in paths))]
+        want_baseline = baseline
+        tasks: list[tuple] = [("baseline", max(p.n_steps for p in paths))] if baseline else []
         tasks += [("run", i, p) for i, p in enumerate(paths)]
         pending: dict[Any, tuple[int, tuple]] = {}
         next_task = 0
@@ -222,9 +223,10 @@ class RayRolloutPool:
                 results[task[1]] = value
             if next_task < len(tasks):
                 submit(a)
-        assert baseline is not None
+        assert baseline is not None or not want_baseline
         out = [finish(r, baseline) for r in results if r is not None]
-        return BatchResult(out, baseline, time.perf_counter() - t0, self.n_workers)
+        return BatchResult(out, np.zeros(0) if baseline is None else baseline, time.perf_counter() - t0,
+                           self.n_workers)
 
     def close(self) -> None:
         for a in self._actors:

@@ -76,6 +76,7 @@ from ..contact.tool import (
 from ..errors import InputError
 from ..physics.model import Model, State
 from ..physics.solvers import Solver
+from .fused import FusedWorkspace, fused_applies, rollout_fused
 from .simulation import Simulation
 from .snapshot import SimSnapshot, scene_key
 
@@ -378,7 +379,8 @@ def _beyond_reach(sim: Simulation, state: SimSnapshot, longest: float, pose0: To
 
 
 def rollout_candidate(sim: Simulation, snap: SimSnapshot, path: ToolPath, index: int = 0,
-                      final_state: bool = False, track: BaselineTrack | None = None) -> CandidateResult:
+                      final_state: bool = False, track: BaselineTrack | None = None,
+                      fused: bool = True) -> CandidateResult:
     """Roll ``path`` out from ``snap`` in ``sim``; ``cost`` and the added energies are filled by :func:`finish`.
 
     With ``track`` (the baseline of ``snap``) the leading steps with the tool beyond reach are the track's
@@ -420,9 +422,41 @@ def rollout_candidate(sim: Simulation, snap: SimSnapshot, path: ToolPath, index:
             prev = pose
             k += 1
     skipped = k
-    sim.restore(track.states[k] if skipped else snap)
+    from_snap = track.states[k] if skipped else snap
+    sim.restore(from_snap)
     sim.place_tool(prev)
-    for k in range(skipped, n):
+    start = skipped
+    if fused and n_part and k < n and fused_applies(sim, from_snap, None if jaws is None else jaws[k:]):
+        # the rest of the path in one compiled call (core/sim/fused.py): the same numbers as the loop below
+        ws = getattr(sim, "_fused_workspace", None)
+        if ws is None:
+            ws = FusedWorkspace(sim)
+            sim._fused_workspace = ws
+        out = rollout_fused(sim, from_snap, poses[k:], prev or ToolPose(*map(float, poses[k, :3])), ws, x0)
+        taken = out["steps"]
+        e = out["energy_body"]
+        energy[k:k + taken] = (e[:, :, 0] + e[:, :, 1] + e[:, :, 2] + e[:, :, 3] + e[:, :, 4])[:taken].sum(axis=1)
+        for j in range(taken):
+            fx, fy = float(out["force"][j, 0]), float(out["force"][j, 1])
+            peak_force = max(peak_force, math.sqrt(fx * fx + fy * fy))
+            max_pen = max(max_pen, float(out["penetration"][j]))
+            max_disp = max(max_disp, float(out["displacement"][j]))
+        contact += int(out["contact"][:taken].sum())
+        if taken:
+            inverted = max(inverted, int(out["inverted"][:taken].max()))
+        start = k + taken
+        # the Simulation where the steps left it (or before step k + taken, which diverged: it and the rest are
+        # stepped below, as the Simulation does, from there)
+        sim.state.particle_q[:] = out["x"]
+        sim.state.particle_qd[:] = out["v"]
+        sim._last_good.particle_q[:] = out["x"]
+        sim._last_good.particle_qd[:] = out["v"]
+        sim.step_count = from_snap.step_count + taken
+        sim.time = sim.step_count * sim.params.dt
+        if taken:
+            sim.place_tool(ToolPose(float(poses[start - 1, 0]), float(poses[start - 1, 1]),
+                                    float(poses[start - 1, 2])))
+    for k in range(start, n):
         pose = ToolPose(float(poses[k, 0]), float(poses[k, 1]), float(poses[k, 2]))
         twist = None if twists is None else ToolTwist(float(twists[k, 0]), float(twists[k, 1]), float(twists[k, 2]))
         r = sim.step(pose, twist, jaw=None if jaws is None or math.isnan(jaws[k]) else float(jaws[k]))
@@ -445,8 +479,11 @@ def rollout_candidate(sim: Simulation, snap: SimSnapshot, path: ToolPath, index:
                            energy=energy, final_state=state, wall_s=time.perf_counter() - t0, baseline_steps=skipped)
 
 
-def finish(result: CandidateResult, baseline: np.ndarray) -> CandidateResult:
-    """Fill the numbers measured against the baseline (in the caller's process: same arithmetic either way)."""
+def finish(result: CandidateResult, baseline: np.ndarray | None) -> CandidateResult:
+    """Fill the numbers measured against the baseline (in the caller's process: same arithmetic either way).
+    Without one (``rollout_batch(..., baseline=False)``) they stay NaN."""
+    if baseline is None:
+        return result
     added = result.energy - baseline[: result.steps]
     result.cost = float(added.sum())
     result.peak_added = float(added.max())
@@ -468,7 +505,7 @@ def _snapshot_of(source: Simulation | SimSnapshot) -> SimSnapshot:
 
 def rollout_batch(source: Simulation | SimSnapshot, candidates: Sequence[ToolPath | Trajectory | np.ndarray], *,
                   scene: BatchScene | None = None, pool: "RolloutPool | None" = None,
-                  final_state: bool = False, reuse_baseline: bool = True) -> BatchResult:
+                  final_state: bool = False, reuse_baseline: bool = True, baseline: bool = True) -> BatchResult:
     """Roll every candidate out from ``source`` (a Simulation: its snapshot now; or a snapshot).
 
     Parameters
@@ -486,10 +523,14 @@ def rollout_batch(source: Simulation | SimSnapshot, candidates: Sequence[ToolPat
     reuse_baseline : bool
         Serial only: take the steps with the tool beyond reach from the baseline (:class:`BaselineTrack`, the same
         numbers); False solves every step (for benchmarks). Pools always reuse it.
+    baseline : bool
+        Roll the tool-free baseline out and fill each candidate's cost and added energies against it (True); False
+        skips it (a caller that scores candidates by other numbers, the controller of core/plan/control.py): the
+        result's ``baseline_energy`` is empty and those numbers NaN.
     """
     snap = _snapshot_of(source)
     if pool is not None:
-        return pool.run(snap, candidates, final_state=final_state)
+        return pool.run(snap, candidates, final_state=final_state, baseline=baseline)
     if scene is None:
         if not isinstance(source, Simulation):
             raise InputError("rollout_batch from a snapshot needs scene= (a BatchScene) or pool=")
@@ -498,9 +539,9 @@ def rollout_batch(source: Simulation | SimSnapshot, candidates: Sequence[ToolPat
     sim = scene.build()
     paths = _paths(candidates, scene.model.params.dt)
     track = BaselineTrack(sim, snap) if reuse_baseline else None
-    baseline = rollout_baseline(sim, snap, max(p.n_steps for p in paths), track)
-    results = [finish(rollout_candidate(sim, snap, p, i, final_state, track), baseline) for i, p in enumerate(paths)]
-    return BatchResult(results, baseline, time.perf_counter() - t0, 0)
+    energy = rollout_baseline(sim, snap, max(p.n_steps for p in paths), track) if baseline else None
+    results = [finish(rollout_candidate(sim, snap, p, i, final_state, track), energy) for i, p in enumerate(paths)]
+    return BatchResult(results, np.zeros(0) if energy is None else energy, time.perf_counter() - t0, 0)
 
 
 # --------------------------------------------------------------------------- the pool
@@ -629,7 +670,7 @@ class RolloutPool:
             self._expect(c, "scene", timeout)
 
     def run(self, snap: SimSnapshot, candidates: Sequence[ToolPath | Trajectory | np.ndarray], *,
-            final_state: bool = False) -> BatchResult:
+            final_state: bool = False, baseline: bool = True) -> BatchResult:
         """Roll every candidate out from ``snap`` on the workers (see :func:`rollout_batch`)."""
         if not self.alive:
             raise RuntimeError("the rollout pool is closed or a worker died")
@@ -642,9 +683,10 @@ class RolloutPool:
         for c in self._conns:
             c.send(("snapshot", batch, snap))
         # the baseline first (it is as long as the longest candidate), then candidates in order
-        tasks: list[tuple] = [("baseline", batch, max(p.n_steps for p in paths))]
+        tasks: list[tuple] = [("baseline", batch, max(p.n_steps for p in paths))] if baseline else []
         tasks += [("run", batch, i, p, final_state) for i, p in enumerate(paths)]
         results: list[CandidateResult | None] = [None] * len(paths)
+        want_baseline = baseline
         baseline: np.ndarray | None = None
         next_task = 0
         in_flight = {id(c): 0 for c in self._conns}
@@ -682,9 +724,10 @@ class RolloutPool:
                     by_id[id(c)].send(tasks[next_task])
                     in_flight[id(c)] += 1
                     next_task += 1
-        assert baseline is not None
+        assert baseline is not None or not want_baseline
         out = [finish(r, baseline) for r in results if r is not None]
-        return BatchResult(out, baseline, time.perf_counter() - t0, self.n_workers)
+        return BatchResult(out, np.zeros(0) if baseline is None else baseline, time.perf_counter() - t0,
+                           self.n_workers)
 
     def close(self) -> None:
         """Stop the workers (a second call does nothing)."""
