@@ -57,6 +57,45 @@ def test_controller_drives_a_point_to_its_goal_with_a_wrong_model_and_noise(cfg)
     assert {r.phase for r in res.records} >= {"approach", "pull"}
 
 
+@pytest.mark.parametrize("spacing", [0.004, 0.0025])
+def test_a_model_on_another_mesh_reaches_the_goal_by_its_bias_estimate(cfg, spacing):
+    """The world is the 2.5 mm flap. A 4 mm model's particles lie between the world's points (the goal point
+    too): the observations tie the model at the points embedded in its triangles, and the goal's bias (observed
+    minus modelled goal point) corrects what the coarse mesh gets wrong; without the bias (bias_gain 0) the
+    model believes it is there while the world's point is millimetres off. The 2.5 mm model is the world's mesh
+    with another E."""
+    s = SMALL
+    res = run_control(cfg, world_young_factor=1.3, noise=0.0005, seed=0, max_time=3.0, hold_time=0.1, settings=s,
+                      model={"spacing": spacing})
+    assert res.summary["reached"], res.summary
+    assert res.error[-1] < 0.002
+    if spacing == 0.004:
+        assert res.summary["model particles / world particles"] == "64 / 150"
+        blind = ControlSettings(**{**s.__dict__, "bias_gain": 0.0})
+        off = run_control(cfg, world_young_factor=1.3, noise=0.0005, seed=0, max_time=3.0, hold_time=0.1,
+                          settings=blind, model={"spacing": spacing})
+        assert off.error[-1] > 0.002 and off.records[-1].goal_error < 0.002  # it holds, believing it is there
+
+
+def test_the_offline_run_is_written_as_a_bag(cfg, tmp_path):
+    from tissue_sim_ros.ros.bags import Bag
+
+    res = run_control(cfg, world_young_factor=1.0, noise=0.0, max_time=0.3, settings=SMALL, bag=tmp_path / "run")
+    with Bag(tmp_path / "run") as bag:
+        counts = bag.message_counts
+        assert counts["/tool/pose"] == counts["/tool/jaw"] == counts["/tissue/points"] == len(res.time) == 30
+    with pytest.raises(InputError, match="exists"):
+        run_control(cfg, max_time=0.02, settings=SMALL, bag=tmp_path / "run")
+
+
+def test_replan_timing_rows(cfg):
+    from tissue_sim_ros.experiments.control import timing_table
+
+    rows = timing_table(cfg, spacings=(0.005,), workers=(0,), counts=(2, 4), horizon=5, repeats=1)
+    assert [(r["particles"], r["candidates"], r["workers"]) for r in rows] == [(39, 3, 0), (39, 5, 0)]
+    assert all(r["total_ms"] >= r["rollout_ms"] > 0 for r in rows)
+
+
 def _replans(ctrl: TissueController, cfg, n: int = 3) -> list:
     """``n`` control steps at a state where the flap is held and the pull is planned."""
     x0 = ctrl.sim.model.particle_q0

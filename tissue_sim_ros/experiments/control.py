@@ -27,6 +27,7 @@ from ..core.contact.tool import ToolPose
 from ..core.errors import InputError
 from ..core.plan.control import ControlSettings, TissueController
 from ..core.sim.batch import RolloutPool
+from ..core.sim.grasp import to_tool_frame
 from ..core.sim.simulation import Simulation
 from .retract import RETRACT_X, flap_surface
 
@@ -43,17 +44,25 @@ class ControlRun:
     records: list = field(default_factory=list)
 
 
+DEFAULT_MODEL: dict[str, Any] = {"spacing": 0.005}
+"""The controller's model over the world's scene: the retraction scene on a 5 mm mesh (39 particles; the world's
+is 2.5 mm, 150), so a replan's 32 candidates x 50 steps fit in 100 ms on two cores (docs/control.md)."""
+
+
 def run_control(cfg: Config, *, world_young_factor: float = 1.3, noise: float = 0.0005, seed: int = 0,
                 start_x: float = RETRACT_X, lift: float = 0.02, side: float = 0.01, max_time: float = 10.0,
                 hold_time: float = 0.5, settings: ControlSettings | None = None, pool: RolloutPool | None = None,
-                out: str | Path | None = None, prefix: str = "control") -> ControlRun:
-    """Run the controller against the world (module docstring); write the files when ``out`` is given."""
+                out: str | Path | None = None, prefix: str = "control",
+                model: Mapping[str, Any] | None = None, bag: str | Path | None = None) -> ControlRun:
+    """Run the controller against the world (module docstring); write the files when ``out`` is given, and the
+    world's run as a rosbag2 bag at ``bag`` (the node's outputs of each step, ``/tool/pose`` and ``/tool/jaw`` as
+    the controller commanded them)."""
     for name, v in (("world_young_factor", world_young_factor), ("max_time", max_time)):
         if not (math.isfinite(v) and v > 0):
             raise InputError(f"{name}={v}: expected a finite value > 0")
     if not (math.isfinite(noise) and noise >= 0):
         raise InputError(f"noise={noise}: expected a finite standard deviation >= 0 [m]")
-    ctrl = TissueController(cfg, settings, pool=pool)
+    ctrl = TissueController(cfg.replace(**dict(DEFAULT_MODEL if model is None else model)), settings, pool=pool)
     world_cfg = cfg.replace(young_modulus=cfg.sim.young_modulus * world_young_factor)
     world = Simulation.from_config(world_cfg)
     dt = world.params.dt
@@ -70,8 +79,22 @@ def run_control(cfg: Config, *, world_young_factor: float = 1.3, noise: float = 
         x = world.state.particle_q
         return x + rng.normal(0.0, noise, x.shape) if noise > 0 else x.copy()
 
-    gid = int(ctrl.set_goal([(start, goal)], observe(), tool)[0])
+    ctrl.set_goal([(start, goal)], observe(), tool)
+    # the world's goal particle: its own particle nearest the start (the controller's model may be another mesh)
+    gid = int(np.argmin(np.hypot(*(x_w - np.array(start)).T)))
     q = np.array(goal)
+    sink = writer = None
+    if bag is not None:
+        from ..core.timing.stamps import ns_from_seconds, stamp_from_ns  # noqa: PLC0415
+        from ..ros import messages  # noqa: PLC0415  (CDR without rclpy)
+        from ..ros.bags import BagWriter  # noqa: PLC0415
+        from ..ros.replay import ReplayBagSink  # noqa: PLC0415
+
+        if Path(bag).exists():
+            raise InputError(f"--bag {bag}: exists; expected a new path")
+        writer = BagWriter(bag)
+        sink = ReplayBagSink(writer, world)
+        writer.add_topic("/tool/jaw", "sensor_msgs/msg/JointState")
     rows: list[tuple] = []
     shots: list[tuple[str, np.ndarray, ToolPose, float]] = [("start", world.state.particle_q.copy(), tool, jaw)]
     n_max = int(round(max_time / dt))
@@ -87,6 +110,10 @@ def run_control(cfg: Config, *, world_young_factor: float = 1.3, noise: float = 
                               world.tool_pose, jaw))
         r = world.step(cmd.pose, cmd.twist, jaw=cmd.jaw)
         jaw = cmd.jaw
+        if sink is not None:
+            t_ns = ns_from_seconds(world.time)
+            sink(r, t_ns, cmd.pose)
+            writer.write("/tool/jaw", messages.encode_joint_state(stamp_from_ns(t_ns), "", ["jaw"], [jaw]), t_ns)
         err = float(np.hypot(*(world.state.particle_q[gid] - q)))
         if not all(np.isfinite([cmd.pose.x, cmd.pose.y, err])):
             raise RuntimeError(f"a non-finite command or state at step {k + 1}")
@@ -97,6 +124,8 @@ def run_control(cfg: Config, *, world_young_factor: float = 1.3, noise: float = 
         if not math.isnan(reached_at) and world.time >= reached_at + hold_time - 1e-9:
             break
     wall = time.perf_counter() - wall0
+    if writer is not None:
+        writer.close()
     shots.append((f"end, t = {world.time:.2f} s", world.state.particle_q.copy(), world.tool_pose, jaw))
     t = np.array([r[0] for r in rows])
     e = np.array([r[6] for r in rows])
@@ -105,6 +134,7 @@ def run_control(cfg: Config, *, world_young_factor: float = 1.3, noise: float = 
     res.summary = {
         "world E / model E": world_young_factor,
         "noise [mm]": noise * 1e3,
+        "model particles / world particles": f"{ctrl.n} / {world.model.n_particles}",
         "seed": seed,
         "start [m]": [round(v, 5) for v in start],
         "goal [m]": [round(v, 5) for v in goal],
@@ -152,12 +182,14 @@ def run_control(cfg: Config, *, world_young_factor: float = 1.3, noise: float = 
     return res
 
 
-def replan_timing(cfg: Config, counts: tuple[int, ...] = (4, 8, 16, 32), horizon: int = 50, repeats: int = 3,
-                  pool: RolloutPool | None = None, settings: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
+def replan_timing(cfg: Config, counts: tuple[int, ...] = (4, 8, 16, 32), horizon: int = 50, repeats: int = 5,
+                  pool: RolloutPool | None = None, settings: Mapping[str, Any] | None = None,
+                  model: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
     """Wall time of one pull replan (sync + candidates x ``horizon`` steps + choice) against the number of
-    candidates, on the retraction scene with the flap grasped and lifted 1 cm: the mean of ``repeats``."""
+    candidate motions (and holding still: ``counts`` + 1 rollouts), on the retraction scene (the world, ``cfg``) with the flap grasped and lifted 1 cm, the controller's
+    model ``cfg`` with ``model`` set over it: the median of ``repeats`` (after one untimed replan)."""
     world = Simulation.from_config(cfg)
-    x0 = world.state.particle_q
+    x0 = world.state.particle_q.copy()
     surface = flap_surface(x0, RETRACT_X)
     pose = ToolPose(RETRACT_X, surface + 0.0005, 0.0)
     world.step(pose, jaw=0.8)
@@ -165,48 +197,82 @@ def replan_timing(cfg: Config, counts: tuple[int, ...] = (4, 8, 16, 32), horizon
     for k in range(1, 21):
         pose = ToolPose(RETRACT_X, surface + 0.0005 + 0.0005 * k, 0.0)
         world.step(pose)
+    model_cfg = cfg.replace(**dict(DEFAULT_MODEL if model is None else model))
     rows = []
     for n in counts:
-        # a grid of n - 1 motions and holding still: gains x angles at one speed
-        n_ang = max(1, int(round(math.sqrt(n - 1))))
-        n_gain = max(1, (n - 1) // n_ang)
+        # a grid of n motions (gains x angles at one speed; n a power of 2: 4 = 2 x 2, 32 = 4 x 8) and holding still
+        n_ang = 2 ** math.ceil(math.log2(max(n, 1)) / 2)
+        n_gain = max(1, n // n_ang)
         gains = tuple(np.linspace(0.7, 1.3, n_gain)) if n_gain > 1 else (1.0,)
         angles = tuple(np.linspace(-30.0, 30.0, n_ang)) if n_ang > 1 else (0.0,)
         s = ControlSettings(horizon=horizon, replan_every=min(10, horizon), gains=gains, angles_deg=angles,
                             pull_speeds=(0.02,), **dict(settings or {}))
-        ctrl = TissueController(cfg, s, pool=pool)
-        ctrl.set_goal([((RETRACT_X, surface), (RETRACT_X + 0.01, surface + 0.02))], x0)
+        ctrl = TissueController(model_cfg, s, pool=pool)
+        ctrl.set_goal([((RETRACT_X, surface), (RETRACT_X + 0.01, surface + 0.02))], x0)  # bound at rest
+        x = ctrl.sync(world.state.particle_q, world.tool_pose, world.time)
+        tip = np.array([world.tool_pose.x, world.tool_pose.y])
+        d = np.hypot(*(x - tip).T)
+        held = np.flatnonzero((d <= model_cfg.sim.grasp_radius) & ~ctrl.fixed)
+        if held.size == 0:
+            held = np.array([int(np.argmin(np.where(ctrl.fixed, np.inf, d)))])
         ctrl.phase = "pull"
-        ctrl.site = int(ctrl.goal_ids[0])
-        ctrl.held = world.grasp.idx.copy()
-        ctrl.held_local = world.grasp.local.copy()
+        ctrl.site = int(held[0])
+        ctrl.held = held.astype(np.int64)
+        ctrl.held_local = to_tool_frame(x[held], world.tool_pose)
         times = []
-        for _ in range(repeats):
+        for r in range(repeats + 1):
             ctrl.queue = []
             ctrl._sync_time = None
             ctrl.command(world.state.particle_q, world.tool_pose, 0.0, t=world.time)
-            times.append(ctrl.records[-1])
-        rows.append({"candidates": s.n_candidates, "horizon": horizon, "workers": pool.n_workers if pool else 0,
-                     "sync_ms": 1e3 * float(np.mean([r.sync_s for r in times])),
-                     "rollout_ms": 1e3 * float(np.mean([r.rollout_s for r in times])),
-                     "choose_ms": 1e3 * float(np.mean([r.choose_s for r in times])),
-                     "total_ms": 1e3 * float(np.mean([r.total_s for r in times]))})
+            if r:
+                times.append(ctrl.records[-1])
+        rows.append({"particles": ctrl.n, "candidates": s.n_candidates, "horizon": horizon,
+                     "workers": pool.n_workers if pool else 0,
+                     "sync_ms": 1e3 * float(np.median([r.sync_s for r in times])),
+                     "rollout_ms": 1e3 * float(np.median([r.rollout_s for r in times])),
+                     "choose_ms": 1e3 * float(np.median([r.choose_s for r in times])),
+                     "total_ms": 1e3 * float(np.median([r.total_s for r in times]))})
+    return rows
+
+
+def timing_table(cfg: Config, *, spacings: tuple[float, ...] = (0.0, DEFAULT_MODEL["spacing"]),
+                 workers: tuple[int, ...] = (0, 2), counts: tuple[int, ...] = (4, 8, 16, 32, 64), horizon: int = 50,
+                 repeats: int = 5, backend: str = "local", address: str | None = None) -> list[dict[str, Any]]:
+    """:func:`replan_timing` for each model spacing (0: the world's mesh) and number of workers (0: serially), side
+    by side in one run: the rows of the chart of replan time against candidates."""
+    from ..core.sim.backends import rollout_pool  # noqa: PLC0415
+    from ..core.sim.batch import BatchScene  # noqa: PLC0415
+
+    rows = []
+    for spacing in spacings:
+        model = {"spacing": spacing} if spacing > 0 else {}
+        for n in workers:
+            if n == 0:
+                rows += replan_timing(cfg, counts, horizon, repeats, model=model)
+                continue
+            scene = BatchScene.from_simulation(Simulation.from_config(cfg.replace(**model)))
+            with rollout_pool(scene, n, backend=backend, address=address) as pool:
+                rows += replan_timing(cfg, counts, horizon, repeats, pool=pool, model=model)
     return rows
 
 
 def sweep_control(cfg: Config, *, factors: tuple[float, ...] = (0.5, 0.7, 1.0, 1.3, 1.5),
                   noises: tuple[float, ...] = (0.0, 0.0005, 0.001), seed: int = 0,
                   settings: ControlSettings | None = None, pool: RolloutPool | None = None,
-                  max_time: float = 10.0) -> list[dict[str, Any]]:
-    """One run per (world E factor, noise): reached, when, and the final error (a row each)."""
+                  max_time: float = 10.0, model: Mapping[str, Any] | None = None,
+                  progress: Any = None) -> list[dict[str, Any]]:
+    """One run per (world E factor, noise): reached, when, and the final error (a row each). ``progress(i, n)``
+    after each run."""
     rows = []
-    for noise in noises:
-        for f in factors:
-            s = run_control(cfg, world_young_factor=f, noise=noise, seed=seed, settings=settings, pool=pool,
-                            max_time=max_time).summary
-            rows.append({"world_e_factor": f, "noise_mm": noise * 1e3, "reached": s["reached"],
-                         "reached_at_s": s["reached at [s]"], "final_error_mm": s["final error [mm]"],
-                         "pull_replan_mean_ms": s["pull replan mean [ms]"]})
+    runs = [(noise, f) for noise in noises for f in factors]
+    for i, (noise, f) in enumerate(runs):
+        s = run_control(cfg, world_young_factor=f, noise=noise, seed=seed, settings=settings, pool=pool,
+                        max_time=max_time, model=model).summary
+        rows.append({"world_e_factor": f, "noise_mm": noise * 1e3, "reached": s["reached"],
+                     "reached_at_s": s["reached at [s]"], "final_error_mm": s["final error [mm]"],
+                     "pull_replan_mean_ms": s["pull replan mean [ms]"]})
+        if progress is not None:
+            progress(i + 1, len(runs))
     return rows
 
 

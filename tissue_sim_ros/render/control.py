@@ -60,7 +60,11 @@ def plot_control_sweep(path: str | Path, sweep: Sequence[dict], timing: Sequence
                        title: str | None = None, dpi: int = 120) -> Path:
     """Left: the final error [mm] against the model's error in E (|world E / model E - 1|, %), one line per noise,
     unreached runs hollow; right: one replan's wall time [ms] against the number of candidates."""
-    fig, axes = plt.subplots(1, 2, figsize=(10.0, 4.0))
+    if not sweep:  # the timing alone
+        fig, ax1 = plt.subplots(1, 1, figsize=(6.0, 4.0))
+        axes = [None, ax1]
+    else:
+        fig, axes = plt.subplots(1, 2, figsize=(10.0, 4.0))
     ax = axes[0]
     for noise in sorted({r["noise_mm"] for r in sweep}):
         rows = sorted((r for r in sweep if r["noise_mm"] == noise), key=lambda r: r["world_e_factor"])
@@ -69,16 +73,19 @@ def plot_control_sweep(path: str | Path, sweep: Sequence[dict], timing: Sequence
         line, = ax.plot(err, fin, "-", lw=1.0, label=f"noise {noise:g} mm")
         for e, f, r in zip(err, fin, rows):
             ax.plot(e, f, "o", color=line.get_color(), mfc=line.get_color() if r["reached"] else "none")
-    ax.axhline(tolerance * 1e3, color="#2e7d32", ls="--", lw=1.0, label="tolerance")
-    ax.set_xlabel("world E over the model's E - 1 [%]")
-    ax.set_ylabel("final error [mm] (hollow: not reached)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    if ax is not None:
+        ax.axhline(tolerance * 1e3, color="#2e7d32", ls="--", lw=1.0, label="tolerance")
+        ax.set_xlabel("world E over the model's E - 1 [%]")
+        ax.set_ylabel("final error [mm] (hollow: not reached)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
     ax = axes[1]
-    for workers in sorted({r["workers"] for r in timing}):
-        rows = [r for r in timing if r["workers"] == workers]
-        ax.plot([r["candidates"] for r in rows], [r["total_ms"] for r in rows], "o-",
-                label=f"{'serial' if workers == 0 else f'{workers} workers'}, {rows[0]['horizon']} steps")
+    for particles, workers in sorted({(r.get("particles", 0), r["workers"]) for r in timing}):
+        rows = [r for r in timing if r["workers"] == workers and r.get("particles", 0) == particles]
+        model = f"{particles}-particle model, " if particles else ""
+        ax.plot([r["candidates"] for r in rows], [r["total_ms"] for r in rows], "o-" if workers else "s--",
+                label=f"{model}{'serial' if workers == 0 else f'{workers} workers'}, {rows[0]['horizon']} steps")
+    ax.axhline(100.0, color="#c62828", ls=":", lw=1.0, label="100 ms (replan every 10 steps at 100 Hz)")
     ax.set_xlabel("candidates per replan")
     ax.set_ylabel("replan wall time [ms]")
     ax.grid(alpha=0.3)

@@ -95,6 +95,9 @@ class ControlSettings:
     force_weight: float = 1e-3
     """[m/N]: 1 N of peak reaction costs as much as 1 mm of goal error."""
     penetration_weight: float = 1.0
+    bias_gain: float = 0.3
+    """Offset-free prediction: the weight of each sync's (observed - modelled) goal point in the bias added to the
+    model's goal points (0: trust the model; 1: the last observation alone)."""
     energy_weight: float = 0.0
     """[m per unit of the scene's energy] on the peak energy a candidate adds over the tool-free baseline."""
     open_jaw: float = 0.8
@@ -110,6 +113,8 @@ class ControlSettings:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise InputError(f"{name}={v}: expected a finite value >= 0")
+        if not (math.isfinite(self.bias_gain) and 0.0 <= self.bias_gain <= 1.0):
+            raise InputError(f"bias_gain={self.bias_gain}: expected a value in [0, 1]")
         for name in ("replan_every", "horizon", "max_sites"):
             if int(getattr(self, name)) < 1:
                 raise InputError(f"{name}={getattr(self, name)}: expected an integer >= 1")
@@ -164,34 +169,75 @@ class ReplanRecord:
 
 
 class SyncEnergy:
-    """Pi(x) plus the observation springs and the jaw's hold (module docstring), for ``newton_minimize``."""
+    """Pi(x) plus the observation springs and the jaw's hold (module docstring), for ``newton_minimize``.
 
-    def __init__(self, potential: PotentialEnergy, ids: np.ndarray, obs: np.ndarray, k: float,
+    Observation m ties the model's point sum_j w_mj x_(t_mj) (its particle, w = (1, 0, 0), or a point embedded in a
+    triangle) to ``obs[m]``: k/2 |B x - o|^2 with B the (M, N) interpolation matrix, Hessian k B^T B."""
+
+    def __init__(self, potential: PotentialEnergy, tris: np.ndarray, w: np.ndarray, obs: np.ndarray, k: float,
                  held: np.ndarray, targets: np.ndarray, k_hold: float) -> None:
+        import scipy.sparse as sp  # noqa: PLC0415  (SciPy, as statics)
+
         self.pot = potential
         self.mass = potential.mass
-        self.ids, self.obs, self.k = ids, obs, k
+        self.tris, self.w, self.obs, self.k = tris, w, obs, k
         self.held, self.targets, self.k_hold = held, targets, k_hold
-        n = potential.n_dofs
-        diag = np.zeros((n // 2, 2))
-        np.add.at(diag, ids, k)
-        np.add.at(diag, held, k_hold)
-        import scipy.sparse as sp  # noqa: PLC0415  (SciPy, as statics)
-        self._diag = sp.diags(diag.ravel()).tocsr()
+        n = potential.n_dofs // 2
+        m = obs.shape[0]
+        b = sp.coo_matrix((w.ravel(), (np.repeat(np.arange(m), 3), tris.ravel())), shape=(m, n)).tocsr()
+        hold = np.zeros(n)
+        np.add.at(hold, held, k_hold)
+        self._h = (sp.kron(k * (b.T @ b), sp.identity(2)) + sp.diags(np.repeat(hold, 2))).tocsr()
+
+    def _residual(self, x: np.ndarray) -> np.ndarray:
+        return (self.w[:, :, None] * x[self.tris]).sum(axis=1) - self.obs
 
     def value(self, x: np.ndarray) -> float:
-        d = x[self.ids] - self.obs
+        d = self._residual(x)
         h = x[self.held] - self.targets
         return self.pot.value(x) + 0.5 * self.k * float((d * d).sum()) + 0.5 * self.k_hold * float((h * h).sum())
 
     def gradient(self, x: np.ndarray) -> np.ndarray:
         g = self.pot.gradient(x)
-        np.add.at(g, self.ids, self.k * (x[self.ids] - self.obs))
+        d = self.k * self._residual(x)
+        for j in range(3):
+            np.add.at(g, self.tris[:, j], self.w[:, j, None] * d)
         np.add.at(g, self.held, self.k_hold * (x[self.held] - self.targets))
         return g
 
     def hessian(self, x: np.ndarray, project: bool = False):
-        return self.pot.hessian(x, project) + self._diag
+        return self.pot.hessian(x, project) + self._h
+
+
+def embed(points: np.ndarray, x: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each point (P, 2) as barycentric weights in a triangle of the mesh at positions ``x``: (tris (P, 3),
+    weights (P, 3)). The triangle that contains the point (the largest smallest weight); a point outside every
+    triangle (just off the surface) takes the one whose smallest weight is largest, its weights clipped to >= 0
+    and renormalised."""
+    a, b, c = x[tris[:, 0]], x[tris[:, 1]], x[tris[:, 2]]
+    v0, v1 = b - a, c - a
+    den = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
+    den = np.where(den == 0.0, np.inf, den)  # a degenerate triangle contains nothing
+    out_t = np.zeros((len(points), 3), dtype=np.int64)
+    out_w = np.zeros((len(points), 3))
+    for k, p in enumerate(points):
+        d = p - a
+        w1 = (d[:, 0] * v1[:, 1] - d[:, 1] * v1[:, 0]) / den
+        w2 = (v0[:, 0] * d[:, 1] - v0[:, 1] * d[:, 0]) / den
+        w = np.stack([1.0 - w1 - w2, w1, w2], axis=1)
+        t = int(np.argmax(w.min(axis=1)))
+        wt = np.clip(w[t], 0.0, None)
+        out_t[k] = tris[t]
+        out_w[k] = wt / wt.sum() if wt.sum() > 0 else (1.0, 0.0, 0.0)
+    return out_t, out_w
+
+
+def _particles(idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Particles ``idx`` as embedded points: tris (i, i, i), weights (1, 0, 0)."""
+    tris = np.repeat(np.asarray(idx, dtype=np.int64)[:, None], 3, axis=1)
+    w = np.zeros((len(idx), 3))
+    w[:, 0] = 1.0
+    return tris, w
 
 
 def _finite_point(name: str, p: Any) -> np.ndarray:
@@ -242,8 +288,20 @@ class TissueController:
         """The synced positions [m] (N, 2)."""
         self.v = np.zeros_like(self.x)
         self._sync_time: float | None = None
-        self.binding: np.ndarray | None = None
+        self.binding: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        """(point indices, tris, weights): the observed points bound to the model at the first observation."""
+        self.n_points = 0
+        tri = np.asarray(self.sim.model.tri_indices)
+        q0 = np.asarray(self.sim.model.particle_q0)
+        lengths = np.concatenate([np.hypot(*(q0[tri[:, a]] - q0[tri[:, b]]).T) for a, b in ((0, 1), (1, 2), (2, 0))])
+        self.edge = float(np.median(lengths)) if lengths.size else 0.0
+        """The model's median edge length [m] (the binding's reach)."""
         self.goal_ids = np.zeros(0, dtype=np.int64)
+        self.goal_tris = np.zeros((0, 3), dtype=np.int64)
+        self.goal_w = np.zeros((0, 3))
+        self.goal_rows = np.zeros(0, dtype=np.int64)
+        self.bias = np.zeros((0, 2))
+        self._bias_set = False
         self.goals = np.zeros((0, 2))
         self.starts = np.zeros((0, 2))
         self.phase = "approach"
@@ -256,43 +314,68 @@ class TissueController:
         self._since_replan = 0
 
     # ----------------------------------------------------------------------------------------------- observations
-    def _observed(self, points: Any, ids: Any) -> tuple[np.ndarray, np.ndarray]:
+    def _observed(self, points: Any, ids: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The finite observations (M, 2), the model points they observe and their rows in ``points``: (obs,
+        tris (M, 3), weights (M, 3), rows (M,))."""
         pts = np.asarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 2 or pts.shape[0] == 0:
             raise InputError(f"observed points of shape {pts.shape}: expected (M, 2) positions in m, M >= 1")
         if ids is None:
             if self.binding is None:
-                if pts.shape[0] == self.n:
-                    self.binding = np.arange(self.n, dtype=np.int64)
-                else:  # the nearest particle of the model (its rest shape, or its last sync) to each point
-                    d = ((pts[:, None, :] - self.x[None, :, :]) ** 2).sum(axis=2)
-                    self.binding = np.argmin(np.where(np.isfinite(d), d, np.inf), axis=1).astype(np.int64)
-            if self.binding.shape[0] != pts.shape[0]:
-                raise InputError(f"{pts.shape[0]} observed points: expected {self.binding.shape[0]} (as at the "
+                self.binding = self._bind(pts)
+            rows, tris, w = self.binding
+            if pts.shape[0] != self.n_points:
+                raise InputError(f"{pts.shape[0]} observed points: expected {self.n_points} (as at the "
                                  "first observation) or their particle ids")
-            idx = self.binding
+            pts = pts[rows]
         else:
             idx = np.asarray(ids, dtype=np.int64).reshape(-1)
             if idx.shape[0] != pts.shape[0] or (idx.size and (idx.min() < 0 or idx.max() >= self.n)):
                 raise InputError(f"particle ids of shape {idx.shape} in [{idx.min() if idx.size else 0}, "
                                  f"{idx.max() if idx.size else 0}]: expected one id per point in [0, {self.n - 1}]")
+            tris, w = _particles(idx)
+            rows = np.arange(idx.shape[0])
         ok = np.isfinite(pts).all(axis=1)  # a tracker's lost points are unobserved
         if not ok.any():
             raise InputError("every observed point is NaN/inf: expected finite positions")
-        return pts[ok], idx[ok]
+        return pts[ok], tris[ok], w[ok], rows[ok]
+
+    def _bind(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The first observation's points bound to the model: (kept point indices, tris, weights)."""
+        self.n_points = pts.shape[0]
+        if pts.shape[0] == self.n:  # the model's own particles (the node's tissue/points of the same mesh)
+            return (np.arange(self.n),) + _particles(np.arange(self.n, dtype=np.int64))
+        # another mesh or a tracker's markers: each point embedded in the model's triangle under it (the model
+        # as it stands: its rest shape, or its last sync), so a coarser model is tied at the material points
+        # the tracker sees, not pulled toward them at its particles; points farther than half the model's
+        # median edge from it are not used
+        fin = np.flatnonzero(np.isfinite(pts).all(axis=1))
+        tris, w = embed(pts[fin], self.x, np.asarray(self.sim.model.tri_indices))
+        at = (w[:, :, None] * self.x[tris]).sum(axis=1)
+        near = np.hypot(*(at - pts[fin]).T) <= 0.5 * self.edge
+        if not near.any():
+            raise InputError(f"{pts.shape[0]} observed points, none within {0.5e3 * self.edge:.2f} mm of the "
+                             "model's tissue: expected points on the tissue (in the tissue plane's frame)")
+        return fin[near], tris[near], w[near]
+
+    def _static_sync(self, obs: np.ndarray, tris: np.ndarray, w: np.ndarray, tool_pose: ToolPose | None) -> np.ndarray:
+        """The least-energy positions that match the observations (module docstring)."""
+        x0 = self.x.copy()
+        single = (w[:, 0] == 1.0)
+        x0[tris[single, 0]] = obs[single]
+        x0[self.fixed] = np.asarray(self.sim.model.particle_q0)[self.fixed]
+        held = self.held if (self.held.size and tool_pose is not None) else np.zeros(0, dtype=np.int64)
+        targets = to_world(self.held_local, tool_pose) if held.size else np.zeros((0, 2))
+        energy = SyncEnergy(self.potential, tris, w, obs, self.k_sync, held, targets, self.k_hold)
+        x, _ = newton_minimize(energy, x0, self.fixed, g_scale=self.weight, rtol=1e-6, max_iterations=30,
+                               reuse_factor=True)
+        return x if np.isfinite(x).all() else x0
 
     def sync(self, points: Any, tool_pose: ToolPose, t: float, ids: Any = None) -> np.ndarray:
         """Bring the model's state to the observations (module docstring); returns the synced positions (N, 2)."""
-        obs, idx = self._observed(points, ids)
-        x0 = self.x.copy()
-        x0[idx] = obs
-        x0[self.fixed] = np.asarray(self.sim.model.particle_q0)[self.fixed]
-        targets = to_world(self.held_local, tool_pose) if self.held.size else np.zeros((0, 2))
-        energy = SyncEnergy(self.potential, idx, obs, self.k_sync, self.held, targets, self.k_hold)
-        x, _ = newton_minimize(energy, x0, self.fixed, g_scale=self.weight, rtol=1e-6, max_iterations=30,
-                               reuse_factor=True)
-        if not np.isfinite(x).all():
-            x = x0
+        obs, tris, w, rows = self._observed(points, ids)
+        x = self._static_sync(obs, tris, w, tool_pose)
+        self._update_bias(obs, rows, x)
         if self._sync_time is not None and t > self._sync_time:
             self.v = (x - self.x) / (t - self._sync_time)
         else:
@@ -319,8 +402,10 @@ class TissueController:
         if len(pairs) == 0:
             raise InputError("no (start, goal) pair: expected at least one")
         s = self.settings
-        obs, idx = self._observed(points, ids)
-        starts, goals, gids = [], [], []
+        obs, tris, w, rows = self._observed(points, ids)
+        x_now = self._static_sync(obs, tris, w, tool_pose)  # the model as observed now (positions only)
+        self.x = x_now
+        starts, goals, gids, goal_rows = [], [], [], []
         for k, (p, q) in enumerate(pairs):
             p = _finite_point(f"start[{k}]", p)
             q = _finite_point(f"goal[{k}]", q)
@@ -329,28 +414,62 @@ class TissueController:
             if d[j] > s.start_tolerance:
                 raise InputError(f"start ({p[0]:.4f}, {p[1]:.4f}) m is {d[j] * 1e3:.1f} mm from the nearest tissue "
                                  f"point: expected a point on the tissue (within {s.start_tolerance * 1e3:.1f} mm)")
-            if self.fixed[idx[j]]:
+            i = int(np.argmin(np.hypot(*(x_now - p).T)))
+            if self.fixed[i]:
                 raise InputError(f"start ({p[0]:.4f}, {p[1]:.4f}) m is a pinned particle: expected a point that "
                                  "can move")
             reach = float(np.hypot(*(q - obs[j])))
             if reach > s.max_reach:
                 raise InputError(f"goal ({q[0]:.4f}, {q[1]:.4f}) m is {reach * 1e3:.1f} mm from its start: expected "
                                  f"at most max_reach={s.max_reach * 1e3:.1f} mm")
-            starts.append(obs[j])
+            starts.append(p)
             goals.append(q)
-            gids.append(idx[j])
+            gids.append(i)
+            goal_rows.append(int(rows[j]))
         self.goal_ids = np.array(gids, dtype=np.int64)
         self.goals = np.array(goals)
         self.starts = np.array(starts)
+        # the tissue point at each start: embedded in the model's triangle under it (the model as observed now),
+        # so a model coarser than the world (or than the tracker's points) moves the point itself, not the
+        # particle nearest it
+        self.goal_tris, self.goal_w = embed(self.starts, x_now, np.asarray(self.sim.model.tri_indices))
+        self.goal_rows = np.array(goal_rows, dtype=np.int64)
+        self.bias = np.zeros_like(self.goals)
+        self._bias_set = False
+        self._update_bias(obs, rows, x_now)
         self.phase = "approach"
         self.site = None
         self.queue = []
         self._since_replan = 0
         return self.goal_ids
 
+    def model_goal_points(self, x: np.ndarray) -> np.ndarray:
+        """The model's goal points (embedded at the starts) with its particles at ``x`` (N, 2) [m]: (P, 2)."""
+        return (self.goal_w[:, :, None] * x[self.goal_tris]).sum(axis=1)
+
+    def goal_points(self, x: np.ndarray) -> np.ndarray:
+        """Where the goal points are predicted to be with the model's particles at ``x``: the model's points plus
+        the bias estimate (offset-free prediction: what the model gets wrong at the goal points, observed)."""
+        return self.model_goal_points(x) + self.bias
+
+    def _update_bias(self, obs: np.ndarray, rows: np.ndarray, x: np.ndarray) -> None:
+        """bias <- (1 - a) bias + a (observed goal point - model's), a = ``bias_gain`` (the first sync: a = 1);
+        a goal point the tracker lost this time leaves its bias as it is."""
+        a = self.settings.bias_gain
+        if self.goals.shape[0] == 0 or a == 0.0:
+            return
+        model = self.model_goal_points(x)
+        for k, r in enumerate(self.goal_rows):
+            at = np.flatnonzero(rows == r)
+            if at.size == 0:
+                continue
+            new = obs[at[0]] - model[k]
+            self.bias[k] = new if not self._bias_set else (1.0 - a) * self.bias[k] + a * new
+        self._bias_set = True
+
     def goal_error(self, x: np.ndarray) -> float:
-        """The largest distance of a goal particle at positions ``x`` from its goal [m]."""
-        d = x[self.goal_ids] - self.goals
+        """The largest distance of a goal point at positions ``x`` from its goal [m]."""
+        d = self.goal_points(x) - self.goals
         return float(np.sqrt((d * d).sum(axis=1)).max())
 
     # ----------------------------------------------------------------------------------------------- the step
@@ -408,7 +527,7 @@ class TissueController:
 
     def _choose_site(self, tool_pose: ToolPose, jaw: float, rec: ReplanRecord) -> None:
         s = self.settings
-        centre = self.x[self.goal_ids].mean(axis=0)
+        centre = self.goal_points(self.x).mean(axis=0)
         d = np.hypot(*(self.x - centre).T)
         order = [int(i) for i in np.argsort(d, kind="stable") if d[i] <= s.grasp_search and not self.fixed[i]]
         sites = []
@@ -423,7 +542,7 @@ class TissueController:
         if not sites:
             raise InputError(f"no grasp site within grasp_search={s.grasp_search * 1e3:.1f} mm of the start that the "
                              "grasper reaches from above: expected a start near the tissue's top surface")
-        disp = (self.goals - self.x[self.goal_ids]).mean(axis=0)
+        disp = (self.goals - self.goal_points(self.x)).mean(axis=0)
         speed = float(s.pull_speeds[0])
         n_pull = max(1, int(math.ceil(float(np.hypot(*disp)) / (speed * self.dt))))
         paths = []
@@ -440,7 +559,8 @@ class TissueController:
             paths.append(ToolPath(poses, start=start, jaws=jaws))
         snap = self.snapshot(tool_pose, s.open_jaw)
         t0 = time.perf_counter()
-        batch = rollout_batch(snap, paths, scene=self.scene, pool=self.pool, final_state=True)
+        batch = rollout_batch(snap, paths, scene=self.scene, pool=self.pool, final_state=True,
+                              baseline=self.settings.energy_weight > 0)
         rec.rollout_s += time.perf_counter() - t0
         scores = [self.goal_error(c.final_state.particle_q) if c.finite else math.inf for c in batch.candidates]
         best = int(np.argmin(scores))
@@ -498,7 +618,7 @@ class TissueController:
             pts += [(site.x, site.y + s.approach_hover, 0.0), (site.x, site.y, 0.0)]
         else:
             pts += [(p.x, p.y, p.yaw) for p, _ in self.queue]
-        disp = (self.goals - self.x[self.goal_ids]).mean(axis=0)
+        disp = (self.goals - self.goal_points(self.x)).mean(axis=0)
         last = pts[-1]
         if self.phase in ("approach", "close"):
             pts.append((last[0] + disp[0], last[1] + disp[1], 0.0))
@@ -509,7 +629,7 @@ class TissueController:
     def pull_candidates(self, tool_pose: ToolPose) -> list[ToolPath]:
         """The pull phase's candidate tool paths from ``tool_pose`` (module docstring); the last holds still."""
         s = self.settings
-        disp = (self.goals - self.x[self.goal_ids]).mean(axis=0)
+        disp = (self.goals - self.goal_points(self.x)).mean(axis=0)
         p0 = np.array([tool_pose.x, tool_pose.y])
         out = []
         k = np.arange(1, s.horizon + 1, dtype=np.float64)
@@ -536,8 +656,11 @@ class TissueController:
         s = self.settings
         if not result.finite or result.final_state is None:
             return math.inf
-        return (self.goal_error(result.final_state.particle_q) + s.force_weight * result.peak_force
-                + s.penetration_weight * result.max_penetration + s.energy_weight * max(0.0, result.peak_added))
+        score = (self.goal_error(result.final_state.particle_q) + s.force_weight * result.peak_force
+                 + s.penetration_weight * result.max_penetration)
+        if s.energy_weight > 0:  # the baseline is rolled out only then
+            score += s.energy_weight * max(0.0, result.peak_added)
+        return score
 
     def _pull(self, tool_pose: ToolPose, jaw: float, rec: ReplanRecord) -> None:
         s = self.settings
@@ -548,7 +671,8 @@ class TissueController:
         paths = self.pull_candidates(tool_pose)
         snap = self.snapshot(tool_pose, jaw)
         t0 = time.perf_counter()
-        batch = rollout_batch(snap, paths, scene=self.scene, pool=self.pool, final_state=True)
+        batch = rollout_batch(snap, paths, scene=self.scene, pool=self.pool, final_state=True,
+                              baseline=self.settings.energy_weight > 0)
         rec.rollout_s += time.perf_counter() - t0
         scores = np.array([self.score(c) for c in batch.candidates])
         best = len(paths) - 1 if self.phase == "holding" else int(np.argmin(scores))
