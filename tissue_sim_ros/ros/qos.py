@@ -15,6 +15,8 @@
 * Rest mesh (``tissue/rest_mesh``): RELIABLE, TRANSIENT_LOCAL, depth 1 - latched
   like ``/tf_static``: a late subscriber still gets the one message.
 * Diagnostics: the ROS default (reliable, depth 10), as diagnostic_aggregator expects.
+* The controller's readers (``tissue_controller``: points, measured tool pose and jaw): best effort,
+  keep last 10, like the tool input: they match any writer and the controller uses the newest.
 """
 from __future__ import annotations
 
@@ -67,3 +69,10 @@ def tool_output() -> QoSProfile:
     a recorder on a loaded machine gets every pose (with 10 the demo's lost 5 of 300 at load 6.7)."""
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                       reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+
+
+def observation_input() -> QoSProfile:
+    """The controller's readers of points, measured tool pose and jaw: best effort (matches reliable and
+    best-effort writers, e.g. a tracker's sensor-data QoS), keep last 10: it uses the newest of each."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                      reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
