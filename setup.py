@@ -81,6 +81,7 @@ setup(
             "tissue-sim = tissue_sim_ros.cli:main",
             "tissue_sim_node = tissue_sim_ros.ros.node:main",
             "tool_driver = tissue_sim_ros.ros.tool_driver:main",
+            "tissue_controller = tissue_sim_ros.ros.controller_node:main",
         ],
     },
 )

@@ -1,0 +1,173 @@
+"""What ``tissue_controller`` (:mod:`~tissue_sim_ros.ros.controller_node`) is built from: its parameters (the
+tables, their checks and their markdown for ``msg_docs/parameters.md``), its model's configuration, and the
+start-up warm-up of the controller's kernels.
+
+Three tables: the node's own (:data:`NODE_PARAMETERS`), one row per
+:class:`~tissue_sim_ros.core.plan.control.ControlSettings` field (:data:`SETTINGS_PARAMETERS`; a field without a row
+still becomes a parameter, :func:`settings_rows`), and the simulation parameters the model shares with
+``tissue_sim_node`` (:data:`MODEL_PARAMETERS`, described by the one table of :mod:`tissue_sim_ros.core.config`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+from typing import Any
+
+import numpy as np
+from rcl_interfaces.msg import ParameterDescriptor
+
+from ..core.config import BY_NAME, Config, ParamSpec, load_params_file, resolve_config
+from ..core.contact.tool import ToolPose
+from ..core.errors import InputError
+from ..core.plan.control import ControlSettings, TissueController
+from ..core.resources import scene_params_file
+from .parameters import parameter_value
+
+#: The node's own parameters, name -> (default, description).
+NODE_PARAMETERS: dict[str, tuple[Any, str]] = {
+    "scene": ("retract", "Shipped scene whose parameter file (config/scenes/NAME.yaml; paper: config/tissue_sim.yaml) is the controller's model of the tissue; it must have tool_shape grasper and material neo_hookean."),
+    "params_file": ("", "A parameter file (as tissue_sim_node takes) applied over the scene's for the model; empty = none."),
+    "points_topic": ("tissue/points", "The tissue's observed points (sensor_msgs/PointCloud2 with float fields x, y, in the tissue plane's frame; the first cloud's frame is the plane's)."),
+    "pose_topic": ("tool/applied_pose", "The measured tool pose (geometry_msgs/PoseStamped in the plane's frame; x, y and the yaw about z)."),
+    "jaw_topic": ("tool/applied_jaw", "The measured jaw (sensor_msgs/JointState, position[0] [rad]; none yet: open)."),
+    "max_time": (20.0, "Give up a goal after pursuing it this long (node clock) [s]."),
+    "hold_time": (0.5, "The goal is reached once the controller has held with its goal error within goal_tolerance this long (points' stamps) [s]."),
+    "jobs": (1, "Rollout worker processes for the candidates (a RolloutPool, started at start and closed at shutdown); 1 = serially in the node."),
+    "nice": (10, "Niceness added to the controller's worker thread (one numba thread) and to the rollout workers (Linux), so that a simulator sharing the cores is scheduled first; 0 = as the rest of the node."),
+    "warm_up": (True, "At start, before ~/move_tissue is offered, drive a throwaway copy of the controller through a grasp and one pull replan on its own model, so the numba kernels are compiled (or loaded) before the first goal."),
+    "diagnostics_rate": (1.0, "Rate of /diagnostics [Hz]."),
+    "warn_period": (2.0, "Each kind of warning about bad input is logged at most once per period [s]."),
+}
+
+#: One parameter per ControlSettings field: node name -> (field, description); default = the dataclass default.
+SETTINGS_PARAMETERS: dict[str, tuple[str, str]] = {
+    "goal_tolerance": ("tolerance", "The goal is met when the goal point of the synced model is within this distance of its goal [m]."),
+    "replan_every": ("replan_every", "Steps committed from each plan: the controller replans every this many steps (at most horizon)."),
+    "horizon": ("horizon", "Steps each pull candidate is rolled out."),
+    "gains": ("gains", "Pull candidates: gains g on the goal's displacement still to go d (each candidate moves the tool toward its pose + g R(theta) d)."),
+    "angles_deg": ("angles_deg", "Pull candidates: the rotations theta of that displacement [deg]."),
+    "pull_speeds": ("pull_speeds", "Pull candidates: tool speeds [m/s] (each gain x angle at each speed, and holding still); the first also pulls the grasp sites' trial rollouts."),
+    "approach_speed": ("approach_speed", "Tool speed of the approach to the grasp site [m/s]."),
+    "approach_hover": ("approach_hover", "The grasper comes down onto the site from this high above it [m]."),
+    "approach_clearance": ("approach_clearance", "Its tip stops this far above the site before closing [m]."),
+    "grasp_search": ("grasp_search", "Grasp sites: free particles within this distance of the start point [m]."),
+    "max_sites": ("max_sites", "At most this many grasp sites are tried (rolled out) per goal."),
+    "max_reach": ("max_reach", "A goal farther than this from its start is refused [m]."),
+    "start_tolerance": ("start_tolerance", "A start must lie within this distance of an observed tissue point, else it is refused [m]."),
+    "sync_stiffness": ("sync_stiffness", "Stiffness k tying each observed particle to its observation in the sync [N/m]; 0 = 10 x young_modulus x thickness."),
+    "force_weight": ("force_weight", "Score weight of a candidate's peak reaction force [m/N]."),
+    "penetration_weight": ("penetration_weight", "Score weight of its deepest penetration [m/m]."),
+    "energy_weight": ("energy_weight", "Score weight of the peak energy it adds over the tool-free baseline [m per unit of energy]."),
+    "open_jaw": ("open_jaw", "Jaw angle commanded open [rad]."),
+    "closed_jaw": ("closed_jaw", "Jaw angle commanded closed [rad]."),
+}
+
+#: The simulation parameters the model shares with tissue_sim_node (the one table's names, types and units);
+#: default: the scene's (and params_file's) value, so a user gives the controller a model unlike the world.
+MODEL_PARAMETERS = ("dt", "young_modulus", "poisson_ratio", "density", "thickness", "damping", "gravity",
+                    "grasp_radius", "grasp_compliance")
+
+
+def settings_rows() -> dict[str, tuple[str, str]]:
+    """:data:`SETTINGS_PARAMETERS`, and a row named after any ControlSettings field it does not name yet (so a new
+    field is a parameter at once; its description then points at the dataclass)."""
+    rows = dict(SETTINGS_PARAMETERS)
+    named = {attr for attr, _ in rows.values()}
+    for f in fields(ControlSettings):
+        if f.name not in named:
+            rows[f.name] = (f.name, f"ControlSettings.{f.name} (tissue_sim_ros/core/plan/control.py).")
+    return rows
+
+
+def settings_defaults() -> dict[str, Any]:
+    """Each settings parameter's default: the ControlSettings dataclass default (a list for a sequence)."""
+    d = ControlSettings()
+    out = {}
+    for name, (attr, _) in settings_rows().items():
+        v = getattr(d, attr)
+        out[name] = [float(x) for x in v] if isinstance(v, (tuple, list)) else v
+    return out
+
+
+def model_config(scene: str, params_file: str) -> tuple[list[Any], Config]:
+    """The parameter files of the model (the scene's, then ``params_file``) and their resolved configuration."""
+    try:
+        files: list[Any] = [scene_params_file(scene)]
+    except InputError as exc:
+        raise InputError(f"parameter scene={scene!r}: {str(exc).split(': ', 1)[-1]}") from None
+    if params_file:
+        load_params_file(params_file)  # a bad file: one line naming it
+        files.append(params_file)
+    return files, resolve_config(params_file=files)
+
+
+def typed_value(name: str, value: Any, default: Any) -> Any:
+    """A parameter's value as its default's type (ints for floats, int lists for float lists), or InputError."""
+    value = parameter_value(value)
+    if isinstance(default, list):
+        if not isinstance(value, list) or not value or \
+                not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+            raise InputError(f"parameter {name}={value!r}: expected a non-empty list of numbers")
+        value = [float(v) for v in value]
+        if not all(math.isfinite(v) for v in value):
+            raise InputError(f"parameter {name}={value!r}: expected finite numbers")
+        return value
+    if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    if type(value) is not type(default):
+        raise InputError(f"parameter {name}={value!r}: expected a {type(default).__name__}")
+    if isinstance(value, float) and not math.isfinite(value):
+        raise InputError(f"parameter {name}={value!r}: expected a finite number")
+    return value
+
+
+def sim_descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    unit = f" [{spec.unit}]" if spec.unit else ""
+    return ParameterDescriptor(description=f"The controller's model: {spec.description}{unit} Default: the scene's "
+                                           "(and params_file's) value.", read_only=True, dynamic_typing=True)
+
+
+def markdown_table() -> str:
+    """The parameters as the markdown table of msg_docs/parameters.md (a test checks it is there)."""
+    lines = ["| name | default | description |", "|---|---|---|"]
+
+    def shown(v: Any) -> str:
+        return f'`"{v}"`' if isinstance(v, str) else f"`{v!r}`".replace("True", "true").replace("False", "false")
+
+    for name, (default, description) in NODE_PARAMETERS.items():
+        lines.append(f"| `{name}` | {shown(default)} | {description} |")
+    defaults = settings_defaults()
+    for name, (attr, description) in settings_rows().items():
+        field = f" ControlSettings' field {attr}." if attr != name else ""
+        lines.append(f"| `{name}` | {shown(defaults[name])} | {description}{field} |")
+    for name in MODEL_PARAMETERS:
+        spec = BY_NAME[name]
+        unit = f" [{spec.unit}]" if spec.unit else ""
+        lines.append(f"| `{name}` | the scene's | The model's {name}{unit}, as tissue_sim_node's (parameters.md above). |")
+    return "\n".join(lines)
+
+
+def warm_up(config: Config, settings: ControlSettings, pool: Any = None, max_commands: int = 300) -> str:
+    """Drive a throwaway controller through a grasp and a pull replan on its own model at rest (the measured
+    pose is the command, the points the rest shape): the kernels a pursuit uses are compiled (or loaded from
+    numba's cache) now. Returns a note for the log ('' when it got to a pull replan)."""
+    ctrl = TissueController(config, settings, pool=pool)
+    x = ctrl.x.copy()
+    free = np.flatnonzero(~ctrl.fixed)
+    if free.size == 0:
+        return "; skipped (no free particle)"
+    top = int(free[np.argmax(x[free, 1])])
+    start = x[top]
+    goal = start + np.array([0.0, min(0.01, 0.5 * settings.max_reach)])
+    pose = ToolPose(float(start[0]), float(start[1] + settings.approach_hover + settings.approach_clearance), 0.0)
+    jaw = settings.open_jaw
+    try:
+        ctrl.set_goal([(start, goal)], x, pose)
+        for k in range(max_commands):
+            cmd = ctrl.command(x, pose, jaw, t=k * ctrl.dt)
+            pose, jaw = cmd.pose, cmd.jaw
+            if any(r.phase in ("pull", "holding") and r.candidates for r in ctrl.records):
+                return ""
+    except InputError as exc:
+        return f"; stopped early: {exc}"
+    return f"; no pull replan within {max_commands} steps"
