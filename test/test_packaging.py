@@ -51,7 +51,7 @@ def test_wheel_carries_config_and_entry_points(tmp_path):
     assert "tissue_sim_ros/config/scenes/liver_probe.yaml" in names  # the real-size scene and its image
     assert "tissue_sim_ros/config/scenes/liver_probe.png" in names
     assert any(n.endswith("share/tissue_sim_ros/package.xml") for n in names)
-    for script in ("tissue-sim", "tissue_sim_node", "tool_driver"):
+    for script in ("tissue-sim", "tissue_sim_node", "tool_driver", "tissue_controller"):
         assert script in entry_points
     # the installed copy finds its data with no source tree around it
     site = tmp_path / "site"
