@@ -1,4 +1,5 @@
-"""``--help`` of the ROS executables (``tissue_sim_node``, ``tool_driver``), answered before rclpy is initialised.
+"""``--help`` of the ROS executables (``tissue_sim_node``, ``tool_driver``, ``tissue_controller``), answered before
+rclpy is initialised.
 
 rclpy ignores the arguments outside ``--ros-args``, so without this a
 ``tissue_sim_node --help`` started a full node on the current domain. A
