@@ -57,14 +57,16 @@ SETTINGS_PARAMETERS: dict[str, tuple[str, str]] = {
     "sync_stiffness": ("sync_stiffness", "Stiffness k tying each observed particle to its observation in the sync [N/m]; 0 = 10 x young_modulus x thickness."),
     "force_weight": ("force_weight", "Score weight of a candidate's peak reaction force [m/N]."),
     "penetration_weight": ("penetration_weight", "Score weight of its deepest penetration [m/m]."),
+    "bias_gain": ("bias_gain", "Offset-free prediction: the weight of each sync's (observed - modelled) goal point in the bias added to the model's goal points (0: trust the model; 1: the last observation alone)."),
     "energy_weight": ("energy_weight", "Score weight of the peak energy it adds over the tool-free baseline [m per unit of energy]."),
     "open_jaw": ("open_jaw", "Jaw angle commanded open [rad]."),
     "closed_jaw": ("closed_jaw", "Jaw angle commanded closed [rad]."),
 }
 
 #: The simulation parameters the model shares with tissue_sim_node (the one table's names, types and units);
-#: default: the scene's (and params_file's) value, so a user gives the controller a model unlike the world.
-MODEL_PARAMETERS = ("dt", "young_modulus", "poisson_ratio", "density", "thickness", "damping", "gravity",
+#: default: the scene's (and params_file's) value, so a user gives the controller a model unlike the world
+#: (spacing: a coarser mesh plans faster; the controller ties it to the world's points embedded in its triangles).
+MODEL_PARAMETERS = ("spacing", "dt", "young_modulus", "poisson_ratio", "density", "thickness", "damping", "gravity",
                     "grasp_radius", "grasp_compliance")
 
 
