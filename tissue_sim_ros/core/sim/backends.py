@@ -45,6 +45,7 @@ from .batch import (
     rollout_baseline,
     rollout_candidate,
 )
+from .fused import warm_fused
 from .simulation import Simulation
 from .snapshot import SimSnapshot
 
@@ -110,11 +111,13 @@ class _RolloutActor:
         numba.set_num_threads(1)
         self.sim = scene.build()
         self.sim.warm_up()
+        warm_fused(self.sim)
         self._track: tuple[int, BaselineTrack] | None = None
 
     def set_scene(self, scene: BatchScene) -> int:
         self.sim = scene.build()
         self.sim.warm_up()
+        warm_fused(self.sim)
         self._track = None
         return os.getpid()
 

@@ -20,6 +20,10 @@ returns per candidate:
 * the scene energy per step, contact steps, inverted triangles, divergences,
   and the final State when asked.
 
+One piece (past 700 lines) on purpose: the serial path, the pool's worker loop and the pool share one
+:func:`rollout_candidate`, :func:`finish` and :class:`BaselineTrack`, so the executions cannot drift apart (the Ray
+actors of :mod:`.backends` import the same three; a candidate's compiled steps are in :mod:`.fused`).
+
 Two executions, same numbers bit for bit (``test/test_batch.py`` compares
 with ``np.array_equal``):
 
@@ -76,7 +80,7 @@ from ..contact.tool import (
 from ..errors import InputError
 from ..physics.model import Model, State
 from ..physics.solvers import Solver
-from .fused import FusedWorkspace, fused_applies, rollout_fused
+from .fused import FusedWorkspace, fused_applies, rollout_fused, warm_fused
 from .simulation import Simulation
 from .snapshot import SimSnapshot, scene_key
 
@@ -558,6 +562,7 @@ def _worker_main(conn: Connection, scene: BatchScene) -> None:
     try:
         sim = scene.build()
         sim.warm_up()
+        warm_fused(sim)
         conn.send(("ready", os.getpid()))
     except Exception:  # noqa: BLE001  reported to the parent, which raises it
         conn.send(("error", -1, -1, traceback.format_exc()))
@@ -575,6 +580,7 @@ def _worker_main(conn: Connection, scene: BatchScene) -> None:
             if kind == "scene":
                 sim = msg[1].build()
                 sim.warm_up()
+                warm_fused(sim)
                 tracks.clear()
                 conn.send(("scene", os.getpid()))
             elif kind == "snapshot":

@@ -49,7 +49,7 @@ from ..physics.kernels import (
     update_velocity,
 )
 from ..physics.material import strain_energy_kernel
-from ..physics.quasi_newton import attachments, quasi_newton_solve
+from ..physics.quasi_newton import quasi_newton_solve
 from ..physics.violated_jacobi import apply_walls
 from .simulation import Simulation
 from .snapshot import SimSnapshot
@@ -231,6 +231,21 @@ def fused_applies(sim: Simulation, snap: SimSnapshot, jaws: np.ndarray | None) -
     return True
 
 
+def warm_fused(sim: Simulation) -> None:
+    """Load (or compile) the fused kernel now, with two steps of the tool at the tissue's centre, then
+    :meth:`Simulation.reset`: a pool worker's or a Ray actor's first candidate does not wait for it."""
+    q0 = sim.model.particle_q0
+    snap = sim.snapshot()
+    if len(q0) == 0 or not fused_applies(sim, snap, None):
+        return
+    from ..contact.tool import ToolPose  # noqa: PLC0415
+
+    cx, cy = (q0.min(axis=0) + q0.max(axis=0)) / 2.0
+    poses = np.array([[cx, cy, 0.0], [cx + 1e-3, cy, 0.0]])
+    rollout_fused(sim, snap, poses, ToolPose(float(cx), float(cy), 0.0), FusedWorkspace(sim))
+    sim.reset()
+
+
 class FusedWorkspace:
     """The per-scene arrays :func:`rollout_fused` reuses (one per scratch Simulation)."""
 
@@ -336,4 +351,4 @@ def rollout_fused(sim: Simulation, snap: SimSnapshot, poses: np.ndarray, start: 
             "attach": (idx, local, compliance)}
 
 
-__all__ = ["FusedWorkspace", "fused_applies", "fused_quasi_newton_rollout", "rollout_fused", "attachments"]
+__all__ = ["FusedWorkspace", "fused_applies", "fused_quasi_newton_rollout", "rollout_fused", "warm_fused"]
