@@ -125,6 +125,11 @@ def test_replanning_is_deterministic_serially_and_on_a_pool(cfg):
         ctrl.pool = pool
         c = _replans(ctrl, cfg)
     assert c == a
+    # a new goal while holding: its own approach and grasp (the hold is let go), the records stay bounded
+    assert ctrl.held.size
+    x0 = ctrl.sim.model.particle_q0
+    ctrl.set_goal([((0.03, flap_surface(np.asarray(x0), 0.03)), (0.03, 0.03))], x0)
+    assert ctrl.held.size == 0 and ctrl.phase == "approach" and ctrl.site is None
 
 
 def test_refusals_name_the_value(cfg):

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..core.config import parse_assignments, resolve_config
 from ..core.errors import InputError, output_dir
-from ..core.plan.control import ControlSettings
+from ..core.plan.control import ControlSettings, default_model
 from ..core.resources import scene_params_file
 from ..core.sim.backends import check_backend, check_jobs
 from ..experiments import control
@@ -36,9 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--horizon", type=int, default=30, metavar="S", help="steps per candidate (default 30)")
     parser.add_argument("--speeds", default="0.02,0.04", metavar="V,...",
                         help="pull speeds [m/s] of the candidates (default 0.02,0.04)")
-    parser.add_argument("--model-spacing", type=float, default=control.DEFAULT_MODEL["spacing"], metavar="M",
-                        help="mesh spacing of the controller's model [m] (default 0.005: 39 particles, where the "
-                             "world has 150 at 2.5 mm); 0: the world's own mesh")
+    parser.add_argument("--model-spacing", type=float, default=None, metavar="M",
+                        help="mesh spacing of the controller's model [m] (default: twice the world's, 5 mm: 39 "
+                             "particles where the world has 150); 0: the world's own mesh")
     parser.add_argument("--bag", default=None, metavar="DIR",
                         help="also write the world's run as a rosbag2 bag (MCAP) at DIR: the node's outputs, "
                              "/tool/pose and /tool/jaw as commanded")
@@ -58,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = resolve_config(overrides=parse_assignments(args.set), params_file=files, source="--set")
     check_jobs(args.jobs)
     check_backend(args.backend)
+    if args.model_spacing is None:
+        args.model_spacing = default_model(cfg)["spacing"]
     if not (math.isfinite(args.model_spacing) and args.model_spacing >= 0):
         raise InputError(f"--model-spacing {args.model_spacing}: expected a spacing >= 0 m (0: the world's mesh)")
     model = {"spacing": args.model_spacing} if args.model_spacing > 0 else {}

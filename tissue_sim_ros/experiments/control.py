@@ -25,7 +25,7 @@ import numpy as np
 from ..core.config import Config
 from ..core.contact.tool import ToolPose
 from ..core.errors import InputError
-from ..core.plan.control import ControlSettings, TissueController
+from ..core.plan.control import ControlSettings, TissueController, default_model
 from ..core.sim.batch import RolloutPool
 from ..core.sim.grasp import to_tool_frame
 from ..core.sim.simulation import Simulation
@@ -44,11 +44,6 @@ class ControlRun:
     records: list = field(default_factory=list)
 
 
-DEFAULT_MODEL: dict[str, Any] = {"spacing": 0.005}
-"""The controller's model over the world's scene: the retraction scene on a 5 mm mesh (39 particles; the world's
-is 2.5 mm, 150), so a replan's 32 candidates x 50 steps fit in 100 ms on two cores (docs/control.md)."""
-
-
 def run_control(cfg: Config, *, world_young_factor: float = 1.3, noise: float = 0.0005, seed: int = 0,
                 start_x: float = RETRACT_X, lift: float = 0.02, side: float = 0.01, max_time: float = 10.0,
                 hold_time: float = 0.5, settings: ControlSettings | None = None, pool: RolloutPool | None = None,
@@ -62,7 +57,7 @@ def run_control(cfg: Config, *, world_young_factor: float = 1.3, noise: float = 
             raise InputError(f"{name}={v}: expected a finite value > 0")
     if not (math.isfinite(noise) and noise >= 0):
         raise InputError(f"noise={noise}: expected a finite standard deviation >= 0 [m]")
-    ctrl = TissueController(cfg.replace(**dict(DEFAULT_MODEL if model is None else model)), settings, pool=pool)
+    ctrl = TissueController(cfg.replace(**dict(default_model(cfg) if model is None else model)), settings, pool=pool)
     world_cfg = cfg.replace(young_modulus=cfg.sim.young_modulus * world_young_factor)
     world = Simulation.from_config(world_cfg)
     dt = world.params.dt
@@ -197,7 +192,7 @@ def replan_timing(cfg: Config, counts: tuple[int, ...] = (4, 8, 16, 32), horizon
     for k in range(1, 21):
         pose = ToolPose(RETRACT_X, surface + 0.0005 + 0.0005 * k, 0.0)
         world.step(pose)
-    model_cfg = cfg.replace(**dict(DEFAULT_MODEL if model is None else model))
+    model_cfg = cfg.replace(**dict(default_model(cfg) if model is None else model))
     rows = []
     for n in counts:
         # a grid of n motions (gains x angles at one speed; n a power of 2: 4 = 2 x 2, 32 = 4 x 8) and holding still
@@ -235,15 +230,17 @@ def replan_timing(cfg: Config, counts: tuple[int, ...] = (4, 8, 16, 32), horizon
     return rows
 
 
-def timing_table(cfg: Config, *, spacings: tuple[float, ...] = (0.0, DEFAULT_MODEL["spacing"]),
+def timing_table(cfg: Config, *, spacings: tuple[float, ...] | None = None,
                  workers: tuple[int, ...] = (0, 2), counts: tuple[int, ...] = (4, 8, 16, 32, 64), horizon: int = 50,
                  repeats: int = 5, backend: str = "local", address: str | None = None) -> list[dict[str, Any]]:
-    """:func:`replan_timing` for each model spacing (0: the world's mesh) and number of workers (0: serially), side
+    """:func:`replan_timing` for each model spacing (0: the world's mesh; default: it and the default model's) and number of workers (0: serially), side
     by side in one run: the rows of the chart of replan time against candidates."""
     from ..core.sim.backends import rollout_pool  # noqa: PLC0415
     from ..core.sim.batch import BatchScene  # noqa: PLC0415
 
     rows = []
+    if spacings is None:  # the world's mesh and the default model's
+        spacings = (0.0, default_model(cfg)["spacing"])
     for spacing in spacings:
         model = {"spacing": spacing} if spacing > 0 else {}
         for n in workers:

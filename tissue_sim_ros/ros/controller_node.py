@@ -49,7 +49,7 @@ from visualization_msgs.msg import MarkerArray
 from ..core.config import BY_NAME, coerce, resolve_config
 from ..core.contact.tool import ToolPose, yaw_from_quaternion
 from ..core.errors import InputError
-from ..core.plan.control import ControlSettings, TissueController
+from ..core.plan.control import ControlSettings, TissueController, default_model
 from ..core.timing.stamps import ns_from_seconds, stamp_from_ns, stamp_to_ns
 from . import messages, qos
 from .controller_setup import (
@@ -149,9 +149,10 @@ class TissueControllerNode(Node):
         files, base = model_config(v["scene"], v["params_file"])
         flat = base.flat()
         overrides = {}
+        defaults = {**flat, **default_model(base)}  # the model's mesh: coarser than the scene's
         for name in MODEL_PARAMETERS:
             spec = BY_NAME[name]
-            value = coerce(spec, self.declare_parameter(name, flat[name], sim_descriptor(spec)).value)
+            value = coerce(spec, self.declare_parameter(name, defaults[name], sim_descriptor(spec)).value)
             if value != flat[name]:
                 overrides[name] = value
         self.config = resolve_config(overrides, params_file=files, source="the controller's parameters")
@@ -419,13 +420,7 @@ class TissueControllerNode(Node):
         ctrl = self.ctrl
         t = req.obs.stamp_ns * 1e-9
         try:
-            was_held = ctrl.held.size > 0
-            ids = ctrl.set_goal([(req.start, req.goal)], req.obs.xy, req.pose)
-            if was_held:
-                # a new goal while holding tissue: the approach opens the jaw (its commands are open), so the
-                # controller's record of the hold goes too (set_goal keeps it)
-                ctrl.held = np.zeros(0, dtype=np.int64)
-                ctrl.held_local = np.zeros((0, 2))
+            ids = ctrl.set_goal([(req.start, req.goal)], req.obs.xy, req.pose)  # (a hold is let go: a new approach)
             path = ctrl.planned_path(req.obs.xy, req.pose, req.jaw, t=t)
             if not np.isfinite(path).all():
                 raise InputError("the plan is not finite")

@@ -19,7 +19,7 @@ from rcl_interfaces.msg import ParameterDescriptor
 from ..core.config import BY_NAME, Config, ParamSpec, load_params_file, resolve_config
 from ..core.contact.tool import ToolPose
 from ..core.errors import InputError
-from ..core.plan.control import ControlSettings, TissueController
+from ..core.plan.control import MODEL_COARSENING, ControlSettings, TissueController
 from ..core.resources import scene_params_file
 from .parameters import parameter_value
 
@@ -123,10 +123,17 @@ def typed_value(name: str, value: Any, default: Any) -> Any:
     return value
 
 
+def model_default_text(name: str) -> str:
+    """Where a model parameter's default comes from (the mesh: coarser than the scene's, core/plan/control.py)."""
+    if name == "spacing":
+        return f"{MODEL_COARSENING:g} x the scene's (and params_file's) spacing: a coarser mesh plans faster"
+    return "the scene's (and params_file's) value"
+
+
 def sim_descriptor(spec: ParamSpec) -> ParameterDescriptor:
     unit = f" [{spec.unit}]" if spec.unit else ""
-    return ParameterDescriptor(description=f"The controller's model: {spec.description}{unit} Default: the scene's "
-                                           "(and params_file's) value.", read_only=True, dynamic_typing=True)
+    return ParameterDescriptor(description=f"The controller's model: {spec.description}{unit} Default: "
+                                           f"{model_default_text(spec.name)}.", read_only=True, dynamic_typing=True)
 
 
 def markdown_table() -> str:
@@ -145,7 +152,8 @@ def markdown_table() -> str:
     for name in MODEL_PARAMETERS:
         spec = BY_NAME[name]
         unit = f" [{spec.unit}]" if spec.unit else ""
-        lines.append(f"| `{name}` | the scene's | The model's {name}{unit}, as tissue_sim_node's (parameters.md above). |")
+        default = "the scene's" if name != "spacing" else f"{MODEL_COARSENING:g} x the scene's"
+        lines.append(f"| `{name}` | {default} | The model's {name}{unit}, as tissue_sim_node's (parameters.md above). |")
     return "\n".join(lines)
 
 
