@@ -63,7 +63,7 @@ from .controller_setup import (
     warm_up,
 )
 from .tool_applied import decode_applied_jaw
-from .usage import msg_docs_dir, ros_arguments, wants_help
+from .usage import init_rclpy, msg_docs_dir, parameter_list, ros_arguments, wants_help
 
 NODE_NAME = "tissue_controller"
 
@@ -636,13 +636,6 @@ def stamp_msg(ns: int) -> TimeMsg:
 def usage() -> str:
     """What ``tissue_controller --help`` prints."""
     names = [*NODE_PARAMETERS, *settings_rows(), *MODEL_PARAMETERS]
-    lines, line = [], " "
-    for name in names:
-        if len(line) + len(name) + 2 > 100:
-            lines.append(line.rstrip())
-            line = " "
-        line += f" {name},"
-    lines.append(line.rstrip(","))
     return (
         "usage: tissue_controller [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r __ns:=/NS]]\n\n"
         "Drives the tissue to a target: a model-predictive grasp controller beside tissue_sim_node (or a robot).\n"
@@ -653,7 +646,7 @@ def usage() -> str:
         "options:\n"
         "  -h, --help            show this message and exit (no node is started)\n\n"
         + ros_arguments(NODE_NAME, "-p horizon:=20 -p gains:=[1.0]")
-        + "\nparameters (all read-only):\n" + "\n".join(lines) + "\n\n"
+        + "\nparameters (all read-only):\n" + parameter_list(names) + "\n\n"
         f"Its topics, service and every parameter: {msg_docs_dir()}/controller.md\n")
 
 
@@ -665,10 +658,7 @@ def main(args: list[str] | None = None) -> int:
     if wants_help(args):
         print(usage(), end="")
         return 0
-    try:
-        rclpy.init(args=args)
-    except Exception as exc:  # noqa: BLE001  rcl's argument/parameter-file errors
-        print(f"{NODE_NAME}: error: {exc}", file=sys.stderr)
+    if not init_rclpy(NODE_NAME, args):
         return 2
     node = None
     code = 0

@@ -45,7 +45,7 @@ from ..core.sim.scene import tool_from_mapping
 from ..core.timing.stamps import ns_from_seconds, stamp_from_ns
 from ..core.timing.trajectories import preset, resolve_trajectory
 from . import messages, qos
-from .usage import msg_docs_dir, ros_arguments, wants_help
+from .usage import init_rclpy, msg_docs_dir, parameter_list, ros_arguments, wants_help
 
 #: The driver's own parameters, name -> (default, description); the simulation's it shares are :data:`SIM_PARAMETERS`.
 DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
@@ -245,13 +245,6 @@ class ToolDriver(Node):
 def usage() -> str:
     """What ``tool_driver --help`` prints."""
     names = [*DRIVER_PARAMETERS, *SIM_PARAMETERS]
-    lines, line = [], " "
-    for name in names:
-        if len(line) + len(name) + 2 > 100:
-            lines.append(line.rstrip())
-            line = " "
-        line += f" {name},"
-    lines.append(line.rstrip(","))
     return (
         "usage: tool_driver [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r __ns:=/NS]]\n\n"
         "Plays a scripted tool trajectory on tool/pose and tool/twist for tissue_sim_node, so the simulation can\n"
@@ -261,7 +254,7 @@ def usage() -> str:
         "options:\n"
         "  -h, --help            show this message and exit (no node is started)\n\n"
         + ros_arguments("tool_driver", "-p preset:=straight -p angle:=-30.0")
-        + "\nparameters (all read-only):\n" + "\n".join(lines) + "\n\n"
+        + "\nparameters (all read-only):\n" + parameter_list(names) + "\n\n"
         f"Its topics and every parameter: {msg_docs_dir()}/tool_driver.md\n")
 
 
@@ -273,10 +266,7 @@ def main(args: list[str] | None = None) -> int:
     if wants_help(args):
         print(usage(), end="")
         return 0
-    try:
-        rclpy.init(args=args)
-    except Exception as exc:  # noqa: BLE001  rcl's argument/parameter-file errors
-        print(f"tool_driver: error: {exc}", file=sys.stderr)
+    if not init_rclpy("tool_driver", args):
         return 2
     node = None
     code = 0

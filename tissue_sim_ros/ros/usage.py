@@ -56,3 +56,28 @@ def ros_arguments(name: str, example: str) -> str:
             f"  --params-file FILE    parameters from a YAML file (the section `{name}:` or `/**:`,\n"
             f"                        then `ros__parameters:`)\n"
             f"  -r __ns:=/NS          run in a namespace\n")
+
+
+def parameter_list(names: list[str], width: int = 100) -> str:
+    """Parameter names as a usage prints them: comma-separated, wrapped at ``width`` columns, indented."""
+    lines, line = [], " "
+    for name in names:
+        if len(line) + len(name) + 2 > width:
+            lines.append(line.rstrip())
+            line = " "
+        line += f" {name},"
+    lines.append(line.rstrip(","))
+    return "\n".join(lines)
+
+
+def init_rclpy(name: str, args: list[str] | None) -> bool:
+    """rclpy initialised with ``args``; False (after one line on stderr naming ``name``) when rcl refuses the arguments or
+    a parameter file: the executable then exits 2."""
+    import rclpy  # noqa: PLC0415  (--help is answered without it)
+
+    try:
+        rclpy.init(args=args)
+    except Exception as exc:  # noqa: BLE001  rcl's argument/parameter-file errors
+        print(f"{name}: error: {exc}", file=sys.stderr)
+        return False
+    return True
