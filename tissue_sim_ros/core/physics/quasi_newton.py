@@ -506,6 +506,19 @@ class MaterialSolve:
         normal[:, 1] = np.where(up[idx], 1.0, -1.0)
         return idx, normal
 
+    def step_factor(self, dt: float) -> Prefactor:
+        """The factor a step of ``dt`` solves with, its kept columns made its own.
+
+        It is A0 for this dt with the particles that rest on a line or a wall (from the rest shape: a function of
+        the model alone) stiffened along their normals; the others the tool, a line or a wall holds are the active
+        set's rows, eliminated on it (their columns kept), so a set that changes as the tissue settles costs a few
+        solves, not a factorisation (40 ms at 2,748 particles)."""
+        pre = self.prefactor(dt, *self.rest_lines)
+        if pre is not self._columns_of:  # the kept columns A0^-1 c belong to the factor they were solved with
+            self.wkey.fill(-1.0)
+            self._columns_of = pre
+        return pre
+
     def minimise(self, x0: np.ndarray, v0: np.ndarray, x: np.ndarray, x_pred: np.ndarray, w: np.ndarray, dt: float,
                  damp: float, candidates: np.ndarray, surface_edges: np.ndarray, shape0: np.ndarray,
                  shape1: np.ndarray, side_tol: float, contact_dx: np.ndarray, contacts) -> tuple[int, float]:
@@ -516,14 +529,7 @@ class MaterialSolve:
         np.copyto(x, x_pred)
         np.multiply(v0, dt * damp, out=self.guess)
         self.guess += x0
-        # the factor is A0 for this dt with the particles that rest on a line or a wall (from the rest shape: a
-        # function of the model alone) stiffened along their normals; the others the tool, a line or a wall holds
-        # are the active set's rows, eliminated on it (their columns kept), so a set that changes as the tissue
-        # settles costs a few solves, not a factorisation (40 ms at 2,748 particles)
-        pre = self.prefactor(dt, *self.rest_lines)
-        if pre is not self._columns_of:  # the kept columns A0^-1 c belong to the factor they were solved with
-            self.wkey.fill(-1.0)
-            self._columns_of = pre
+        pre = self.step_factor(dt)
         g, g_new, d, x_old, z = self.vectors
         quasi_newton_solve(
             x, x0, x_pred, m.particle_mass, w, self.tris, self.elastic, dt * dt, p.gravity, pre.l_ptr, pre.l_idx,

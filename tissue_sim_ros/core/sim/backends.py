@@ -45,7 +45,6 @@ from .batch import (
     rollout_baseline,
     rollout_candidate,
 )
-from .fused import warm_fused
 from .simulation import Simulation
 from .snapshot import SimSnapshot
 
@@ -109,15 +108,11 @@ class _RolloutActor:
         import numba  # noqa: PLC0415
 
         numba.set_num_threads(1)
-        self.sim = scene.build()
-        self.sim.warm_up()
-        warm_fused(self.sim)
+        self.sim = scene.build_warm()
         self._track: tuple[int, BaselineTrack] | None = None
 
     def set_scene(self, scene: BatchScene) -> int:
-        self.sim = scene.build()
-        self.sim.warm_up()
-        warm_fused(self.sim)
+        self.sim = scene.build_warm()
         self._track = None
         return os.getpid()
 
@@ -195,7 +190,6 @@ class RayRolloutPool:
         snap_ref = ray.put(snap)  # once per batch, shared by every actor
         self._batch += 1
         batch = self._batch
-        want_baseline = baseline
         tasks: list[tuple] = [("baseline", max(p.n_steps for p in paths))] if baseline else []
         tasks += [("run", i, p) for i, p in enumerate(paths)]
         pending: dict[Any, tuple[int, tuple]] = {}
@@ -215,21 +209,20 @@ class RayRolloutPool:
                 if next_task < len(tasks):
                     submit(a)
         results: list[CandidateResult | None] = [None] * len(paths)
-        baseline = None
+        energy = None  # the baseline's
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
             a, task = pending.pop(done[0])
             value = ray.get(done[0])
             if task[0] == "baseline":
-                baseline = value
+                energy = value
             else:
                 results[task[1]] = value
             if next_task < len(tasks):
                 submit(a)
-        assert baseline is not None or not want_baseline
-        out = [finish(r, baseline) for r in results if r is not None]
-        return BatchResult(out, np.zeros(0) if baseline is None else baseline, time.perf_counter() - t0,
-                           self.n_workers)
+        assert energy is not None or not baseline
+        out = [finish(r, energy) for r in results if r is not None]
+        return BatchResult(out, np.zeros(0) if energy is None else energy, time.perf_counter() - t0, self.n_workers)
 
     def close(self) -> None:
         for a in self._actors:

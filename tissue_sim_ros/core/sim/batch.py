@@ -214,6 +214,13 @@ class BatchScene:
         sim.report_tool_checks = False  # the rollout measures its own penetration (CandidateResult)
         return sim
 
+    def build_warm(self) -> Simulation:
+        """:meth:`build`, its kernels loaded (or compiled) now, the fused rollout's too: a worker's scene."""
+        sim = self.build()
+        sim.warm_up()
+        warm_fused(sim)
+        return sim
+
 
 # --------------------------------------------------------------------------- results
 
@@ -451,10 +458,7 @@ def rollout_candidate(sim: Simulation, snap: SimSnapshot, path: ToolPath, index:
         start = k + taken
         # the Simulation where the steps left it (or before step k + taken, which diverged: it and the rest are
         # stepped below, as the Simulation does, from there)
-        sim.state.particle_q[:] = out["x"]
-        sim.state.particle_qd[:] = out["v"]
-        sim._last_good.particle_q[:] = out["x"]
-        sim._last_good.particle_qd[:] = out["v"]
+        sim.set_state(State(out["x"], out["v"]))
         sim.step_count = from_snap.step_count + taken
         sim.time = sim.step_count * sim.params.dt
         if taken:
@@ -560,9 +564,7 @@ def _worker_main(conn: Connection, scene: BatchScene) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the parent stops us
     numba.set_num_threads(1)  # one core per worker: the workers are the parallelism
     try:
-        sim = scene.build()
-        sim.warm_up()
-        warm_fused(sim)
+        sim = scene.build_warm()
         conn.send(("ready", os.getpid()))
     except Exception:  # noqa: BLE001  reported to the parent, which raises it
         conn.send(("error", -1, -1, traceback.format_exc()))
@@ -578,9 +580,7 @@ def _worker_main(conn: Connection, scene: BatchScene) -> None:
             return
         try:
             if kind == "scene":
-                sim = msg[1].build()
-                sim.warm_up()
-                warm_fused(sim)
+                sim = msg[1].build_warm()
                 tracks.clear()
                 conn.send(("scene", os.getpid()))
             elif kind == "snapshot":
@@ -692,8 +692,7 @@ class RolloutPool:
         tasks: list[tuple] = [("baseline", batch, max(p.n_steps for p in paths))] if baseline else []
         tasks += [("run", batch, i, p, final_state) for i, p in enumerate(paths)]
         results: list[CandidateResult | None] = [None] * len(paths)
-        want_baseline = baseline
-        baseline: np.ndarray | None = None
+        energy: np.ndarray | None = None  # the baseline's
         next_task = 0
         in_flight = {id(c): 0 for c in self._conns}
         by_id = {id(c): c for c in self._conns}
@@ -723,17 +722,16 @@ class RolloutPool:
                 in_flight[id(c)] -= 1
                 remaining -= 1
                 if kind == "baseline":
-                    baseline = payload
+                    energy = payload
                 else:
                     results[index] = payload
                 if next_task < len(tasks):
                     by_id[id(c)].send(tasks[next_task])
                     in_flight[id(c)] += 1
                     next_task += 1
-        assert baseline is not None or not want_baseline
-        out = [finish(r, baseline) for r in results if r is not None]
-        return BatchResult(out, np.zeros(0) if baseline is None else baseline, time.perf_counter() - t0,
-                           self.n_workers)
+        assert energy is not None or not baseline
+        out = [finish(r, energy) for r in results if r is not None]
+        return BatchResult(out, np.zeros(0) if energy is None else energy, time.perf_counter() - t0, self.n_workers)
 
     def close(self) -> None:
         """Stop the workers (a second call does nothing)."""

@@ -39,7 +39,7 @@ from ..contact.kernels import (
     swept_candidates,
     swept_edge_candidates,
 )
-from ..contact.tool import tool_shape_array
+from ..contact.tool import ToolPose, tool_shape_array
 from ..physics.kernels import (
     apply_boundary_lines,
     count_inverted,
@@ -238,8 +238,6 @@ def warm_fused(sim: Simulation) -> None:
     snap = sim.snapshot()
     if len(q0) == 0 or not fused_applies(sim, snap, None):
         return
-    from ..contact.tool import ToolPose  # noqa: PLC0415
-
     cx, cy = (q0.min(axis=0) + q0.max(axis=0)) / 2.0
     poses = np.array([[cx, cy, 0.0], [cx + 1e-3, cy, 0.0]])
     rollout_fused(sim, snap, poses, ToolPose(float(cx), float(cy), 0.0), FusedWorkspace(sim))
@@ -273,7 +271,7 @@ class FusedWorkspace:
         self.no_index = np.zeros(0, dtype=np.int32)
 
 
-def rollout_fused(sim: Simulation, snap: SimSnapshot, poses: np.ndarray, start: object,
+def rollout_fused(sim: Simulation, snap: SimSnapshot, poses: np.ndarray, start: ToolPose,
                   ws: FusedWorkspace, x_ref: np.ndarray | None = None) -> dict:
     """Roll the poses (S, 3) out from ``snap`` in one compiled call (module docstring). ``start``: the tool's
     pose before the first step (the path's start or the snapshot's); ``x_ref``: the positions displacements are
@@ -293,9 +291,7 @@ def rollout_fused(sim: Simulation, snap: SimSnapshot, poses: np.ndarray, start: 
     ext[:, :3] = poses[:, :3]
     prev = start
     shapes_m[0] = tool_shape_array(tool, prev, margin)
-    hx, hy, rr = tool.rounded_box()
-    from ..contact.tool import ToolPose  # noqa: PLC0415
-
+    rr = tool.rounded_box()[2]
     for k in range(n_steps):
         pose = ToolPose(float(poses[k, 0]), float(poses[k, 1]), float(poses[k, 2]))
         s1 = tool_shape_array(tool, pose, margin)
@@ -315,10 +311,7 @@ def rollout_fused(sim: Simulation, snap: SimSnapshot, poses: np.ndarray, start: 
     else:
         idx, local, compliance = np.zeros(0, dtype=np.int64), np.zeros((0, 2)), 0.0
     attach_k = 1.0 / compliance if compliance > 0.0 else 0.0
-    pre = ms.prefactor(dt, *ms.rest_lines)
-    if pre is not ms._columns_of:
-        ms.wkey.fill(-1.0)
-        ms._columns_of = pre
+    pre = ms.step_factor(dt)
     x, v = ws.x, ws.v
     np.copyto(x, snap.particle_q)
     np.copyto(v, snap.particle_qd)
@@ -347,8 +340,7 @@ def rollout_fused(sim: Simulation, snap: SimSnapshot, poses: np.ndarray, start: 
         ms.used, ms.b, ms.t, ms.released_once, ms.turns, ms.cur_c, *ws.e, ws.sdf, ws.grad, energy_body, force,
         penetration, displacement, contact, inverted, ws.no_edges, ws.no_index)
     return {"steps": int(taken), "x": x, "v": v, "energy_body": energy_body, "force": force,
-            "penetration": penetration, "displacement": displacement, "contact": contact, "inverted": inverted,
-            "attach": (idx, local, compliance)}
+            "penetration": penetration, "displacement": displacement, "contact": contact, "inverted": inverted}
 
 
 __all__ = ["FusedWorkspace", "fused_applies", "fused_quasi_newton_rollout", "rollout_fused", "warm_fused"]
