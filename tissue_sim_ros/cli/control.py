@@ -66,8 +66,6 @@ def run(args: argparse.Namespace) -> int:
     settings = ControlSettings(tolerance=args.tolerance, replan_every=args.replan_every, horizon=args.horizon,
                                pull_speeds=tuple(positive_floats(args.speeds, "--speeds")))
     output_dir(args.out, "--out")
-    if args.bag is not None and Path(args.bag).exists():
-        raise InputError(f"--bag {args.bag}: exists; expected a new path")
     pool = None
     try:
         if args.jobs > 1 or args.backend == "ray":

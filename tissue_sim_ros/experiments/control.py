@@ -181,8 +181,9 @@ def replan_timing(cfg: Config, counts: tuple[int, ...] = (4, 8, 16, 32), horizon
                   pool: RolloutPool | None = None, settings: Mapping[str, Any] | None = None,
                   model: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
     """Wall time of one pull replan (sync + candidates x ``horizon`` steps + choice) against the number of
-    candidate motions (and holding still: ``counts`` + 1 rollouts), on the retraction scene (the world, ``cfg``) with the flap grasped and lifted 1 cm, the controller's
-    model ``cfg`` with ``model`` set over it: the median of ``repeats`` (after one untimed replan)."""
+    candidate motions (and holding still: ``counts`` + 1 rollouts), on the retraction scene (the world, ``cfg``)
+    with the flap grasped and lifted 1 cm, the controller's model ``cfg`` with ``model`` set over it (default:
+    :func:`default_model`): the median of ``repeats`` (after one untimed replan)."""
     world = Simulation.from_config(cfg)
     x0 = world.state.particle_q.copy()
     surface = flap_surface(x0, RETRACT_X)
@@ -233,8 +234,9 @@ def replan_timing(cfg: Config, counts: tuple[int, ...] = (4, 8, 16, 32), horizon
 def timing_table(cfg: Config, *, spacings: tuple[float, ...] | None = None,
                  workers: tuple[int, ...] = (0, 2), counts: tuple[int, ...] = (4, 8, 16, 32, 64), horizon: int = 50,
                  repeats: int = 5, backend: str = "local", address: str | None = None) -> list[dict[str, Any]]:
-    """:func:`replan_timing` for each model spacing (0: the world's mesh; default: it and the default model's) and number of workers (0: serially), side
-    by side in one run: the rows of the chart of replan time against candidates."""
+    """:func:`replan_timing` for each model spacing (0: the world's mesh; default: it and the default model's)
+    and number of workers (0: serially), side by side in one run: the rows of the chart of replan time against
+    candidates."""
     from ..core.sim.backends import rollout_pool  # noqa: PLC0415
     from ..core.sim.batch import BatchScene  # noqa: PLC0415
 

@@ -62,7 +62,7 @@ from .controller_setup import (
     typed_value,
     warm_up,
 )
-from .tool_applied import decode_applied_jaw
+from .tool_applied import decode_applied_jaw, planar_quaternion
 from .usage import init_rclpy, msg_docs_dir, parameter_list, ros_arguments, wants_help
 
 NODE_NAME = "tissue_controller"
@@ -118,10 +118,6 @@ class ThrottledWarnings:
             self.logger.warning(f"dropped: {message} ({self.counts[kind]} {kind} so far)")
 
 
-def _quaternion(yaw: float) -> tuple[float, float, float, float]:
-    return 0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)
-
-
 class TissueControllerNode(Node):
     """The node (module docstring). ``close()`` stops the worker and the rollout pool."""
 
@@ -157,7 +153,7 @@ class TissueControllerNode(Node):
                 overrides[name] = value
         self.config = resolve_config(overrides, params_file=files, source="the controller's parameters")
         self.settings = ControlSettings(**{attr: v[name] for name, (attr, _) in rows.items()})
-        self.ctrl = TissueController(self.config, self.settings)
+        self.ctrl = TissueController(self.config, self.settings, records_kept=KEEP_RECORDS)
         self.dt = float(self.config.sim.dt)
         self.dt_ns = ns_from_seconds(self.dt)
         log = self.get_logger()
@@ -351,7 +347,7 @@ class TissueControllerNode(Node):
                     ps = PoseStamped()
                     ps.header = response.plan.header
                     ps.pose.position.x, ps.pose.position.y = float(x), float(y)
-                    _, _, ps.pose.orientation.z, ps.pose.orientation.w = _quaternion(float(yaw))
+                    _, _, ps.pose.orientation.z, ps.pose.orientation.w = planar_quaternion(float(yaw))
                     response.plan.poses.append(ps)
                 log.info(f"move_tissue: start ({s.x:.4f}, {s.y:.4f}) -> goal ({g.x:.4f}, {g.y:.4f}) m: particle "
                          f"{self.goal_particle}, grasp site {self.ctrl.site}, {len(req.path)} waypoints, answered in "
@@ -433,7 +429,6 @@ class TissueControllerNode(Node):
             req.reason = f"the controller failed: {type(exc).__name__}: {exc}"
             req.done.set()
             return
-        self._trim_records()
         with self.cond:
             self.goal_particle = int(ids[0]) if len(ids) else -1
             d = np.hypot(*(req.obs.xy - np.array(req.start)).T)
@@ -484,7 +479,6 @@ class TissueControllerNode(Node):
                 f"goal error {cmd.goal_error * 1e3:.2f} mm")
             if rec.paths:
                 self._publish_markers(obs, None)
-            self._trim_records()
         with self.cond:
             self.phase, self.goal_error = cmd.phase, cmd.goal_error
             self.observed_error = self._observed_error(obs)
@@ -513,10 +507,6 @@ class TissueControllerNode(Node):
         with self.cond:
             self.state, self.reason = "gave up", reason
         self.get_logger().error(f"gave up: {reason}")
-
-    def _trim_records(self) -> None:
-        if len(self.ctrl.records) > KEEP_RECORDS:
-            del self.ctrl.records[:-KEEP_RECORDS]
 
     # ------------------------------------------------------------------ outputs
 

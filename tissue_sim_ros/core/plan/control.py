@@ -77,14 +77,14 @@ MODEL_COARSENING = 2.0
 (:func:`default_model`): the retraction flap's 2.5 mm world (150 particles) is modelled at 5 mm (39), where a
 replan's 32 candidates x 50 steps fit in 100 ms on two cores (docs/control.md)."""
 RECORDS_KEPT = 200
-"""Replan records kept (:attr:`TissueController.records`, the newest last)."""
+"""Replan records a controller keeps by default (:attr:`TissueController.records`, the newest last)."""
+APPROACH_REACHED = 3e-4
+"""The approach ends when the tool is this close to its pose above the grasp site [m]."""
 
 
 def default_model(cfg: Config) -> dict[str, Any]:
     """The parameters that make the world's configuration ``cfg`` the controller's default model."""
     return {"spacing": MODEL_COARSENING * float(cfg.flat()["spacing"])}
-APPROACH_REACHED = 3e-4
-"""The approach ends when the tool is this close to its pose above the grasp site [m]."""
 
 
 @dataclass(frozen=True)
@@ -287,8 +287,9 @@ class TissueController:
     """
 
     def __init__(self, config: Config, settings: ControlSettings | None = None, pool: RolloutPool | None = None,
-                 mesh: Any = None) -> None:
+                 mesh: Any = None, records_kept: int = RECORDS_KEPT) -> None:
         self.settings = settings or ControlSettings()
+        self.records_kept = int(records_kept)
         self.sim = Simulation.from_config(config, mesh=mesh)
         if self.sim.tool is None or self.sim.tool.kind != "grasper":
             raise InputError(f"tool_shape={getattr(self.sim.tool, 'kind', None)!r}: the controller needs tool_shape "
@@ -543,8 +544,12 @@ class TissueController:
         else:
             self._pull(tool_pose, jaw, rec)
         rec.choose_s = time.perf_counter() - t1 - rec.rollout_s
+        self._record(rec)
+
+    def _record(self, rec: ReplanRecord) -> None:
+        """Keep ``rec``, and the newest ``records_kept`` records with it."""
         self.records.append(rec)
-        del self.records[:-RECORDS_KEPT]
+        del self.records[:-self.records_kept]
 
     def _site_pose(self, site: int) -> ToolPose:
         x, y = self.x[site]
@@ -638,7 +643,7 @@ class TissueController:
                 self.sync(points, tool_pose, t, ids)
                 rec = ReplanRecord(self.steps, self.phase, 0.0, 0.0, 0.0, 0, 0, goal_error=self.goal_error(self.x))
                 self._choose_site(tool_pose, jaw, rec)
-                self.records.append(rec)
+                self._record(rec)
             site = self._site_pose(self.site)
             pts += [(site.x, site.y + s.approach_hover, 0.0), (site.x, site.y, 0.0)]
         else:
