@@ -388,6 +388,39 @@ def test_applied_replay_writes_what_the_docs_list(tmp_path, capsys):
     assert json.loads(meta["tissue_sim.params"])["mesh_file"] == cfg.flat()["mesh_file"]
 
 
+def test_applied_steps_pair_by_stamp_in_whatever_order_a_recorder_received_them(tmp_path):
+    """A recorder in another process receives tool/applied_pose and tool/applied_twist on separate subscriptions:
+    under load two poses came before their twists, and the replay then stepped two steps without a tool (the
+    fresh-clone CI's demo replay missed the live energies from step 207). Each pose and jaw goes to the twist
+    of its stamp; a stamp that recurs (a node that began following /clock) goes by arrival time."""
+    from tissue_sim_ros.ros import tool_applied as ta
+    from tissue_sim_ros.ros.bags import BagWriter
+
+    def stamp(k: int) -> tuple[int, int]:
+        return 1, (k % 6) * 10_000_000  # step 6 has step 0's stamp again
+
+    # (topic, step) in the order received: step 0 without a tool; 2 and 3 with poses ahead of both twists;
+    # step 4's twist before its pose; step 6 reuses step 0's stamp, with a pose and a jaw
+    order = [("t", 0), ("j", 0), ("p", 1), ("j", 1), ("t", 1), ("p", 2), ("p", 3), ("t", 2), ("j", 2), ("t", 3),
+             ("j", 3), ("t", 4), ("j", 4), ("p", 4), ("p", 5), ("t", 5), ("j", 5), ("p", 6), ("j", 6), ("t", 6)]
+    src = tmp_path / "recorded"
+    with BagWriter(src) as w:
+        for topic, kind in ((ta.POSE_TOPIC, ta.POSE_TYPE), (ta.TWIST_TOPIC, ta.TWIST_TYPE), (ta.JAW_TOPIC, ta.JAW_TYPE)):
+            w.add_topic(topic, kind)
+        for n, (what, k) in enumerate(order):
+            t = 5_000_000_000 + n * 1_000_000
+            if what == "p":
+                w.write(ta.POSE_TOPIC, ta.encode_applied_pose(stamp(k), "world", 0.01 * k, 0.2, ta.PLANAR), t)
+            elif what == "j":
+                w.write(ta.JAW_TOPIC, ta.encode_applied_jaw(stamp(k), "world", 0.1 * k), t)
+            else:
+                w.write(ta.TWIST_TOPIC, ta.encode_applied_twist(stamp(k), "world", ToolTwist(float(k), 0.0, 0.0)), t)
+    steps = ta.read_applied_steps(src)
+    assert [tw.vx for tw in steps.twists] == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
+    assert [None if p is None else round(p.x / 0.01) for p in steps.poses] == [None, 1, 2, 3, 4, 5, 6]
+    assert steps.jaws is not None and [round(j / 0.1) for j in steps.jaws] == [0, 1, 2, 3, 4, 5, 6]
+
+
 def test_plain_replay_steps_with_the_bags_own_parameters_or_says_it_falls_back(tmp_path, capsys):
     """A bag holding its simulator's parameters replays with them (no --params needed); one holding none falls
     back to the shipped defaults and says so, in one line and in replay.json (it used to be silent)."""

@@ -162,32 +162,57 @@ def read_applied_steps(path: str | Path, namespace: str | None = None) -> Applie
         if twist_topic not in bag.topics:
             raise InputError(f"bag {str(path)!r} has no {twist_topic}: it is not a recording of the node's applied "
                              f"tool (record with the node's record_path); it has: {bag.describe_topics()}")
-        # in the order written: each step writes its pose (when it had a tool), then its twist. The stamps
-        # need not increase (a node that starts following /clock jumps to the bag's time), so a twist takes
-        # the pose written just before it when that pose has its stamp
+        # the node writes each step's pose (when it had a tool), then its twist, but a recorder in another process
+        # receives the topics on separate subscriptions: a pose can arrive after its twist, or two poses before
+        # their twists (seen under load). So the steps are the twists in order, and a pose or jaw belongs to the
+        # twist with its stamp. Stamps need not increase (a node that starts following /clock jumps to the bag's
+        # time), so when a stamp recurs, the step whose twist arrived nearest in time takes it
         jaw_topic = namespace.rstrip("/") + JAW_TOPIC
-        poses: list[ToolPose | None] = []
-        jaws: list[float | None] = []
         steps: list[tuple[Stamp, ToolTwist]] = []
-        pending: tuple[Stamp, ToolPose] | None = None
-        pending_jaw: tuple[Stamp, float | None] | None = None
+        received: list[int] = []
+        extras: dict[str, dict[Stamp, list[tuple[int, object]]]] = {pose_topic: {}, jaw_topic: {}}
         topics = [twist_topic] + [t for t in (pose_topic, jaw_topic) if t in bag.topics]
-        for topic, _, _, raw in bag.messages(topics):
+        has_jaw = jaw_topic in bag.topics
+        for topic, _, t_ns, raw in bag.messages(topics):
             data = bytes(raw)
-            if topic == pose_topic:
-                pending = decode_applied_pose(data)
-            elif topic == jaw_topic:
-                pending_jaw = decode_applied_jaw(data)
+            if topic == twist_topic:
+                steps.append(decode_applied_twist(data))
+                received.append(t_ns)
             else:
-                stamp, twist = decode_applied_twist(data)
-                poses.append(pending[1] if pending is not None and pending[0] == stamp else None)
-                jaws.append(pending_jaw[1] if pending_jaw is not None and pending_jaw[0] == stamp else None)
-                steps.append((stamp, twist))
-                pending = pending_jaw = None
+                stamp, value = (decode_applied_pose if topic == pose_topic else decode_applied_jaw)(data)
+                extras[topic].setdefault(stamp, []).append((t_ns, value))
     finally:
         bag.close()
     if not steps:
         raise InputError(f"bag {str(path)!r}: {twist_topic} holds no messages")
+    poses = _by_stamp(steps, received, extras[pose_topic])
+    jaws = _by_stamp(steps, received, extras[jaw_topic]) if has_jaw else None
     t_ns = np.array([s * 1_000_000_000 + ns for (s, ns), _ in steps], dtype=np.int64)
     return AppliedSteps(t_ns=t_ns, poses=poses, twists=[tw for _, tw in steps], twist_topic=twist_topic,
-                        pose_topic=pose_topic, jaws=jaws if jaw_topic in bag.topics else None)
+                        pose_topic=pose_topic, jaws=jaws)
+
+
+def _by_stamp(steps: list[tuple[Stamp, ToolTwist]], received: list[int],
+              values: dict[Stamp, list[tuple[int, object]]]) -> list:
+    """Each step's value of ``values`` (stamp -> [(receive time, value)], in arrival order), or None.
+
+    A stamp's values go to the steps of that stamp in order when there are as many as steps; otherwise (a stamp
+    that recurs, with a step that had no tool) each value goes to the free step whose twist arrived nearest it."""
+    out: list = [None] * len(steps)
+    by_stamp: dict[Stamp, list[int]] = {}
+    for i, (stamp, _) in enumerate(steps):
+        by_stamp.setdefault(stamp, []).append(i)
+    for stamp, found in values.items():
+        idx = by_stamp.get(stamp, [])
+        if len(found) == len(idx):
+            for i, (_, value) in zip(idx, found):
+                out[i] = value
+            continue
+        free = list(idx)
+        for t_ns, value in found:
+            if not free:
+                break
+            i = min(free, key=lambda k: abs(received[k] - t_ns))
+            out[i] = value
+            free.remove(i)
+    return out
