@@ -25,7 +25,6 @@ interface; the parameter tables and the start-up warm-up are in :mod:`~tissue_si
 from __future__ import annotations
 
 import math
-import os
 import sys
 import threading
 import time
@@ -62,6 +61,8 @@ from .controller_setup import (
     typed_value,
     warm_up,
 )
+from .realtime import SWITCH_INTERVAL, nice_this_thread
+from .throttle import ThrottledWarnings
 from .tool_applied import decode_applied_jaw, planar_quaternion
 from .usage import init_rclpy, msg_docs_dir, parameter_list, ros_arguments, wants_help
 
@@ -72,8 +73,6 @@ NODE_NAME = "tissue_controller"
 DROP_KINDS = ("points_empty", "points_nonfinite", "points_shape", "points_frame", "points_malformed",
               "pose_nonfinite", "pose_frame", "pose_malformed", "jaw_nonfinite", "jaw_malformed")
 STATES = ("idle", "pursuing", "reached", "gave up", "refused")
-#: Python's GIL switch interval in the node [s] (tissue_sim_node's too).
-SWITCH_INTERVAL = 0.0005
 #: Records of replans kept (each holds its candidates' paths).
 KEEP_RECORDS = 20
 
@@ -100,22 +99,6 @@ class MoveRequest:
     done: threading.Event
     path: np.ndarray | None = None
     reason: str = ""
-
-
-class ThrottledWarnings:
-    """Counts dropped messages by kind; logs each kind at most once per period."""
-
-    def __init__(self, logger: Any, period: float) -> None:
-        self.logger, self.period = logger, period
-        self.counts = dict.fromkeys(DROP_KINDS, 0)
-        self._last: dict[str, float] = {}
-
-    def drop(self, kind: str, message: str) -> None:
-        self.counts[kind] += 1
-        now = time.monotonic()
-        if now - self._last.get(kind, -math.inf) >= self.period:
-            self._last[kind] = now
-            self.logger.warning(f"dropped: {message} ({self.counts[kind]} {kind} so far)")
 
 
 class TissueControllerNode(Node):
@@ -162,7 +145,7 @@ class TissueControllerNode(Node):
             t0 = time.perf_counter()
             note = warm_up(self.config, self.settings)
             log.info(f"warm-up on the model: {time.perf_counter() - t0:.2f} s{note}")
-        self.warnings = ThrottledWarnings(log, v["warn_period"])
+        self.warnings = ThrottledWarnings(log, dict.fromkeys(DROP_KINDS, 0), lambda: v["warn_period"])
         # shared between the executor's callbacks and the worker, under self.cond
         self.cond = threading.Condition()
         self.obs: Observation | None = None
@@ -606,13 +589,8 @@ def lower_priority(nice: int) -> int | None:
     import numba  # noqa: PLC0415  (the core's kernels are numba's already)
 
     numba.set_num_threads(1)
-    if not sys.platform.startswith("linux"):
-        return None
-    tid = threading.get_native_id()
     try:
-        if nice > 0:
-            os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + nice)
-        return os.getpriority(os.PRIO_PROCESS, tid)
+        return nice_this_thread(nice)
     except OSError:  # a sandbox may forbid it: the worker then runs at the node's priority
         return None
 

@@ -21,8 +21,6 @@ given (an rclpy publisher's, thread-safe in rcl) with the encoded bytes.
 """
 from __future__ import annotations
 
-import os
-import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -31,6 +29,7 @@ from typing import Callable
 import numpy as np
 
 from .messages import SceneEncoder, Stamp
+from .realtime import nice_this_thread
 
 
 @dataclass
@@ -118,14 +117,8 @@ class MarkerPublisher:
         self._thread.join(timeout)
 
     def _lower_priority(self) -> None:
-        if not sys.platform.startswith("linux"):
-            return
-        tid = threading.get_native_id()
         try:
-            if self._nice > 0:
-                # a thread ID with PRIO_PROCESS names that one thread on Linux (setpriority(2), NOTES)
-                os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + self._nice)
-            self.niceness = os.getpriority(os.PRIO_PROCESS, tid)
+            self.niceness = nice_this_thread(self._nice)
         except OSError as exc:  # a sandbox may forbid it: the markers then run as before
             if self._on_error is not None:
                 self._on_error(exc)

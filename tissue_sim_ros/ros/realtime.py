@@ -23,6 +23,25 @@ cannot lock a core.
 from __future__ import annotations
 
 import os
+import sys
+import threading
+
+SWITCH_INTERVAL = 0.0005
+"""Seconds a thread may hold the GIL before another waiting thread gets it (Python's default: 0.005): what the
+nodes set, so a worker thread that holds the GIL (tissue_sim_node's markers, tissue_controller's planning) hands
+it to a waiting callback within 0.5 ms."""
+
+
+def nice_this_thread(nice: int) -> int | None:
+    """Add ``nice`` (>= 0) to the calling thread's niceness; its niceness then, None off Linux (where a niceness
+    is the whole process's, left alone). A thread ID with PRIO_PROCESS names that one thread on Linux
+    (setpriority(2), NOTES). Raises OSError where the system refuses (a sandbox)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    tid = threading.get_native_id()
+    if nice > 0:
+        os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + nice)
+    return os.getpriority(os.PRIO_PROCESS, tid)
 
 
 def set_step_priority(priority: int) -> str | None:

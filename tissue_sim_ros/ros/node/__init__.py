@@ -23,8 +23,8 @@ which takes the node as an argument:
 * :mod:`.stepping`: the step timer or lock-step, the phase lock, the step itself;
 * :mod:`.outputs`: a step's messages, the markers, the rest mesh, ``/diagnostics``;
 * :mod:`.settings`: the parameters, declared resolved and changed at run time;
-* :mod:`.recording` (``record_path``), :mod:`.clock_follow` (``follow_clock``), :mod:`.stats` (counters,
-  throttled warnings);
+* :mod:`.recording` (``record_path``), :mod:`.clock_follow` (``follow_clock``), :mod:`.stats` (counters; the
+  throttled warnings are :mod:`..throttle`'s, shared with tissue_controller);
 * :mod:`.process`: the console script :func:`main` and the process-wide settings (heap, memory trace);
   :mod:`.shutdown`: a signal ends the node between two steps' outputs, never inside one.
 """
@@ -48,6 +48,7 @@ from ..marker_publisher import MarkerPublisher
 from ..planner_service import PlannerService
 from ..raw_publish import GilFreePublisher
 from ..tf_input import FrameInput
+from ..throttle import ThrottledWarnings
 from .clock_follow import ClockFollower
 from .inputs import ToolInputs
 from .outputs import Outputs
@@ -55,7 +56,7 @@ from .process import HeapTrimmer, MemoryTrace, main
 from .recording import NodeRecorder, start_recording
 from .settings import ParameterChanges, declare_parameters
 from .shutdown import OutputGate
-from .stats import NodeStats, Warnings
+from .stats import NodeStats
 from .stepping import Stepper
 
 __all__ = ["HeapTrimmer", "MemoryTrace", "TissueSimNode", "main"]
@@ -98,7 +99,8 @@ class TissueSimNode(Node):
         # the parts, by job
         self.output_gate = OutputGate()
         self.stats = NodeStats()
-        self.warnings = Warnings(self)
+        self.warnings = ThrottledWarnings(self.get_logger(), self.stats.dropped,
+                                          lambda: self.config.node.warn_period)
         self.inputs = ToolInputs(self)
         self.stepping = Stepper(self)
         self.outputs = Outputs(self)

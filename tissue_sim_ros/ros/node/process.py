@@ -20,12 +20,9 @@ from rclpy.signals import SignalHandlerOptions
 
 from ...core.config import load_params_file
 from ...core.errors import InputError
-from ..realtime import set_step_priority
+from ..realtime import SWITCH_INTERVAL, set_step_priority
 from ..usage import msg_docs_dir, ros_arguments, wants_help
 from .shutdown import SignalShutdown
-
-SWITCH_INTERVAL = 0.0005
-"""Seconds a thread may hold the GIL before another waiting thread gets it (Python's default: 0.005)."""
 
 
 def usage() -> str:

@@ -1,11 +1,9 @@
-"""The node's counters on ``/diagnostics`` and its throttled warnings, which the inputs, the stepping loop and the
-outputs all count into."""
+"""The node's counters on ``/diagnostics``, which the inputs, the stepping loop and the outputs all count into (the
+throttled warnings that count drops: :class:`~tissue_sim_ros.ros.throttle.ThrottledWarnings`)."""
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
-from typing import Any
 
 
 @dataclass
@@ -31,31 +29,3 @@ class NodeStats:
     window_sim_time_sum: float = 0.0
     """Wall time inside Simulation.step (contact + solve + energy) over the window [s]."""
     window_start: float = field(default_factory=time.monotonic)
-
-
-class Warnings:
-    """Warnings logged at most once per ``warn_period`` for each kind; dropped messages counted by kind.
-
-    Parameters
-    ----------
-    node : TissueSimNode
-        Its logger, its ``stats`` and its typed ``config.node.warn_period`` (read at each warning, so a run-time
-        change applies at once).
-    """
-
-    def __init__(self, node: Any) -> None:
-        self.node = node
-        self._last: dict[str, float] = {}
-
-    def warn(self, kind: str, message: str) -> None:
-        """Log a warning at most once per ``warn_period`` for each kind."""
-        now = time.monotonic()
-        if now - self._last.get(kind, -math.inf) >= self.node.config.node.warn_period:
-            self._last[kind] = now
-            self.node.get_logger().warning(message)
-
-    def drop(self, kind: str, message: str) -> None:
-        """Count a dropped message of ``kind`` (a key of :attr:`NodeStats.dropped`) and warn, throttled."""
-        dropped = self.node.stats.dropped
-        dropped[kind] += 1
-        self.warn(kind, f"dropped: {message} ({dropped[kind]} dropped so far)")
