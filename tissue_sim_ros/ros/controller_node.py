@@ -64,7 +64,7 @@ from .controller_setup import (
 from .realtime import SWITCH_INTERVAL, nice_this_thread
 from .throttle import ThrottledWarnings
 from .tool_applied import decode_applied_jaw, planar_quaternion
-from .usage import init_rclpy, msg_docs_dir, parameter_list, ros_arguments, wants_help
+from .usage import init_rclpy, msg_docs_dir, parameter_list, usage_head, wants_help
 
 NODE_NAME = "tissue_controller"
 
@@ -604,16 +604,14 @@ def stamp_msg(ns: int) -> TimeMsg:
 def usage() -> str:
     """What ``tissue_controller --help`` prints."""
     names = [*NODE_PARAMETERS, *settings_rows(), *MODEL_PARAMETERS]
-    return (
-        "usage: tissue_controller [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r __ns:=/NS]]\n\n"
+    about = (
         "Drives the tissue to a target: a model-predictive grasp controller beside tissue_sim_node (or a robot).\n"
         "It reads tissue/points, tool/applied_pose and tool/applied_jaw, offers ~/move_tissue (nav_msgs/GetPlan:\n"
         "start = the tissue point to move, goal = where it should go) and publishes tool/pose, tool/twist and\n"
         "tool/jaw until the goal is met or it gives up; control/markers and /diagnostics show what it does.\n"
-        "Exit 0 on SIGINT/SIGTERM, 2 on a bad parameter (named).\n\n"
-        "options:\n"
-        "  -h, --help            show this message and exit (no node is started)\n\n"
-        + ros_arguments(NODE_NAME, "-p horizon:=20 -p gains:=[1.0]")
+        "Exit 0 on SIGINT/SIGTERM, 2 on a bad parameter (named).\n\n")
+    return (
+        usage_head(NODE_NAME, about, "-p horizon:=20 -p gains:=[1.0]")
         + "\nparameters (all read-only):\n" + parameter_list(names) + "\n\n"
         f"Its topics, service and every parameter: {msg_docs_dir()}/controller.md\n")
 

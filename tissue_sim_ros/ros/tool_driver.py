@@ -45,7 +45,7 @@ from ..core.sim.scene import tool_from_mapping
 from ..core.timing.stamps import ns_from_seconds, stamp_from_ns
 from ..core.timing.trajectories import preset, resolve_trajectory
 from . import messages, qos
-from .usage import init_rclpy, msg_docs_dir, parameter_list, ros_arguments, wants_help
+from .usage import init_rclpy, msg_docs_dir, parameter_list, usage_head, wants_help
 
 #: The driver's own parameters, name -> (default, description); the simulation's it shares are :data:`SIM_PARAMETERS`.
 DRIVER_PARAMETERS: dict[str, tuple[Any, str]] = {
@@ -245,15 +245,13 @@ class ToolDriver(Node):
 def usage() -> str:
     """What ``tool_driver --help`` prints."""
     names = [*DRIVER_PARAMETERS, *SIM_PARAMETERS]
-    return (
-        "usage: tool_driver [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r __ns:=/NS]]\n\n"
+    about = (
         "Plays a scripted tool trajectory on tool/pose and tool/twist for tissue_sim_node, so the simulation can\n"
         "be seen working without a robot: by default the paper's experiment a (preset experiment_a), else a\n"
         "preset, a trajectory file (-p trajectory:=FILE.csv) or a straight insertion (-p preset:=straight).\n"
-        "Exit 0 when the trajectory has played, 1 if no subscriber came, 2 on a bad parameter (named).\n\n"
-        "options:\n"
-        "  -h, --help            show this message and exit (no node is started)\n\n"
-        + ros_arguments("tool_driver", "-p preset:=straight -p angle:=-30.0")
+        "Exit 0 when the trajectory has played, 1 if no subscriber came, 2 on a bad parameter (named).\n\n")
+    return (
+        usage_head("tool_driver", about, "-p preset:=straight -p angle:=-30.0")
         + "\nparameters (all read-only):\n" + parameter_list(names) + "\n\n"
         f"Its topics and every parameter: {msg_docs_dir()}/tool_driver.md\n")
 

@@ -58,6 +58,16 @@ def ros_arguments(name: str, example: str) -> str:
             f"  -r __ns:=/NS          run in a namespace\n")
 
 
+def usage_head(name: str, about: str, example: str) -> str:
+    """The start every executable's ``--help`` shares: the usage line, ``about`` (what it does, ending in a blank
+    line), the options and the ROS arguments (:func:`ros_arguments` with ``example``)."""
+    return (f"usage: {name} [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r __ns:=/NS]]\n\n"
+            + about
+            + "options:\n"
+              "  -h, --help            show this message and exit (no node is started)\n\n"
+            + ros_arguments(name, example))
+
+
 def parameter_list(names: list[str], width: int = 100) -> str:
     """Parameter names as a usage prints them: comma-separated, wrapped at ``width`` columns, indented."""
     lines, line = [], " "

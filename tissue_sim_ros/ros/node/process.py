@@ -21,23 +21,21 @@ from rclpy.signals import SignalHandlerOptions
 from ...core.config import load_params_file
 from ...core.errors import InputError
 from ..realtime import SWITCH_INTERVAL, set_step_priority
-from ..usage import msg_docs_dir, ros_arguments, wants_help
+from ..usage import msg_docs_dir, usage_head, wants_help
 from .shutdown import SignalShutdown
 
 
 def usage() -> str:
     """What ``tissue_sim_node --help`` prints."""
-    return (
-        "usage: tissue_sim_node [-h] [--ros-args [-p NAME:=VALUE ...] [--params-file FILE] [-r __ns:=/NS]]\n\n"
+    about = (
         "A 2D soft tissue under a surgical tool, simulated as a ROS 2 node: it takes the tool's pose on tool/pose\n"
         "(and its velocity on tool/twist), steps the simulation at 1/dt of its clock (or once per pose with\n"
         "-p lock_step:=true) and publishes the deformed mesh (tissue/markers, tissue/points), the energy\n"
         "(tissue/energy/...), the reaction on the tool (tool/wrench), the tool each step used (tool/applied_*)\n"
         "and /diagnostics; services ~/reset, ~/pause, ~/plan_insertion. Ends on SIGINT/SIGTERM (exit 0);\n"
-        "a bad parameter exits 2 naming it.\n\n"
-        "options:\n"
-        "  -h, --help            show this message and exit (no node is started)\n\n"
-        + ros_arguments("tissue_sim_node", "-p lock_step:=true -p record_path:=run1")
+        "a bad parameter exits 2 naming it.\n\n")
+    return (
+        usage_head("tissue_sim_node", about, "-p lock_step:=true -p record_path:=run1")
         + "  e.g. tissue_sim_node --ros-args --params-file config/tissue_sim.yaml -p marker_rate:=10.0\n\n"
         f"Every topic, parameter (with its default and unit) and service: {msg_docs_dir()}\n"
         "(README.md, topics.md, parameters.md, services.md); `tissue-sim config` prints the resolved parameters.\n")
