@@ -14,7 +14,7 @@ from tissue_sim_ros.core.sim.batch import BatchScene, ToolPath, rollout_candidat
 from tissue_sim_ros.core.sim.fused import FusedWorkspace, fused_applies, rollout_fused
 from tissue_sim_ros.core.sim.scene import build_simulation
 from tissue_sim_ros.core.sim.simulation import Simulation
-from tissue_sim_ros.experiments.retract import RETRACT_X, flap_surface
+from tissue_sim_ros.experiments.retract import grasp_and_lift
 
 from naive import rollout_stepped
 
@@ -23,13 +23,7 @@ def _held_flap(spacing: float = 0.005) -> tuple[Simulation, ToolPose]:
     """The retraction scene (a coarse mesh: small and quick), the flap grasped and lifted 5 mm."""
     cfg = resolve_config(params_file=[scene_params_file("retract")]).replace(spacing=spacing)
     sim = Simulation.from_config(cfg)
-    top = flap_surface(sim.state.particle_q, RETRACT_X)
-    pose = ToolPose(RETRACT_X, top + 0.0005, 0.0)
-    sim.step(pose, jaw=0.8)
-    sim.step(pose, jaw=0.0)
-    for k in range(1, 11):
-        pose = ToolPose(RETRACT_X, top + 0.0005 + 0.0005 * k, 0.0)
-        sim.step(pose)
+    pose = grasp_and_lift(sim, 10)
     assert sim.grasp.n_held > 0
     return sim, pose
 

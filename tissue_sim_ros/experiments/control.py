@@ -29,7 +29,7 @@ from ..core.plan.control import ControlSettings, TissueController, default_model
 from ..core.sim.batch import RolloutPool
 from ..core.sim.grasp import to_tool_frame
 from ..core.sim.simulation import Simulation
-from .retract import RETRACT_X, flap_surface
+from .retract import RETRACT_X, flap_surface, grasp_and_lift
 
 
 @dataclass
@@ -187,12 +187,7 @@ def replan_timing(cfg: Config, counts: tuple[int, ...] = (4, 8, 16, 32), horizon
     world = Simulation.from_config(cfg)
     x0 = world.state.particle_q.copy()
     surface = flap_surface(x0, RETRACT_X)
-    pose = ToolPose(RETRACT_X, surface + 0.0005, 0.0)
-    world.step(pose, jaw=0.8)
-    world.step(pose, jaw=0.0)
-    for k in range(1, 21):
-        pose = ToolPose(RETRACT_X, surface + 0.0005 + 0.0005 * k, 0.0)
-        world.step(pose)
+    grasp_and_lift(world, 20)
     model_cfg = cfg.replace(**dict(default_model(cfg) if model is None else model))
     rows = []
     for n in counts:
@@ -206,15 +201,12 @@ def replan_timing(cfg: Config, counts: tuple[int, ...] = (4, 8, 16, 32), horizon
         ctrl = TissueController(model_cfg, s, pool=pool)
         ctrl.set_goal([((RETRACT_X, surface), (RETRACT_X + 0.01, surface + 0.02))], x0)  # bound at rest
         x = ctrl.sync(world.state.particle_q, world.tool_pose, world.time)
-        tip = np.array([world.tool_pose.x, world.tool_pose.y])
-        d = np.hypot(*(x - tip).T)
-        held = np.flatnonzero((d <= model_cfg.sim.grasp_radius) & ~ctrl.fixed)
-        if held.size == 0:
-            held = np.array([int(np.argmin(np.where(ctrl.fixed, np.inf, d)))])
+        if ctrl.hold_in_reach(world.tool_pose).size == 0:  # a coarse model: its free particle nearest the tip
+            d = np.hypot(*(x - np.array([world.tool_pose.x, world.tool_pose.y])).T)
+            ctrl.held = np.array([int(np.argmin(np.where(ctrl.fixed, np.inf, d)))], dtype=np.int64)
+            ctrl.held_local = to_tool_frame(x[ctrl.held], world.tool_pose)
         ctrl.phase = "pull"
-        ctrl.site = int(held[0])
-        ctrl.held = held.astype(np.int64)
-        ctrl.held_local = to_tool_frame(x[held], world.tool_pose)
+        ctrl.site = int(ctrl.held[0])
         times = []
         for r in range(repeats + 1):
             ctrl.queue = []

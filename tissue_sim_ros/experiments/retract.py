@@ -30,6 +30,20 @@ def flap_surface(q: np.ndarray, x: float) -> float:
     return float(q[band, 1].max())
 
 
+def grasp_and_lift(sim: Any, lift_steps: int, x: float = RETRACT_X, rise: float = 0.0005) -> ToolPose:
+    """Grasp the flap of ``sim`` (a Simulation of the retraction scene at rest) at ``x`` and lift it: the jaw
+    open 0.8 rad with its tip ``rise`` above the top surface, closed, then ``lift_steps`` steps each ``rise``
+    higher. Returns the tool's last pose (the rollouts' and the controller's timing's held flap)."""
+    top = flap_surface(sim.state.particle_q, x)
+    pose = ToolPose(x, top + rise, 0.0)
+    sim.step(pose, jaw=0.8)
+    sim.step(pose, jaw=0.0)
+    for k in range(1, lift_steps + 1):
+        pose = ToolPose(x, top + rise + rise * k, 0.0)
+        sim.step(pose)
+    return pose
+
+
 def experiment_retract(out: str | Path, *, params: Mapping[str, Any] | Config | None = None, x: float = RETRACT_X,
                        lift: float = 0.02, pull: float = 0.02, progress: bool = True,
                        prefix: str = "retract") -> ExperimentResult:

@@ -492,6 +492,10 @@ class TissueController:
             self.bias[k] = new if not self._bias_set else (1.0 - a) * self.bias[k] + a * new
         self._bias_set = True
 
+    def to_go(self) -> np.ndarray:
+        """The goals' displacement still to go in the synced model (the mean over the goal points) [m]: (2,)."""
+        return (self.goals - self.goal_points(self.x)).mean(axis=0)
+
     def goal_error(self, x: np.ndarray) -> float:
         """The largest distance of a goal point at positions ``x`` from its goal [m]."""
         d = self.goal_points(x) - self.goals
@@ -520,15 +524,21 @@ class TissueController:
         self.steps += 1
         if self.phase == "close" and next_jaw < self.sim.params.grasp_close_angle and not self.held.size:
             # the jaw closes at the start of the next step with the tool here: what lies in reach is held
-            d = self.x - np.array([tool_pose.x, tool_pose.y])
-            r = self.sim.params.grasp_radius
-            near = np.flatnonzero(((d * d).sum(axis=1) <= r * r) & ~self.fixed)
-            self.held = near.astype(np.int64)
-            self.held_local = to_tool_frame(self.x[near], tool_pose)
+            self.hold_in_reach(tool_pose)
             self.phase = "pull"
             self.queue = []
         return ToolCommand(pose, twist_from_poses(tool_pose, pose, self.dt), next_jaw, self.phase,
                            self.goal_error(self.x), replanned)
+
+    def hold_in_reach(self, tool_pose: ToolPose) -> np.ndarray:
+        """The model's jaw closes with the tool at ``tool_pose``: the free particles within ``grasp_radius`` of the
+        tip are held (:attr:`held`, in the tool's frame :attr:`held_local`); returns their ids."""
+        d = self.x - np.array([tool_pose.x, tool_pose.y])
+        r = self.sim.params.grasp_radius
+        near = np.flatnonzero(((d * d).sum(axis=1) <= r * r) & ~self.fixed)
+        self.held = near.astype(np.int64)
+        self.held_local = to_tool_frame(self.x[near], tool_pose)
+        return self.held
 
     # ----------------------------------------------------------------------------------------------- planning
     def _replan(self, points: Any, ids: Any, tool_pose: ToolPose, jaw: float, t: float) -> None:
@@ -572,7 +582,7 @@ class TissueController:
         if not sites:
             raise InputError(f"no grasp site within grasp_search={s.grasp_search * 1e3:.1f} mm of the start that the "
                              "grasper reaches from above: expected a start near the tissue's top surface")
-        disp = (self.goals - self.goal_points(self.x)).mean(axis=0)
+        disp = self.to_go()
         speed = float(s.pull_speeds[0])
         n_pull = max(1, int(math.ceil(float(np.hypot(*disp)) / (speed * self.dt))))
         paths = []
@@ -648,7 +658,7 @@ class TissueController:
             pts += [(site.x, site.y + s.approach_hover, 0.0), (site.x, site.y, 0.0)]
         else:
             pts += [(p.x, p.y, p.yaw) for p, _ in self.queue]
-        disp = (self.goals - self.goal_points(self.x)).mean(axis=0)
+        disp = self.to_go()
         last = pts[-1]
         if self.phase in ("approach", "close"):
             pts.append((last[0] + disp[0], last[1] + disp[1], 0.0))
@@ -659,7 +669,7 @@ class TissueController:
     def pull_candidates(self, tool_pose: ToolPose) -> list[ToolPath]:
         """The pull phase's candidate tool paths from ``tool_pose`` (module docstring); the last holds still."""
         s = self.settings
-        disp = (self.goals - self.goal_points(self.x)).mean(axis=0)
+        disp = self.to_go()
         p0 = np.array([tool_pose.x, tool_pose.y])
         out = []
         k = np.arange(1, s.horizon + 1, dtype=np.float64)
