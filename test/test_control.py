@@ -88,6 +88,29 @@ def test_the_offline_run_is_written_as_a_bag(cfg, tmp_path):
         run_control(cfg, max_time=0.02, settings=SMALL, bag=tmp_path / "run")
 
 
+def test_a_run_that_fails_still_closes_its_bag(cfg, tmp_path, monkeypatch):
+    """A controller that raises mid-run leaves a readable bag of the steps taken, while the caller still holds
+    the exception (its traceback keeps the run's frame, and so an unclosed writer, alive: the writer was closed
+    only after a run that ended well, or when garbage-collected)."""
+    from tissue_sim_ros.ros.bags import Bag
+
+    command, calls = TissueController.command, []
+
+    def failing(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) > 5:
+            raise RuntimeError("the controller failed")
+        return command(self, *args, **kwargs)
+
+    monkeypatch.setattr(TissueController, "command", failing)
+    with pytest.raises(RuntimeError, match="the controller failed") as failed:
+        run_control(cfg, world_young_factor=1.0, noise=0.0, max_time=0.3, settings=SMALL, bag=tmp_path / "run")
+    with Bag(tmp_path / "run") as bag:
+        counts = bag.message_counts
+    assert failed.tb is not None  # still held here
+    assert counts["/tool/pose"] == counts["/tool/jaw"] == counts["/tissue/points"] == 5
+
+
 def test_replan_timing_rows(cfg):
     from tissue_sim_ros.experiments.control import timing_table
 

@@ -96,31 +96,33 @@ def run_control(cfg: Config, *, world_young_factor: float = 1.3, noise: float = 
     reached_at = math.nan
     wall0 = time.perf_counter()
     phase_seen = set()
-    for k in range(n_max):
-        cmd = ctrl.command(observe(), world.tool_pose or tool, jaw, t=world.time)
-        if cmd.phase not in phase_seen:
-            phase_seen.add(cmd.phase)
-            if cmd.phase in ("pull", "holding"):
-                shots.append((f"{cmd.phase} from t = {world.time:.2f} s", world.state.particle_q.copy(),
-                              world.tool_pose, jaw))
-        r = world.step(cmd.pose, cmd.twist, jaw=cmd.jaw)
-        jaw = cmd.jaw
-        if sink is not None:
-            t_ns = ns_from_seconds(world.time)
-            sink(r, t_ns, cmd.pose)
-            writer.write("/tool/jaw", messages.encode_joint_state(stamp_from_ns(t_ns), "", ["jaw"], [jaw]), t_ns)
-        err = float(np.hypot(*(world.state.particle_q[gid] - q)))
-        if not all(np.isfinite([cmd.pose.x, cmd.pose.y, err])):
-            raise RuntimeError(f"a non-finite command or state at step {k + 1}")
-        rows.append((world.time, cmd.pose.x, cmd.pose.y, cmd.pose.yaw, cmd.jaw, cmd.phase, err, cmd.goal_error,
-                     len(r.grasped), float(r.reaction_force[0]), float(r.reaction_force[1]), int(cmd.replanned)))
-        if math.isnan(reached_at) and cmd.phase == "holding" and err <= ctrl.settings.tolerance:
-            reached_at = world.time
-        if not math.isnan(reached_at) and world.time >= reached_at + hold_time - 1e-9:
-            break
-    wall = time.perf_counter() - wall0
-    if writer is not None:
-        writer.close()
+    try:  # the bag is closed (readable) however the run ends
+        for k in range(n_max):
+            cmd = ctrl.command(observe(), world.tool_pose or tool, jaw, t=world.time)
+            if cmd.phase not in phase_seen:
+                phase_seen.add(cmd.phase)
+                if cmd.phase in ("pull", "holding"):
+                    shots.append((f"{cmd.phase} from t = {world.time:.2f} s", world.state.particle_q.copy(),
+                                  world.tool_pose, jaw))
+            r = world.step(cmd.pose, cmd.twist, jaw=cmd.jaw)
+            jaw = cmd.jaw
+            if sink is not None:
+                t_ns = ns_from_seconds(world.time)
+                sink(r, t_ns, cmd.pose)
+                writer.write("/tool/jaw", messages.encode_joint_state(stamp_from_ns(t_ns), "", ["jaw"], [jaw]), t_ns)
+            err = float(np.hypot(*(world.state.particle_q[gid] - q)))
+            if not all(np.isfinite([cmd.pose.x, cmd.pose.y, err])):
+                raise RuntimeError(f"a non-finite command or state at step {k + 1}")
+            rows.append((world.time, cmd.pose.x, cmd.pose.y, cmd.pose.yaw, cmd.jaw, cmd.phase, err, cmd.goal_error,
+                         len(r.grasped), float(r.reaction_force[0]), float(r.reaction_force[1]), int(cmd.replanned)))
+            if math.isnan(reached_at) and cmd.phase == "holding" and err <= ctrl.settings.tolerance:
+                reached_at = world.time
+            if not math.isnan(reached_at) and world.time >= reached_at + hold_time - 1e-9:
+                break
+    finally:
+        wall = time.perf_counter() - wall0
+        if writer is not None:
+            writer.close()
     shots.append((f"end, t = {world.time:.2f} s", world.state.particle_q.copy(), world.tool_pose, jaw))
     t = np.array([r[0] for r in rows])
     e = np.array([r[6] for r in rows])
