@@ -59,27 +59,25 @@ def plot_control(path: str | Path, model: Model, shots: Sequence[tuple[str, np.n
 def plot_control_sweep(path: str | Path, sweep: Sequence[dict], timing: Sequence[dict], *, tolerance: float,
                        title: str | None = None, dpi: int = 120) -> Path:
     """Left: the final error [mm] against the model's error in E (|world E / model E - 1|, %), one line per noise,
-    unreached runs hollow; right: one replan's wall time [ms] against the number of candidates."""
-    if not sweep:  # the timing alone
-        fig, ax1 = plt.subplots(1, 1, figsize=(6.0, 4.0))
-        axes = [None, ax1]
-    else:
-        fig, axes = plt.subplots(1, 2, figsize=(10.0, 4.0))
-    ax = axes[0]
-    for noise in sorted({r["noise_mm"] for r in sweep}):
-        rows = sorted((r for r in sweep if r["noise_mm"] == noise), key=lambda r: r["world_e_factor"])
-        err = [100.0 * (r["world_e_factor"] - 1.0) for r in rows]
-        fin = [r["final_error_mm"] for r in rows]
-        line, = ax.plot(err, fin, "-", lw=1.0, label=f"noise {noise:g} mm")
-        for e, f, r in zip(err, fin, rows):
-            ax.plot(e, f, "o", color=line.get_color(), mfc=line.get_color() if r["reached"] else "none")
-    if ax is not None:
+    unreached runs hollow; right: one replan's wall time [ms] against the number of candidates (alone when
+    ``sweep`` is empty)."""
+    fig, grid = plt.subplots(1, 2 if sweep else 1, figsize=(10.0, 4.0) if sweep else (6.0, 4.0), squeeze=False)
+    axes = grid[0]  # without a sweep, the timing alone
+    if sweep:
+        ax = axes[0]
+        for noise in sorted({r["noise_mm"] for r in sweep}):
+            rows = sorted((r for r in sweep if r["noise_mm"] == noise), key=lambda r: r["world_e_factor"])
+            err = [100.0 * (r["world_e_factor"] - 1.0) for r in rows]
+            fin = [r["final_error_mm"] for r in rows]
+            line, = ax.plot(err, fin, "-", lw=1.0, label=f"noise {noise:g} mm")
+            for e, f, r in zip(err, fin, rows):
+                ax.plot(e, f, "o", color=line.get_color(), mfc=line.get_color() if r["reached"] else "none")
         ax.axhline(tolerance * 1e3, color="#2e7d32", ls="--", lw=1.0, label="tolerance")
         ax.set_xlabel("world E over the model's E - 1 [%]")
         ax.set_ylabel("final error [mm] (hollow: not reached)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    ax = axes[1]
+    ax = axes[-1]
     for particles, workers in sorted({(r.get("particles", 0), r["workers"]) for r in timing}):
         rows = [r for r in timing if r["workers"] == workers and r.get("particles", 0) == particles]
         model = f"{particles}-particle model, " if particles else ""
