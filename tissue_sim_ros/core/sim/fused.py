@@ -95,6 +95,8 @@ def fused_quasi_newton_rollout(
     n_att = attach_idx.shape[0]
     dt2 = dt * dt
     empty_dx = np.zeros((0, 2))
+    no_values = np.zeros(0)  # energy_terms_kernel's constraint arguments: none (the material's energy is the strain)
+    no_tris = np.zeros((0, 3), np.int32)
     for k in range(n_steps):
         s0 = shapes_m[k]
         s1 = shapes_m[k + 1]
@@ -158,8 +160,8 @@ def fused_quasi_newton_rollout(
         e_area[:] = 0.0
         e_pot[:] = 0.0
         e_attach[:] = 0.0
-        energy_terms_kernel(x_new, x_pred, mass, body, no_edges, np.zeros(0), no_index, np.zeros((0, 3), np.int32),
-                            np.zeros(0), no_index, 0.0, 0.0, dt, True, e_inertial, e_spring, e_area)
+        energy_terms_kernel(x_new, x_pred, mass, body, no_edges, no_values, no_index, no_tris, no_values, no_index,
+                            0.0, 0.0, dt, True, e_inertial, e_spring, e_area)
         strain_energy_kernel(x_new, tris_model, elastic_model, tri_body, e_pot)
         for a in range(n_att):
             i = attach_idx[a]
