@@ -108,7 +108,7 @@ class PointBinding:
         return np.einsum("pk,pkd->pd", self.weights, q[self.particles])
 
 
-def _barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+def barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     """Barycentric weights of points p (P, 2) in triangles (a, b, c) (T, 2): shape (P, T, 3)."""
     v0 = b - a
     v1 = c - a
@@ -158,7 +158,7 @@ def bind_points(vertices: np.ndarray, triangles: np.ndarray, points: np.ndarray,
     outside = np.zeros(n)
     for start in range(0, n, chunk):
         sl = slice(start, min(n, start + chunk))
-        w = _barycentric(p[sl], a, b, c)                         # (p, T, 3)
+        w = barycentric(p[sl], a, b, c)                         # (p, T, 3)
         worst = w.min(axis=2)                                      # > -eps: inside
         best = worst.argmax(axis=1)
         rows = np.arange(best.shape[0])

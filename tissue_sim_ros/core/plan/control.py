@@ -8,7 +8,7 @@ step returns the next tool command (pose, twist, jaw):
 
 * **binding**: as many points as the model has particles are its particles; other points (another mesh, a
   tracker's markers) are embedded at the first observation in the model's triangle under each, barycentric
-  weights w (:func:`embed`; points farther than half the model's median edge from it are not used).
+  weights w (:func:`~tissue_sim_ros.core.plan.observe.embed`; points farther than half the model's median edge from it are not used).
 * **sync** (every replan): the model's positions are the least-energy state that matches the observations, the
   minimiser of
 
@@ -70,6 +70,7 @@ from ..sim.batch import BatchScene, RolloutPool, ToolPath, rollout_batch
 from ..sim.grasp import to_tool_frame, to_world
 from ..sim.simulation import Simulation
 from ..sim.snapshot import SimSnapshot
+from .observe import SyncEnergy, embed, particle_points
 
 PHASES = ("approach", "close", "pull", "holding")
 MODEL_COARSENING = 2.0
@@ -190,78 +191,6 @@ class ReplanRecord:
         return self.sync_s + self.rollout_s + self.choose_s
 
 
-class SyncEnergy:
-    """Pi(x) plus the observation springs and the jaw's hold (module docstring), for ``newton_minimize``.
-
-    Observation m ties the model's point sum_j w_mj x_(t_mj) (its particle, w = (1, 0, 0), or a point embedded in a
-    triangle) to ``obs[m]``: k/2 |B x - o|^2 with B the (M, N) interpolation matrix, Hessian k B^T B."""
-
-    def __init__(self, potential: PotentialEnergy, tris: np.ndarray, w: np.ndarray, obs: np.ndarray, k: float,
-                 held: np.ndarray, targets: np.ndarray, k_hold: float) -> None:
-        import scipy.sparse as sp  # noqa: PLC0415  (SciPy, as statics)
-
-        self.pot = potential
-        self.mass = potential.mass
-        self.tris, self.w, self.obs, self.k = tris, w, obs, k
-        self.held, self.targets, self.k_hold = held, targets, k_hold
-        n = potential.n_dofs // 2
-        m = obs.shape[0]
-        b = sp.coo_matrix((w.ravel(), (np.repeat(np.arange(m), 3), tris.ravel())), shape=(m, n)).tocsr()
-        hold = np.zeros(n)
-        np.add.at(hold, held, k_hold)
-        self._h = (sp.kron(k * (b.T @ b), sp.identity(2)) + sp.diags(np.repeat(hold, 2))).tocsr()
-
-    def _residual(self, x: np.ndarray) -> np.ndarray:
-        return (self.w[:, :, None] * x[self.tris]).sum(axis=1) - self.obs
-
-    def value(self, x: np.ndarray) -> float:
-        d = self._residual(x)
-        h = x[self.held] - self.targets
-        return self.pot.value(x) + 0.5 * self.k * float((d * d).sum()) + 0.5 * self.k_hold * float((h * h).sum())
-
-    def gradient(self, x: np.ndarray) -> np.ndarray:
-        g = self.pot.gradient(x)
-        d = self.k * self._residual(x)
-        for j in range(3):
-            np.add.at(g, self.tris[:, j], self.w[:, j, None] * d)
-        np.add.at(g, self.held, self.k_hold * (x[self.held] - self.targets))
-        return g
-
-    def hessian(self, x: np.ndarray, project: bool = False):
-        return self.pot.hessian(x, project) + self._h
-
-
-def embed(points: np.ndarray, x: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each point (P, 2) as barycentric weights in a triangle of the mesh at positions ``x``: (tris (P, 3),
-    weights (P, 3)). The triangle that contains the point (the largest smallest weight); a point outside every
-    triangle (just off the surface) takes the one whose smallest weight is largest, its weights clipped to >= 0
-    and renormalised."""
-    a, b, c = x[tris[:, 0]], x[tris[:, 1]], x[tris[:, 2]]
-    v0, v1 = b - a, c - a
-    den = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
-    den = np.where(den == 0.0, np.inf, den)  # a degenerate triangle contains nothing
-    out_t = np.zeros((len(points), 3), dtype=np.int64)
-    out_w = np.zeros((len(points), 3))
-    for k, p in enumerate(points):
-        d = p - a
-        w1 = (d[:, 0] * v1[:, 1] - d[:, 1] * v1[:, 0]) / den
-        w2 = (v0[:, 0] * d[:, 1] - v0[:, 1] * d[:, 0]) / den
-        w = np.stack([1.0 - w1 - w2, w1, w2], axis=1)
-        t = int(np.argmax(w.min(axis=1)))
-        wt = np.clip(w[t], 0.0, None)
-        out_t[k] = tris[t]
-        out_w[k] = wt / wt.sum() if wt.sum() > 0 else (1.0, 0.0, 0.0)
-    return out_t, out_w
-
-
-def _particles(idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Particles ``idx`` as embedded points: tris (i, i, i), weights (1, 0, 0)."""
-    tris = np.repeat(np.asarray(idx, dtype=np.int64)[:, None], 3, axis=1)
-    w = np.zeros((len(idx), 3))
-    w[:, 0] = 1.0
-    return tris, w
-
-
 def _finite_point(name: str, p: Any) -> np.ndarray:
     try:
         a = np.asarray(p, dtype=np.float64).reshape(-1)
@@ -356,7 +285,7 @@ class TissueController:
             if idx.shape[0] != pts.shape[0] or (idx.size and (idx.min() < 0 or idx.max() >= self.n)):
                 raise InputError(f"particle ids of shape {idx.shape} in [{idx.min() if idx.size else 0}, "
                                  f"{idx.max() if idx.size else 0}]: expected one id per point in [0, {self.n - 1}]")
-            tris, w = _particles(idx)
+            tris, w = particle_points(idx)
             rows = np.arange(idx.shape[0])
         ok = np.isfinite(pts).all(axis=1)  # a tracker's lost points are unobserved
         if not ok.any():
@@ -367,7 +296,7 @@ class TissueController:
         """The first observation's points bound to the model: (kept point indices, tris, weights)."""
         self.n_points = pts.shape[0]
         if pts.shape[0] == self.n:  # the model's own particles (the node's tissue/points of the same mesh)
-            return (np.arange(self.n),) + _particles(np.arange(self.n, dtype=np.int64))
+            return (np.arange(self.n),) + particle_points(np.arange(self.n, dtype=np.int64))
         # another mesh or a tracker's markers: each point embedded in the model's triangle under it (the model
         # as it stands: its rest shape, or its last sync), so a coarser model is tied at the material points
         # the tracker sees, not pulled toward them at its particles; points farther than half the model's
