@@ -139,7 +139,7 @@ def jacobi_areas(x, inv_mass, tris, area0, k, alpha, lam, signed, omega):
 
 
 def jacobi_relaxation(x, inv_mass, edges, alpha_e, tris, alpha_t, signed, scale):
-    """Per-constraint omega = scale / r_c, r_c the Gershgorin bound of kernels.jacobi_relaxation.
+    """Per-constraint omega = scale / r_c, r_c the Gershgorin bound of sweeps.jacobi_relaxation.
 
     Built as explicit per-constraint gradient-norm lists |g_cp| (edges 1, triangle
     vertex |opposite edge| / 2, 0 when degenerate), then the two sums.

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from tissue_sim_ros.core.physics import kernels
+from tissue_sim_ros.core.physics import kernels, sweeps
 from tissue_sim_ros.core.physics.solvers import colour_constraints
 
 import naive
@@ -77,7 +77,7 @@ def test_solve_edges(scene, k: float, alpha: float) -> None:
     s = scene()
     lam0 = s["rng"].normal(0, 1e-3, len(s["edges"])) if alpha else np.zeros(len(s["edges"]))
     x, lam = s["x"].copy(), lam0.copy()
-    kernels.solve_edges(x, s["inv_mass"], s["edges"], s["rest"], k, alpha, lam)
+    sweeps.solve_edges(x, s["inv_mass"], s["edges"], s["rest"], k, alpha, lam)
     ref_x, ref_lam = naive.solve_edges(s["x"], s["inv_mass"], s["edges"], s["rest"], k, alpha, lam0)
     close(x, ref_x)
     close(lam, ref_lam)
@@ -91,7 +91,7 @@ def test_solve_areas(scene, k: float, alpha: float, signed: bool) -> None:
     s = scene()
     lam0 = s["rng"].normal(0, 1e-3, len(s["tris"])) if alpha else np.zeros(len(s["tris"]))
     x, lam = s["x"].copy(), lam0.copy()
-    kernels.solve_areas(x, s["inv_mass"], s["tris"], s["area0"], k, alpha, lam, signed)
+    sweeps.solve_areas(x, s["inv_mass"], s["tris"], s["area0"], k, alpha, lam, signed)
     ref_x, ref_lam = naive.solve_areas(s["x"], s["inv_mass"], s["tris"], s["area0"], k, alpha, lam0, signed)
     close(x, ref_x)
     close(lam, ref_lam)
@@ -103,13 +103,13 @@ def test_degenerate_projections_move_nothing() -> None:
     x = np.zeros((3, 2))
     w = np.ones(3)
     lam = np.zeros(3)
-    kernels.solve_edges(x, w, np.array([[0, 1], [1, 2], [0, 2]], np.int32), np.full(3, 0.1), 1.0, 0.0, lam)
+    sweeps.solve_edges(x, w, np.array([[0, 1], [1, 2], [0, 2]], np.int32), np.full(3, 0.1), 1.0, 0.0, lam)
     assert (x == 0).all() and (lam == 0).all()
     x = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])  # collinear, area 0
-    kernels.solve_areas(x, w, np.array([[0, 1, 2]], np.int32), np.array([0.5]), 1.0, 0.0, lam, False)
+    sweeps.solve_areas(x, w, np.array([[0, 1, 2]], np.int32), np.array([0.5]), 1.0, 0.0, lam, False)
     assert (x[:, 1] == 0).all()
     # the signed form has a gradient on a collinear triangle and pushes it open
-    kernels.solve_areas(x, w, np.array([[0, 1, 2]], np.int32), np.array([0.5]), 1.0, 0.0, lam, True)
+    sweeps.solve_areas(x, w, np.array([[0, 1, 2]], np.int32), np.array([0.5]), 1.0, 0.0, lam, True)
     assert np.isfinite(x).all() and abs(naive.area_value(x, 0, 1, 2) - 0.5) < 1e-12
 
 
@@ -121,12 +121,12 @@ def test_coloured_parallel_equals_serial_in_colour_order(seed: int) -> None:
     e, r = np.ascontiguousarray(s["edges"][order_e]), np.ascontiguousarray(s["rest"][order_e])
     t, a0 = np.ascontiguousarray(s["tris"][order_t]), np.ascontiguousarray(s["area0"][order_t])
     x_par, lam_par = s["x"].copy(), np.zeros(len(e))
-    kernels.solve_edges_coloured(x_par, s["inv_mass"], e, r, 1.0, 1e-2, lam_par, off_e)
+    sweeps.solve_edges_coloured(x_par, s["inv_mass"], e, r, 1.0, 1e-2, lam_par, off_e)
     ref_x, ref_lam = naive.solve_edges(s["x"], s["inv_mass"], e, r, 1.0, 1e-2, np.zeros(len(e)))
     close(x_par, ref_x)
     close(lam_par, ref_lam)
     lam_t = np.zeros(len(t))
-    kernels.solve_areas_coloured(x_par, s["inv_mass"], t, a0, 1.0, 1e-2, lam_t, True, off_t)
+    sweeps.solve_areas_coloured(x_par, s["inv_mass"], t, a0, 1.0, 1e-2, lam_t, True, off_t)
     ref_x, ref_lam = naive.solve_areas(ref_x, s["inv_mass"], t, a0, 1.0, 1e-2, np.zeros(len(t)), True)
     close(x_par, ref_x)
     close(lam_t, ref_lam)
@@ -140,8 +140,8 @@ def test_jacobi_passes_and_apply(scene, signed: bool) -> None:
     omega_t = s["rng"].uniform(0.2, 1.0, len(s["tris"]))
     lam_e, lam_t = np.zeros(len(s["edges"])), np.zeros(len(s["tris"]))
     acc = np.zeros_like(s["x"])
-    kernels.jacobi_edges(s["x"], s["inv_mass"], s["edges"], s["rest"], 1.0, 1e-2, lam_e, omega_e, acc)
-    kernels.jacobi_areas(s["x"], s["inv_mass"], s["tris"], s["area0"], 1.0, 1e-2, lam_t, signed, omega_t, acc)
+    sweeps.jacobi_edges(s["x"], s["inv_mass"], s["edges"], s["rest"], 1.0, 1e-2, lam_e, omega_e, acc)
+    sweeps.jacobi_areas(s["x"], s["inv_mass"], s["tris"], s["area0"], 1.0, 1e-2, lam_t, signed, omega_t, acc)
     dx_e, ref_lam_e = naive.jacobi_edges(s["x"], s["inv_mass"], s["edges"], s["rest"], 1.0, 1e-2,
                                          np.zeros(len(s["edges"])), omega_e)
     dx_t, ref_lam_t = naive.jacobi_areas(s["x"], s["inv_mass"], s["tris"], s["area0"], 1.0, 1e-2,
@@ -151,7 +151,7 @@ def test_jacobi_passes_and_apply(scene, signed: bool) -> None:
     close(lam_t, ref_lam_t)
     scale = s["rng"].uniform(0.1, 1.0, len(s["x"]))
     x = s["x"].copy()
-    kernels.jacobi_apply(x, acc, scale)
+    sweeps.jacobi_apply(x, acc, scale)
     close(x, s["x"] + scale[:, None] * (dx_e + dx_t))
     assert (acc == 0).all()
 
@@ -162,7 +162,7 @@ def test_jacobi_passes_and_apply(scene, signed: bool) -> None:
 def test_jacobi_relaxation(scene, signed: bool, alpha: float) -> None:
     s = scene()
     om_e, om_t = np.zeros(len(s["edges"])), np.zeros(len(s["tris"]))
-    kernels.jacobi_relaxation(s["x"], s["inv_mass"], s["edges"], alpha, s["tris"], 10 * alpha, signed, 1.8,
+    sweeps.jacobi_relaxation(s["x"], s["inv_mass"], s["edges"], alpha, s["tris"], 10 * alpha, signed, 1.8,
                               np.zeros(len(s["x"])), om_e, om_t)
     ref_e, ref_t = naive.jacobi_relaxation(s["x"], s["inv_mass"], s["edges"], alpha, s["tris"], 10 * alpha, signed, 1.8)
     close(om_e, ref_e)
@@ -201,7 +201,7 @@ def test_jacobi_relaxation_bounds_the_spectrum() -> None:
     A = J @ np.diag(np.repeat(w, 2)) @ J.T + np.diag(alphas)
     D = np.diag(A)
     om_e, om_t = np.zeros(len(s["edges"])), np.zeros(len(s["tris"]))
-    kernels.jacobi_relaxation(x, w, s["edges"], alpha_e, s["tris"], alpha_t, True, 1.8, np.zeros(len(x)), om_e, om_t)
+    sweeps.jacobi_relaxation(x, w, s["edges"], alpha_e, s["tris"], alpha_t, True, 1.8, np.zeros(len(x)), om_e, om_t)
     omega = np.concatenate([om_e, om_t])
     rho = max(abs(np.linalg.eigvals(np.eye(len(D)) - (omega / D)[:, None] * A)))
     rho_uniform = max(abs(np.linalg.eigvals(np.eye(len(D)) - (1.0 / D)[:, None] * A)))
@@ -294,12 +294,12 @@ def test_wavefront_levels_and_schedule_reproduce_mesh_order_exactly(seed: int) -
     assert not (pe == np.arange(len(pe))).all()
     x_mesh, x_wave = s["x"].copy(), s["x"].copy()
     lam_mesh, lam_wave = np.zeros(len(pe)), np.zeros(len(pe))
-    kernels.solve_edges(x_mesh, s["inv_mass"], s["edges"], s["rest"], 1.0, 1e-2, lam_mesh)
-    kernels.solve_edges(x_wave, s["inv_mass"], np.ascontiguousarray(s["edges"][pe]), s["rest"][pe], 1.0, 1e-2, lam_wave)
+    sweeps.solve_edges(x_mesh, s["inv_mass"], s["edges"], s["rest"], 1.0, 1e-2, lam_mesh)
+    sweeps.solve_edges(x_wave, s["inv_mass"], np.ascontiguousarray(s["edges"][pe]), s["rest"][pe], 1.0, 1e-2, lam_wave)
     np.testing.assert_array_equal(x_wave, x_mesh)
     np.testing.assert_array_equal(lam_wave, lam_mesh[pe])
-    kernels.solve_areas(x_mesh, s["inv_mass"], s["tris"], s["area0"], 1.0, 0.0, np.zeros(len(pt)), True)
-    kernels.solve_areas(x_wave, s["inv_mass"], np.ascontiguousarray(s["tris"][pt]), s["area0"][pt], 1.0, 0.0,
+    sweeps.solve_areas(x_mesh, s["inv_mass"], s["tris"], s["area0"], 1.0, 0.0, np.zeros(len(pt)), True)
+    sweeps.solve_areas(x_wave, s["inv_mass"], np.ascontiguousarray(s["tris"][pt]), s["area0"][pt], 1.0, 0.0,
                         np.zeros(len(pt)), True)
     np.testing.assert_array_equal(x_wave, x_mesh)
 
@@ -323,7 +323,7 @@ def test_partitioned_sweep_equals_serial_sweep_part_by_part(seed: int) -> None:
         else:
             assert (members_e.min(axis=1) != members_e.max(axis=1)).all()
     x, lam_e, lam_t = s["x"].copy(), np.zeros(len(e)), np.zeros(len(t))
-    kernels.solve_partitioned(x, s["inv_mass"], e, r, 1.0, 1e-2, lam_e, off_e, t, a0, 1.0, 1e-2, lam_t, off_t, True)
+    sweeps.solve_partitioned(x, s["inv_mass"], e, r, 1.0, 1e-2, lam_e, off_e, t, a0, 1.0, 1e-2, lam_t, off_t, True)
     ref, ref_le, ref_lt = s["x"].copy(), np.zeros(len(e)), np.zeros(len(t))
     for g in range(3):
         ge, gt = slice(off_e[g], off_e[g + 1]), slice(off_t[g], off_t[g + 1])
@@ -342,15 +342,15 @@ def test_pbd_sweeps_without_multipliers(scene, signed: bool) -> None:
     s = scene()
     k = 0.7
     x = s["x"].copy()
-    kernels.solve_edges_pbd_range(x, s["inv_mass"], s["edges"], s["rest"], k, 0, len(s["edges"]))
-    kernels.solve_areas_pbd_range(x, s["inv_mass"], s["tris"], s["area0"], k, signed, 0, len(s["tris"]))
+    sweeps.solve_edges_pbd_range(x, s["inv_mass"], s["edges"], s["rest"], k, 0, len(s["edges"]))
+    sweeps.solve_areas_pbd_range(x, s["inv_mass"], s["tris"], s["area0"], k, signed, 0, len(s["tris"]))
     ref_x, _ = naive.solve_edges(s["x"], s["inv_mass"], s["edges"], s["rest"], k, 0.0, np.zeros(len(s["edges"])))
     ref_x, _ = naive.solve_areas(ref_x, s["inv_mass"], s["tris"], s["area0"], k, 0.0, np.zeros(len(s["tris"])),
                                  signed)
     close(x, ref_x)
     y = s["x"].copy()
-    kernels.solve_edges(y, s["inv_mass"], s["edges"], s["rest"], k, 0.0, s["rng"].normal(0, 1, len(s["edges"])))
-    kernels.solve_areas(y, s["inv_mass"], s["tris"], s["area0"], k, 0.0, s["rng"].normal(0, 1, len(s["tris"])),
+    sweeps.solve_edges(y, s["inv_mass"], s["edges"], s["rest"], k, 0.0, s["rng"].normal(0, 1, len(s["edges"])))
+    sweeps.solve_areas(y, s["inv_mass"], s["tris"], s["area0"], k, 0.0, s["rng"].normal(0, 1, len(s["tris"])),
                         signed)
     assert np.array_equal(x, y)
     assert not np.array_equal(x, s["x"])  # the sweep moved something

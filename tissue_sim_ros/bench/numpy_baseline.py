@@ -83,7 +83,7 @@ class NumpyJacobiSolver:
         return a, b, c, ga, gb, gc, C
 
     def _omega(self, x: np.ndarray, w: np.ndarray, alpha_e: float, alpha_t: float, scale: float):
-        """The stiffness-aware (Gershgorin) omega of kernels.jacobi_relaxation, vectorised."""
+        """The stiffness-aware (Gershgorin) omega of sweeps.jacobi_relaxation, vectorised."""
         n = len(x)
         i, j, _, _, okl = self._edge_terms(x, np.ones_like(w))
         g_e = okl.astype(float)

@@ -132,7 +132,7 @@ def lumped_mass(q0: np.ndarray, tris: np.ndarray, density: float, thickness: flo
 def _deformation_gradient(x: np.ndarray, a: int, b: int, c: int, cbx: float, cby: float, ccx: float,
                           ccy: float):
     """F = D_s D_m^-1 = (x_b - x_a) c_b^T + (x_c - x_a) c_c^T of element (a, b, c) at ``x``, shared by every
-    element kernel (inlined, as ``kernels._area_constraint``: the same operations in the same order as the
+    element kernel (inlined, as ``sweeps._area_constraint``: the same operations in the same order as the
     block it replaced, so the same bits).
 
     (cbx, cby), (ccx, ccy) are c_b, c_c: rows of D_m^-1 (``elastic[t, 0:2]``, ``elastic[t, 2:4]``).
@@ -234,7 +234,7 @@ def solve_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elasti
 @njit(cache=True, parallel=True)
 def solve_elements_partitioned(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elastic: np.ndarray,
                                inv_h2: float, lam: np.ndarray, offsets: np.ndarray) -> None:
-    """One sweep, domain-decomposed (as :func:`~tissue_sim_ros.core.physics.kernels.solve_partitioned`): parts, then separator."""
+    """One sweep, domain-decomposed (as :func:`~tissue_sim_ros.core.physics.sweeps.solve_partitioned`): parts, then separator."""
     n_parts = offsets.shape[0] - 2
     for part in prange(n_parts):
         solve_elements_range(x, inv_mass, tris, elastic, inv_h2, lam, offsets[part], offsets[part + 1])
@@ -326,7 +326,7 @@ def jacobi_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elast
 @njit(cache=True, nogil=True)
 def jacobi_relaxation_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elastic: np.ndarray,
                                inv_h2: float, scale: float, node_sum: np.ndarray, omega: np.ndarray) -> None:
-    """Per-row relaxation omega = scale / r with r a Gershgorin bound (as ``kernels.jacobi_relaxation``).
+    """Per-row relaxation omega = scale / r with r a Gershgorin bound (as ``sweeps.jacobi_relaxation``).
 
     Rows: the deviatoric pair (both rows have the same D and gradient lengths |c_p|)
     and the hydrostatic row (gradient lengths |cof(F) c_p| at ``x``). With

@@ -1,4 +1,4 @@
-r"""PBD Jacobi as the paper authors' code averages it, and walls that keep every particle in a band.
+r"""PBD Jacobi as the paper authors' code averages it (their walls: :mod:`~tissue_sim_ros.core.physics.walls`).
 
 The authors' ``forward()`` (y8han/2DPBD_Interface, ``Surgical_spring_IROS_workshop.py``,
 commit a0ff238) solves the springs and areas in parallel (Jacobi), but it does not
@@ -27,7 +27,7 @@ moved, as the authors' ``actuation_type == 2`` particles). After the
 corrections are applied every particle, pinned ones too, is clamped into
 the walls (their ``collision_check``): y < y_bottom -> y_bottom, y > y_top -> y_top.
 
-:func:`~tissue_sim_ros.core.physics.kernels.jacobi_iterations` with per-particle scale
+:func:`~tissue_sim_ros.core.physics.sweeps.jacobi_iterations` with per-particle scale
 1 / (all constraints at i) is the other averaging (``jacobi_averaging: all``).
 Twins: ``test/naive.py`` (``authors_forward``, written from the authors' code
 line by line, and ``apply_walls``).
@@ -40,30 +40,10 @@ import numpy as np
 from numba import njit
 
 from ..contact.kernels import project_edges, project_tool
+from .walls import apply_walls
 
 #: Squared length [m^2] below which an edge (or a triangle's gradient) counts as degenerate.
 EPS_LEN2 = 1e-30
-
-
-@njit(cache=True, nogil=True)
-def apply_walls(x: np.ndarray, y_bottom: float, y_top: float) -> int:
-    """Keep every particle between the walls: y < y_bottom -> y_bottom, y > y_top -> y_top.
-
-    All particles, pinned ones too (the authors' ``collision_check``); a NaN wall
-    is absent. Velocities are not touched: the step's velocity update
-    v = (x - x_start) / h sees the clamped positions. Returns how many moved.
-    """
-    has_b = not math.isnan(y_bottom)
-    has_t = not math.isnan(y_top)
-    moved = 0
-    for i in range(x.shape[0]):
-        if has_b and x[i, 1] < y_bottom:
-            x[i, 1] = y_bottom
-            moved += 1
-        if has_t and x[i, 1] > y_top:
-            x[i, 1] = y_top
-            moved += 1
-    return moved
 
 
 @njit(cache=True, nogil=True)
@@ -176,7 +156,7 @@ def violated_jacobi_iterations(x: np.ndarray, w: np.ndarray, w_move: np.ndarray,
                                x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
                                dx_accum: np.ndarray, surface_edges: np.ndarray, edge_side_tol: float) -> None:
     """``iterations`` of :func:`violated_jacobi_pass`, each followed by the tool projection (projection
-    contact, as :func:`~tissue_sim_ros.core.physics.kernels.jacobi_iterations`) and the walls (:func:`apply_walls`)."""
+    contact, as :func:`~tissue_sim_ros.core.physics.sweeps.jacobi_iterations`) and the walls (:func:`apply_walls`)."""
     for _ in range(iterations):
         violated_jacobi_pass(x, w, w_move, edges, rest, k_e, tol_e, tris, area0, k_t, tol_a, signed,
                              dxs, dxa, ns, na)
