@@ -347,7 +347,7 @@ def measure_sleeping(scene: Scene, setting: Setting, sleep_settings: Sequence[di
     Error = ||x_sleeping - x_awake|| / ||x_awake - x(0)|| at the end of the run;
     times are medians over the whole run and over its second half (once regions have gone to sleep).
     """
-    from ..core.physics.sleeping import SleepingSolver  # noqa: PLC0415
+    from ..core.physics.solvers.sleeping import SleepingSolver  # noqa: PLC0415
 
     runs = []
     for cfg in (None, *sleep_settings):

@@ -34,15 +34,13 @@ from .kernels import (
     constraint_residual,
     count_inverted,
     energy_terms_kernel,
-    gauss_seidel_iterations,
     hold_displaced,
-    jacobi_iterations,
-    jacobi_relaxation,
     place_held,
     predict,
     update_velocity,
 )
-from .violated_jacobi import apply_walls
+from .sweeps import gauss_seidel_iterations, jacobi_iterations, jacobi_relaxation
+from .walls import apply_walls
 
 
 @njit(cache=True, nogil=True)

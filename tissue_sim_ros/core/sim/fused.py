@@ -50,7 +50,7 @@ from ..physics.kernels import (
 )
 from ..physics.material import strain_energy_kernel
 from ..physics.quasi_newton import quasi_newton_solve
-from ..physics.violated_jacobi import apply_walls
+from ..physics.walls import apply_walls
 from .simulation import Simulation
 from .snapshot import SimSnapshot
 

@@ -51,7 +51,7 @@ SolverFactory = Callable[[Model], Any]
 def default_solver(model: Model) -> Any:
     """The solver a Model's parameters ask for: sleeping when ``sleep_speed`` > 0, else :class:`Solver`."""
     if model.params.sleep_speed > 0:
-        from ..physics.sleeping import SleepingSolver  # noqa: PLC0415  (a scene that asks for it)
+        from ..physics.solvers.sleeping import SleepingSolver  # noqa: PLC0415  (a scene that asks for it)
 
         return SleepingSolver(model, wake_radius=model.params.sleep_wake_radius, sleep_speed=model.params.sleep_speed)
     return Solver(model)

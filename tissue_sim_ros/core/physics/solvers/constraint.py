@@ -44,13 +44,23 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from ..contact.collision import Contacts
-from ..errors import InputError
-from . import kernels, material
-from .attach import project_attachments
-from .model import Model, State
-from .quasi_newton import MaterialSolve
-from .violated_jacobi import apply_walls, violated_jacobi_iterations
+from ...contact.collision import Contacts
+from ...errors import InputError
+from .. import kernels, material, sweeps
+from ..attach import project_attachments
+from ..model import Model, State
+from ..quasi_newton import MaterialSolve
+from ..violated_jacobi import violated_jacobi_iterations
+from ..walls import apply_walls
+from .ordering import (
+    JACOBI_RELAXATIONS,
+    ORDERS,
+    PARALLEL_MODES,
+    colour_constraints,
+    partition_constraints,
+    partition_particles,
+    wavefront_order,
+)
 
 @dataclass
 class SolveInfo:
@@ -153,16 +163,16 @@ class Solver:
         self.edge_offsets = np.array([0, edges.shape[0]], dtype=np.int64)
         self.tri_offsets = np.array([0, tris.shape[0]], dtype=np.int64)
         perm_e = perm_t = None
-        self.gs_mode = kernels.GS_SERIAL
+        self.gs_mode = sweeps.GS_SERIAL
         if self.order == "partition":
             part = partition_particles(model.particle_q0, self.n_parts, model.edge_indices)
             perm_e, self.edge_offsets = partition_constraints(edges, part, self.n_parts)
             perm_t, self.tri_offsets = partition_constraints(tris, part, self.n_parts)
-            self.gs_mode = kernels.GS_PARTITIONED
+            self.gs_mode = sweeps.GS_PARTITIONED
         elif self.order == "colour":
             perm_e, self.edge_offsets = colour_constraints(edges, n)
             perm_t, self.tri_offsets = colour_constraints(tris, n)
-            self.gs_mode = kernels.GS_COLOURED if self.parallel else kernels.GS_SERIAL
+            self.gs_mode = sweeps.GS_COLOURED if self.parallel else sweeps.GS_SERIAL
         elif self.order == "mesh" and not self.jacobi:
             perm_e, perm_t = wavefront_order(edges, n), wavefront_order(tris, n)
         if perm_e is not None:
@@ -282,7 +292,7 @@ class Solver:
             # a parallel colour order runs serially here (the elements have no coloured kernel)
             for _ in range(n_calls):
                 material.material_gauss_seidel(x, w, self.tris, self.elastic, inv_h2, self.lam_m, self.tri_offsets,
-                                               self.gs_mode == kernels.GS_PARTITIONED, per_call, self.x_start,
+                                               self.gs_mode == sweeps.GS_PARTITIONED, per_call, self.x_start,
                                                cand, self._shape0, self._shape1, self.contact_dx, surf, edge_side_tol)
                 if attach is not None:
                     project_attachments(x, w, attach[0], attach[1], attach[2], self.lam_a)
@@ -304,7 +314,7 @@ class Solver:
             return self._step_quasi_newton(state_in, state_out, contacts, dt)
         if not self.compiled:
             return self.step_reference(state_in, state_out, contacts, dt)
-        from .step_kernels import solve_step  # noqa: PLC0415
+        from ..step_kernels import solve_step  # noqa: PLC0415
 
         p = self.params
         held_idx, held_dx, candidates, surface_edges, projection = self._check_step(state_in, state_out, contacts,
@@ -481,21 +491,21 @@ class Solver:
             else:
                 # with walls: one iteration per kernel call, the walls after each (as the authors' loop)
                 # with attachments: one iteration per kernel call, the attachments after each (after the tool)
-                sweeps = [1] * p.iterations if (self.walls or attach is not None) else [p.iterations]
+                calls = [1] * p.iterations if (self.walls or attach is not None) else [p.iterations]
                 if self.jacobi and p.method == "xpbd" and self.jacobi_relaxation == "stiffness":
-                    kernels.jacobi_relaxation(x, w, edges, alpha_e, tris, alpha_t, self.signed, self.relaxation_scale,
+                    sweeps.jacobi_relaxation(x, w, edges, alpha_e, tris, alpha_t, self.signed, self.relaxation_scale,
                                               self._node_sum, self.omega_e, self.omega_t)
                 edge_set = (edges, rest, self.edge_offsets)
                 tri_set = (tris, area0, self.tri_offsets)
-                tool = kernels.tool_pack(self.x_start, cand, self._shape0, self._shape1, self.contact_dx, surf,
+                tool = sweeps.tool_pack(self.x_start, cand, self._shape0, self._shape1, self.contact_dx, surf,
                                          contacts.edge_side_tol)
-                for iters in sweeps:
+                for iters in calls:
                     if self.jacobi:
-                        kernels.jacobi_iterations(x, w, edge_set, tri_set, tool, k_e, alpha_e, self.lam_e,
+                        sweeps.jacobi_iterations(x, w, edge_set, tri_set, tool, k_e, alpha_e, self.lam_e,
                                                   self.omega_e, k_t, alpha_t, self.lam_t, self.omega_t,
                                                   self.signed, iters, self.particle_scale, self._dx_acc)
                     else:
-                        kernels.gauss_seidel_iterations(x, w, edge_set, tri_set, tool, k_e, alpha_e, self.lam_e,
+                        sweeps.gauss_seidel_iterations(x, w, edge_set, tri_set, tool, k_e, alpha_e, self.lam_e,
                                                         k_t, alpha_t, self.lam_t, self.signed, iters, self.gs_mode)
                     if attach is not None:
                         project_attachments(x, w, attach[0], attach[1], attach[2], self.lam_a)

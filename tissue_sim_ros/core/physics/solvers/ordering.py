@@ -11,6 +11,9 @@ import numpy as np
 
 from .. import kernels
 
+PARALLEL_MODES = ("partition", "colour")
+JACOBI_RELAXATIONS = ("stiffness", "uniform")
+
 #: Smallest mesh for which ``parallel=True`` is worth trying: below it the
 #: fork-join per sweep costs more than the sweep (``tissue-sim bench solver``,
 #: row ``xpbd_gs_parallel``: 0.7-1.0x serial at 500 particles). The parallel path
@@ -28,8 +31,6 @@ ORDERS = ("mesh", "colour", "stored")
 #: Constraints per wavefront block: a block's particles stay in the L1 cache
 #: (see kernels.wavefront_levels; chosen with ``tissue-sim bench solver``).
 WAVEFRONT_BLOCK = 4096
-PARALLEL_MODES = ("partition", "colour")
-JACOBI_RELAXATIONS = ("stiffness", "uniform")
 
 
 def colour_constraints(indices: np.ndarray, n_particles: int) -> tuple[np.ndarray, np.ndarray]:

@@ -23,11 +23,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..contact.collision import Contacts
-from ..errors import InputError
-from ..mesh import TissueMesh, edges_from_triangles
-from .model import Model, State
-from .solvers import SolveInfo, Solver
+from ...contact.collision import Contacts
+from ...errors import InputError
+from ...mesh import TissueMesh, edges_from_triangles
+from ..model import Model, State
+from .constraint import SolveInfo, Solver
 
 
 class SleepingSolver:

@@ -1,0 +1,3 @@
+"""The solvers."""
+from .constraint import SolveInfo, Solver  # noqa: F401
+from .ordering import PARALLEL_MIN_PARTICLES, colour_constraints, partition_constraints, partition_particles, wavefront_order  # noqa: F401
