@@ -16,8 +16,8 @@ from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_rectangle
 from tissue_sim_ros.core.physics import kernels
 from tissue_sim_ros.core.physics.model import Model
-from tissue_sim_ros.core.physics.solvers.sleeping import SleepingSolver
 from tissue_sim_ros.core.physics.solvers import Solver
+from tissue_sim_ros.core.physics.solvers.sleeping import SleepingSolver
 from tissue_sim_ros.core.sim.simulation import Simulation, StepDetail
 
 STRIP = mesh_rectangle(0.4, 0.2, 0.05)

@@ -8,8 +8,8 @@ from tissue_sim_ros.core.contact.collision import Contacts
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_rectangle
 from tissue_sim_ros.core.physics.model import Model, SimParams
-from tissue_sim_ros.core.physics.solvers.sleeping import SleepingSolver
 from tissue_sim_ros.core.physics.solvers import Solver
+from tissue_sim_ros.core.physics.solvers.sleeping import SleepingSolver
 
 
 def _model(gravity: float = -9.8) -> Model:

@@ -62,6 +62,7 @@ from .ordering import (
     wavefront_order,
 )
 
+
 @dataclass
 class SolveInfo:
     """What a solve hands back to the Simulation.
