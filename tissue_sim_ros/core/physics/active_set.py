@@ -19,8 +19,9 @@ import math
 import numpy as np
 from numba import njit
 
-from ..contact.kernels import _rounded_box_sdf, project_edges, project_tool
+from ..contact.kernels import _rounded_box_sdf
 from .prefactor import apply_inverse
+from .sweeps import tool_contact
 
 #: Constraint kinds per particle in the solve.
 FREE, TOOL, FIXED, LINE, EDGE, CORNER = 0, 1, 2, 3, 4, 5
@@ -117,7 +118,7 @@ def enforce_bounds(x: np.ndarray, x_start: np.ndarray, w: np.ndarray, kind: np.n
             i = candidates[k]
             scratch[i, 0] = 0.0
             scratch[i, 1] = 0.0
-        project_tool(x, x_start, w, candidates, shape0, shape1, scratch)
+        tool_contact(x, w, (x_start, candidates, shape0, shape1, scratch, surface_edges[:0], side_tol))
         for k in range(candidates.shape[0]):
             i = candidates[k]
             moved += _join(i, TOOL, kind, normal, scratch, turns)
@@ -127,7 +128,7 @@ def enforce_bounds(x: np.ndarray, x_start: np.ndarray, w: np.ndarray, kind: np.n
                 i = surface_edges[k, j]
                 scratch[i, 0] = 0.0
                 scratch[i, 1] = 0.0
-        project_edges(x, x_start, w, surface_edges, shape0, shape1, side_tol, scratch)
+        tool_contact(x, w, (x_start, candidates[:0], shape0, shape1, scratch, surface_edges, side_tol))
         for k in range(surface_edges.shape[0]):
             for j in range(2):
                 moved += _join(surface_edges[k, j], EDGE, kind, normal, scratch, turns)

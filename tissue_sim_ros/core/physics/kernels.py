@@ -28,6 +28,43 @@ if "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER ==
 EPS_LEN2 = 1e-30
 
 
+
+# ----------------------------------------------------------------------------- triangle geometry (inlined)
+
+
+@njit(cache=True, inline="always")
+def tri_edges(x: np.ndarray, a: int, b: int, c: int) -> tuple[float, float, float, float]:
+    """Edge vectors e1 = x_b - x_a and e2 = x_c - x_a of triangle (a, b, c) at ``x`` [m]: (e1x, e1y, e2x, e2y).
+
+    The one place a triangle's geometry is read: the signed area (:func:`tri_cross`), the area constraint's
+    gradients (:func:`area_gradients`) and the material's deformation gradient start here. Inlined, so each
+    caller compiles it under its own fast-math flags.
+    """
+    return x[b, 0] - x[a, 0], x[b, 1] - x[a, 1], x[c, 0] - x[a, 0], x[c, 1] - x[a, 1]
+
+
+@njit(cache=True, inline="always")
+def tri_cross(x: np.ndarray, a: int, b: int, c: int) -> float:
+    """(x_b - x_a) x (x_c - x_a): twice the signed area of triangle (a, b, c) at ``x`` [m^2] (> 0: CCW)."""
+    e1x, e1y, e2x, e2y = tri_edges(x, a, b, c)
+    return e1x * e2y - e1y * e2x
+
+
+@njit(cache=True, inline="always")
+def area_gradients(e1x: float, e1y: float, e2x: float, e2y: float,
+                   sg: float) -> tuple[float, float, float, float, float, float]:
+    """Gradients of sg (e1 x e2) at the corners a, b, c: (ga_x, ga_y, gb_x, gb_y, gc_x, gc_y).
+
+    grad_b = sg (e2y, -e2x), grad_c = sg (-e1y, e1x), grad_a = -(grad_b + grad_c); sg = 1/2 gives the signed
+    area's gradient, -1/2 the gradient of |area| of an inverted triangle.
+    """
+    gbx = sg * e2y
+    gby = -sg * e2x
+    gcx = -sg * e1y
+    gcy = sg * e1x
+    return -gbx - gcx, -gby - gcy, gbx, gby, gcx, gcy
+
+
 # ----------------------------------------------------------------------------- prediction
 
 
@@ -172,7 +209,7 @@ def energy_terms_kernel(x: np.ndarray, x_pred: np.ndarray, mass: np.ndarray, par
         a = tris[t, 0]
         b = tris[t, 1]
         c = tris[t, 2]
-        A = 0.5 * ((x[b, 0] - x[a, 0]) * (x[c, 1] - x[a, 1]) - (x[b, 1] - x[a, 1]) * (x[c, 0] - x[a, 0]))
+        A = 0.5 * tri_cross(x, a, b, c)
         C = A - area0[t] if signed else abs(A) - abs(area0[t])
         area[tri_body[t]] += ha * C * C
 
@@ -198,7 +235,7 @@ def constraint_residual(x: np.ndarray, edges: np.ndarray, rest: np.ndarray, tris
         a = tris[t, 0]
         b = tris[t, 1]
         c = tris[t, 2]
-        A = 0.5 * ((x[b, 0] - x[a, 0]) * (x[c, 1] - x[a, 1]) - (x[b, 1] - x[a, 1]) * (x[c, 0] - x[a, 0]))
+        A = 0.5 * tri_cross(x, a, b, c)
         C = A - area0[t] if signed else abs(A) - abs(area0[t])
         if area0[t] != 0.0:
             C /= abs(area0[t])
@@ -217,7 +254,7 @@ def count_inverted(x: np.ndarray, tris: np.ndarray) -> int:
         a = tris[t, 0]
         b = tris[t, 1]
         c = tris[t, 2]
-        if (x[b, 0] - x[a, 0]) * (x[c, 1] - x[a, 1]) - (x[b, 1] - x[a, 1]) * (x[c, 0] - x[a, 0]) <= 0.0:
+        if tri_cross(x, a, b, c) <= 0.0:
             n += 1
     return n
 

@@ -62,7 +62,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ..contact.kernels import project_edges, project_tool
+from .kernels import tri_edges
+from .sweeps import tool_contact
 
 #: Rest areas [m^2] at or below this (relative to the mean) make a degenerate element (skipped).
 EPS_AREA_REL = 1e-12
@@ -138,11 +139,43 @@ def _deformation_gradient(x: np.ndarray, a: int, b: int, c: int, cbx: float, cby
     (cbx, cby), (ccx, ccy) are c_b, c_c: rows of D_m^-1 (``elastic[t, 0:2]``, ``elastic[t, 2:4]``).
     Returns (F00, F01, F10, F11).
     """
-    e1x = x[b, 0] - x[a, 0]
-    e1y = x[b, 1] - x[a, 1]
-    e2x = x[c, 0] - x[a, 0]
-    e2y = x[c, 1] - x[a, 1]
+    e1x, e1y, e2x, e2y = tri_edges(x, a, b, c)
     return e1x * cbx + e2x * ccx, e1x * cby + e2x * ccy, e1y * cbx + e2y * ccx, e1y * cby + e2y * ccy
+
+
+@njit(cache=True, inline="always")
+def neo_hookean_element(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, t: int, scale: float):
+    """Element ``t``'s strain energy V0 Psi(F) [J] and ``scale`` times its gradient, shared by the strain energy,
+    the elastic forces and the minimisation's potential (inlined into each).
+
+    E_t = 1/2 (|g|^2 / alpha_D + C_H^2 / alpha_H) with g = (F00 - F11, F01 + F10), C_H = det F - 1 and the packed
+    compliances alpha = ``elastic[t, 4:6]`` (module docstring); dE_t/dx_p = (dE/dg_0) grad g_0 + (dE/dg_1) grad g_1
+    + (dE/dC_H) cof(F) c_p. Returns (a, b, c, E_t, then scale dE_t/dx at a, b, c as six components); the caller
+    skips a degenerate element (a compliance <= 0) before calling.
+    """
+    a = tris[t, 0]
+    b = tris[t, 1]
+    c = tris[t, 2]
+    ad = elastic[t, 4]
+    ah = elastic[t, 5]
+    cbx = elastic[t, 0]
+    cby = elastic[t, 1]
+    ccx = elastic[t, 2]
+    ccy = elastic[t, 3]
+    cax = -cbx - ccx
+    cay = -cby - ccy
+    f00, f01, f10, f11 = _deformation_gradient(x, a, b, c, cbx, cby, ccx, ccy)
+    g0 = f00 - f11
+    g1 = f01 + f10
+    ch = f00 * f11 - f01 * f10 - 1.0
+    energy = 0.5 * ((g0 * g0 + g1 * g1) / ad + ch * ch / ah)
+    kd = scale * g0 / ad  # dE/dg_0
+    kd1 = scale * g1 / ad
+    kh = scale * ch / ah
+    return (a, b, c, energy,
+            kd * cax + kd1 * cay + kh * (f11 * cax - f10 * cay), kd1 * cax - kd * cay + kh * (-f01 * cax + f00 * cay),
+            kd * cbx + kd1 * cby + kh * (f11 * cbx - f10 * cby), kd1 * cbx - kd * cby + kh * (-f01 * cbx + f00 * cby),
+            kd * ccx + kd1 * ccy + kh * (f11 * ccx - f10 * ccy), kd1 * ccx - kd * ccy + kh * (-f01 * ccx + f00 * ccy))
 
 
 @njit(cache=True, nogil=True)
@@ -253,10 +286,7 @@ def material_gauss_seidel(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray,
             solve_elements_partitioned(x, inv_mass, tris, elastic, inv_h2, lam, offsets)
         else:
             solve_elements(x, inv_mass, tris, elastic, inv_h2, lam)
-        if candidates.shape[0] > 0:
-            project_tool(x, x_start, inv_mass, candidates, shape0, shape1, dx_accum)
-        if surface_edges.shape[0] > 0:
-            project_edges(x, x_start, inv_mass, surface_edges, shape0, shape1, edge_side_tol, dx_accum)
+        tool_contact(x, inv_mass, (x_start, candidates, shape0, shape1, dx_accum, surface_edges, edge_side_tol))
 
 
 # ----------------------------------------------------------------------------- Jacobi
@@ -424,10 +454,7 @@ def material_jacobi(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elast
             x[i, 1] += dx_acc[i, 1]
             dx_acc[i, 0] = 0.0
             dx_acc[i, 1] = 0.0
-        if candidates.shape[0] > 0:
-            project_tool(x, x_start, inv_mass, candidates, shape0, shape1, dx_accum)
-        if surface_edges.shape[0] > 0:
-            project_edges(x, x_start, inv_mass, surface_edges, shape0, shape1, edge_side_tol, dx_accum)
+        tool_contact(x, inv_mass, (x_start, candidates, shape0, shape1, dx_accum, surface_edges, edge_side_tol))
 
 
 # ----------------------------------------------------------------------------- energy and forces
@@ -441,51 +468,25 @@ def strain_energy_kernel(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, t
     With k_D = 1/(mu V0) and k_H = 1/(lambda' V0) the packed compliances (``elastic[:, 4:6]``).
     """
     for t in range(tris.shape[0]):
-        ad = elastic[t, 4]
-        ah = elastic[t, 5]
-        if ad <= 0.0 or ah <= 0.0:
+        if elastic[t, 4] <= 0.0 or elastic[t, 5] <= 0.0:
             continue
-        a = tris[t, 0]
-        b = tris[t, 1]
-        c = tris[t, 2]
-        cbx = elastic[t, 0]
-        cby = elastic[t, 1]
-        ccx = elastic[t, 2]
-        ccy = elastic[t, 3]
-        f00, f01, f10, f11 = _deformation_gradient(x, a, b, c, cbx, cby, ccx, ccy)
-        g0 = f00 - f11
-        g1 = f01 + f10
-        ch = f00 * f11 - f01 * f10 - 1.0
-        out[tri_body[t]] += 0.5 * ((g0 * g0 + g1 * g1) / ad + ch * ch / ah)
+        energy = neo_hookean_element(x, tris, elastic, t, 1.0)[3]
+        out[tri_body[t]] += energy
 
 
 @njit(cache=True, nogil=True)
 def elastic_forces(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, out: np.ndarray) -> None:
     """Internal elastic force on each particle [N], -dE_strain/dx, added into ``out`` (N, 2)."""
     for t in range(tris.shape[0]):
-        ad = elastic[t, 4]
-        ah = elastic[t, 5]
-        if ad <= 0.0 or ah <= 0.0:
+        if elastic[t, 4] <= 0.0 or elastic[t, 5] <= 0.0:
             continue
-        a = tris[t, 0]
-        b = tris[t, 1]
-        c = tris[t, 2]
-        cbx = elastic[t, 0]
-        cby = elastic[t, 1]
-        ccx = elastic[t, 2]
-        ccy = elastic[t, 3]
-        cax = -cbx - ccx
-        cay = -cby - ccy
-        f00, f01, f10, f11 = _deformation_gradient(x, a, b, c, cbx, cby, ccx, ccy)
-        kd = (f00 - f11) / ad  # dE/dg_0
-        kd1 = (f01 + f10) / ad
-        kh = (f00 * f11 - f01 * f10 - 1.0) / ah
-        out[a, 0] -= kd * cax + kd1 * cay + kh * (f11 * cax - f10 * cay)
-        out[a, 1] -= kd1 * cax - kd * cay + kh * (-f01 * cax + f00 * cay)
-        out[b, 0] -= kd * cbx + kd1 * cby + kh * (f11 * cbx - f10 * cby)
-        out[b, 1] -= kd1 * cbx - kd * cby + kh * (-f01 * cbx + f00 * cby)
-        out[c, 0] -= kd * ccx + kd1 * ccy + kh * (f11 * ccx - f10 * ccy)
-        out[c, 1] -= kd1 * ccx - kd * ccy + kh * (-f01 * ccx + f00 * ccy)
+        a, b, c, _, gax, gay, gbx, gby, gcx, gcy = neo_hookean_element(x, tris, elastic, t, 1.0)
+        out[a, 0] -= gax
+        out[a, 1] -= gay
+        out[b, 0] -= gbx
+        out[b, 1] -= gby
+        out[c, 0] -= gcx
+        out[c, 1] -= gcy
 
 
 def strain_energy(model, x: np.ndarray) -> np.ndarray:

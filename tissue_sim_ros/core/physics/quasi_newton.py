@@ -64,7 +64,7 @@ from .active_set import (  # noqa: F401
     project_vector,
     touching,
 )
-from .material import _deformation_gradient
+from .material import neo_hookean_element
 from .prefactor import Prefactor, active_key, apply_inverse  # noqa: F401
 
 #: Backtracking halvings of the line search at most.
@@ -94,33 +94,16 @@ def potential_and_gradient(x: np.ndarray, x_pred: np.ndarray, mass: np.ndarray, 
         g[2 * i + 1] = mass[i] * ry
     strain = 0.0
     for t in range(tris.shape[0]):
-        ad = elastic[t, 4]
-        ah = elastic[t, 5]
-        if ad <= 0.0 or ah <= 0.0:
+        if elastic[t, 4] <= 0.0 or elastic[t, 5] <= 0.0:
             continue
-        a = tris[t, 0]
-        b = tris[t, 1]
-        c = tris[t, 2]
-        cbx = elastic[t, 0]
-        cby = elastic[t, 1]
-        ccx = elastic[t, 2]
-        ccy = elastic[t, 3]
-        cax = -cbx - ccx
-        cay = -cby - ccy
-        f00, f01, f10, f11 = _deformation_gradient(x, a, b, c, cbx, cby, ccx, ccy)
-        g0 = f00 - f11
-        g1 = f01 + f10
-        ch = f00 * f11 - f01 * f10 - 1.0
-        strain += 0.5 * ((g0 * g0 + g1 * g1) / ad + ch * ch / ah)
-        kd = dt2 * g0 / ad
-        kd1 = dt2 * g1 / ad
-        kh = dt2 * ch / ah
-        g[2 * a] += kd * cax + kd1 * cay + kh * (f11 * cax - f10 * cay)
-        g[2 * a + 1] += kd1 * cax - kd * cay + kh * (-f01 * cax + f00 * cay)
-        g[2 * b] += kd * cbx + kd1 * cby + kh * (f11 * cbx - f10 * cby)
-        g[2 * b + 1] += kd1 * cbx - kd * cby + kh * (-f01 * cbx + f00 * cby)
-        g[2 * c] += kd * ccx + kd1 * ccy + kh * (f11 * ccx - f10 * ccy)
-        g[2 * c + 1] += kd1 * ccx - kd * ccy + kh * (-f01 * ccx + f00 * ccy)
+        a, b, c, energy, gax, gay, gbx, gby, gcx, gcy = neo_hookean_element(x, tris, elastic, t, dt2)
+        strain += energy
+        g[2 * a] += gax
+        g[2 * a + 1] += gay
+        g[2 * b] += gbx
+        g[2 * b + 1] += gby
+        g[2 * c] += gcx
+        g[2 * c + 1] += gcy
     e += dt2 * strain
     for k in range(attach_idx.shape[0]):
         i = attach_idx[k]

@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit, prange, uint32
 
 from ..contact.kernels import project_edges, project_tool
-from .kernels import EPS_LEN2
+from .kernels import EPS_LEN2, area_gradients, tri_edges
 
 #: Fast-math flags of the distance-projection kernels: only fused multiply-add
 #: contraction (6% fewer cycles per projection at 8k particles). No flag that
@@ -49,6 +49,21 @@ GS_SERIAL = 0
 GS_COLOURED = 1
 GS_PARTITIONED = 2
 
+
+
+@njit(cache=True, inline="always")
+def tool_contact(x: np.ndarray, inv_mass: np.ndarray, tool: tuple) -> None:
+    """The projection contact after a sweep: the candidate particles, then the surface edges, kept out of the tool
+    swept over the (sub)step (:func:`~tissue_sim_ros.core.contact.kernels.project_tool`,
+    :func:`~tissue_sim_ros.core.contact.kernels.project_edges`), their corrections summed into the bundle's
+    ``dx_accum``. ``tool`` = (x_start (N, 2), candidates (C,) int32, shape0 (7,), shape1 (7,), dx_accum (N, 2),
+    surface_edges (K, 2) int32, edge_side_tol [m]) (:func:`tool_pack`); empty candidates and edges: nothing.
+    Every sweep of every solver ends with it, so the tool has the last word in an iteration."""
+    x_start, candidates, shape0, shape1, dx_accum, surface_edges, edge_side_tol = tool
+    if candidates.shape[0] > 0:
+        project_tool(x, x_start, inv_mass, candidates, shape0, shape1, dx_accum)
+    if surface_edges.shape[0] > 0:
+        project_edges(x, x_start, inv_mass, surface_edges, shape0, shape1, edge_side_tol, dx_accum)
 
 # ----------------------------------------------------------------------------- Gauss-Seidel projections
 
@@ -145,10 +160,7 @@ def _area_constraint(x: np.ndarray, a: int, b: int, c: int, a0: float, signed: b
     grad_b = sg (e2y, -e2x), grad_c = sg (-e1y, e1x), grad_a = -(grad_b + grad_c), sg = 1/2 (abs: its sign).
     Returns C, the three gradients' components and their squared norms.
     """
-    e1x = x[b, 0] - x[a, 0]
-    e1y = x[b, 1] - x[a, 1]
-    e2x = x[c, 0] - x[a, 0]
-    e2y = x[c, 1] - x[a, 1]
+    e1x, e1y, e2x, e2y = tri_edges(x, a, b, c)
     area = 0.5 * (e1x * e2y - e1y * e2x)
     if signed:
         sg = 0.5
@@ -156,12 +168,7 @@ def _area_constraint(x: np.ndarray, a: int, b: int, c: int, a0: float, signed: b
     else:
         sg = 0.5 if area > 0.0 else (-0.5 if area < 0.0 else 0.0)
         C = abs(area) - abs(a0)
-    gbx = sg * e2y
-    gby = -sg * e2x
-    gcx = -sg * e1y
-    gcy = sg * e1x
-    gax = -gbx - gcx
-    gay = -gby - gcy
+    gax, gay, gbx, gby, gcx, gcy = area_gradients(e1x, e1y, e2x, e2y, sg)
     return C, gax, gay, gbx, gby, gcx, gcy, gax * gax + gay * gay, gbx * gbx + gby * gby, gcx * gcx + gcy * gcy
 
 
@@ -387,7 +394,6 @@ def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple
     """
     edges, rest, edge_offsets = edge_set
     tris, area0, tri_offsets = tri_set
-    x_start, candidates, shape0, shape1, dx_accum, surface_edges, edge_side_tol = tool
     # skip_multipliers: the paper's PBD (alpha 0 for both types) sweeps serially without multipliers (they
     # never enter its projections: the same positions bit for bit); lam_e, lam_t stay as they were
     pbd = skip_multipliers and alpha_e == 0.0 and alpha_t == 0.0
@@ -404,10 +410,7 @@ def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple
         else:
             solve_edges(x, inv_mass, edges, rest, k_e, alpha_e, lam_e)
             solve_areas(x, inv_mass, tris, area0, k_t, alpha_t, lam_t, signed)
-        if candidates.shape[0] > 0:
-            project_tool(x, x_start, inv_mass, candidates, shape0, shape1, dx_accum)
-        if surface_edges.shape[0] > 0:
-            project_edges(x, x_start, inv_mass, surface_edges, shape0, shape1, edge_side_tol, dx_accum)
+        tool_contact(x, inv_mass, tool)
 
 
 # ----------------------------------------------------------------------------- Jacobi
@@ -593,15 +596,11 @@ def jacobi_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple, tri_
     """
     edges, rest, _edge_offsets = edge_set
     tris, area0, _tri_offsets = tri_set
-    x_start, candidates, shape0, shape1, dx_accum, surface_edges, edge_side_tol = tool
     for _ in range(iterations):
         jacobi_edges(x, inv_mass, edges, rest, k_e, alpha_e, lam_e, omega_e, dx_acc)
         jacobi_areas(x, inv_mass, tris, area0, k_t, alpha_t, lam_t, signed, omega_t, dx_acc)
         jacobi_apply(x, dx_acc, particle_scale)
-        if candidates.shape[0] > 0:
-            project_tool(x, x_start, inv_mass, candidates, shape0, shape1, dx_accum)
-        if surface_edges.shape[0] > 0:
-            project_edges(x, x_start, inv_mass, surface_edges, shape0, shape1, edge_side_tol, dx_accum)
+        tool_contact(x, inv_mass, tool)
 
 
 def tool_pack(x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,

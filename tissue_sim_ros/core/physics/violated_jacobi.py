@@ -39,7 +39,8 @@ import math
 import numpy as np
 from numba import njit
 
-from ..contact.kernels import project_edges, project_tool
+from .kernels import area_gradients, tri_edges
+from .sweeps import tool_contact
 from .walls import apply_walls
 
 #: Squared length [m^2] below which an edge (or a triangle's gradient) counts as degenerate.
@@ -102,10 +103,7 @@ def violated_jacobi_pass(x: np.ndarray, w: np.ndarray, w_move: np.ndarray,
         a = tris[t, 0]
         b = tris[t, 1]
         c = tris[t, 2]
-        e1x = x[b, 0] - x[a, 0]
-        e1y = x[b, 1] - x[a, 1]
-        e2x = x[c, 0] - x[a, 0]
-        e2y = x[c, 1] - x[a, 1]
+        e1x, e1y, e2x, e2y = tri_edges(x, a, b, c)
         area = 0.5 * (e1x * e2y - e1y * e2x)
         if signed:
             C = area - area0[t]
@@ -120,12 +118,7 @@ def violated_jacobi_pass(x: np.ndarray, w: np.ndarray, w_move: np.ndarray,
         na[c] += 1.0
         if not signed and area == 0.0:
             continue
-        gbx = sg * e2y
-        gby = -sg * e2x
-        gcx = -sg * e1y
-        gcy = sg * e1x
-        gax = -gbx - gcx
-        gay = -gby - gcy
+        gax, gay, gbx, gby, gcx, gcy = area_gradients(e1x, e1y, e2x, e2y, sg)
         den = (w[a] * (gax * gax + gay * gay) + w[b] * (gbx * gbx + gby * gby)
                + w[c] * (gcx * gcx + gcy * gcy))
         if den <= 0.0:
@@ -160,8 +153,5 @@ def violated_jacobi_iterations(x: np.ndarray, w: np.ndarray, w_move: np.ndarray,
     for _ in range(iterations):
         violated_jacobi_pass(x, w, w_move, edges, rest, k_e, tol_e, tris, area0, k_t, tol_a, signed,
                              dxs, dxa, ns, na)
-        if candidates.shape[0] > 0:
-            project_tool(x, x_start, w_move, candidates, shape0, shape1, dx_accum)
-        if surface_edges.shape[0] > 0:
-            project_edges(x, x_start, w_move, surface_edges, shape0, shape1, edge_side_tol, dx_accum)
+        tool_contact(x, w_move, (x_start, candidates, shape0, shape1, dx_accum, surface_edges, edge_side_tol))
         apply_walls(x, y_bottom, y_top)
