@@ -238,9 +238,9 @@ def test_violated_pass_matches_their_update_on_a_distorted_mesh():
     w_move[held] = 0.0
     for tol_e, tol_a in ((1e-4, 1e-11), (0.003, 2e-5), (0.0, 0.0)):
         got = x.copy()
-        scratch = [np.zeros((n, 2)), np.zeros((n, 2)), np.zeros(n), np.zeros(n)]
-        violated_jacobi_pass(got, w, w_move, edges.astype(np.int32), rest_e, 0.2, tol_e, tris.astype(np.int32), a0,
-                             1.0, tol_a, False, *scratch)
+        scratch = (np.zeros((n, 2)), np.zeros((n, 2)), np.zeros(n), np.zeros(n))
+        violated_jacobi_pass(got, w, w_move, (edges.astype(np.int32), rest_e, 0.2, tol_e, tris.astype(np.int32), a0,
+                                              1.0, tol_a, False), scratch)
         want, _, _ = naive.authors_forward(x, np.zeros((n, 2)), rest, tris, area, masses, act, stiffness=0.2,
                                            damping=0.0, dt=1.0, gravity=0.0, iterations=1, wall_bottom=NAN,
                                            wall_top=NAN, epsilon=tol_e, area_epsilon=tol_a)

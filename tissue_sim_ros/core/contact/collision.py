@@ -72,12 +72,10 @@ from .kernels import (
     EDGE_SIDE_TOL_MIN,
     body_nearest,
     compact_triangles,
-    gather_surface_edges,
     near_triangles,
     paper_displacement,
     points_sdf,
-    swept_candidates,
-    swept_edge_candidates,
+    projection_candidates,
 )
 from .tool import ToolPose, ToolShape, ToolTwist, tool_shape_array
 
@@ -230,6 +228,7 @@ class ContactModel:
         self._edge_cand = np.empty(self.boundary_edges.shape[0], dtype=np.int32)
         self._edge_rows = np.empty((self.boundary_edges.shape[0], 2), dtype=np.int32)
         self._is_cand = np.zeros(n, dtype=bool)
+        self._projection_ws = (self._cand, self._edge_cand, self._is_cand, self._edge_rows)
         self._body_min = np.empty(model.n_bodies)
         self._body_arg = np.empty(model.n_bodies, dtype=np.int32)
         self._pose = ToolPose(0.0, 0.0, 0.0)
@@ -351,34 +350,28 @@ class ContactModel:
 
     def _detect_projection(self, state: State, pose0: ToolPose, pose1: ToolPose, dt: float,
                            contacts: Contacts) -> None:
-        """Candidates for the in-solver projection: particles near the tool swept over the step.
-
-        The pad is the largest plausible particle displacement in the step: free
-        flight (|v| dt + |g| dt^2) plus the tool's own travel (a particle pushed
-        or dragged along by the tool moves at most about as far as the tool).
-        """
+        """Candidates for the in-solver projection: particles (and boundary edges) near the tool swept over the
+        step (:func:`~.kernels.projection_candidates`)."""
         p = self.model.params
         shape0 = tool_shape_array(self.tool, pose0, p.contact_margin)
         shape1 = tool_shape_array(self.tool, pose1, p.contact_margin)
-        qd = state.particle_qd
-        vmax = float(np.sqrt((qd * qd).sum(axis=1).max())) if qd.shape[0] else 0.0
-        radius = math.hypot(shape1[4], shape1[5]) + shape1[6]
-        dyaw = abs(math.atan2(math.sin(pose1.yaw - pose0.yaw), math.cos(pose1.yaw - pose0.yaw)))
-        # the rounded box's centre (the pose, but the grasper's envelope centre: it turns about its tip)
-        travel = math.hypot(shape1[0] - shape0[0], shape1[1] - shape0[1]) + dyaw * radius
-        reach = vmax * dt + abs(p.gravity) * dt * dt + travel
-        x = np.ascontiguousarray(state.particle_q)
-        inv_mass = self.model.particle_inv_mass
-        n = swept_candidates(x, inv_mass, shape0, shape1, reach, self._cand)
-        if p.contact_surface == "edges" and self.boundary_edges.shape[0]:
-            k = swept_edge_candidates(x, inv_mass, self.boundary_edges, shape0, shape1, reach, self._edge_cand)
+        use_edges = p.contact_surface == "edges" and self.boundary_edges.shape[0] > 0
+        n, k = projection_candidates(np.ascontiguousarray(state.particle_q), state.particle_qd,
+                                     self.model.particle_inv_mass, shape0, shape1,
+                                     (float(dt), abs(p.gravity) * dt * dt, tool_travel(shape0, shape1, pose0, pose1)),
+                                     (self.boundary_edges, use_edges), self._projection_ws)
+        if use_edges:
             if k:
-                # the edges' free particles join the particle candidates: the solver runs the projection
-                # when either set is non-empty, and a particle an edge moves is tested against the tool too
-                n = gather_surface_edges(self.boundary_edges, self._edge_cand, k, inv_mass, self._cand, n,
-                                         self._is_cand, self._edge_rows)
                 contacts.surface_edges = self._edge_rows[:k].copy()
             contacts.edge_side_tol = max(p.contact_margin, EDGE_SIDE_TOL_MIN)
         contacts.candidates = self._cand[:n].copy()
         contacts.tool_shape0 = shape0
         contacts.tool_shape1 = shape1
+
+
+def tool_travel(shape0: np.ndarray, shape1: np.ndarray, pose0: ToolPose, pose1: ToolPose) -> float:
+    """How far a point of the tool moves in a step [m], at most: its rounded box's centre's travel (the grasper's
+    envelope turns about its tip) plus the turn times the box's radius."""
+    radius = math.hypot(shape1[4], shape1[5]) + shape1[6]
+    dyaw = abs(math.atan2(math.sin(pose1.yaw - pose0.yaw), math.cos(pose1.yaw - pose0.yaw)))
+    return math.hypot(shape1[0] - shape0[0], shape1[1] - shape0[1]) + dyaw * radius

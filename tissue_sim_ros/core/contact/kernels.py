@@ -597,3 +597,38 @@ def swept_candidates(x: np.ndarray, inv_mass: np.ndarray, shape0: np.ndarray, sh
             out[n] = i
             n += 1
     return n
+
+
+@njit(cache=True, nogil=True)
+def projection_candidates(x: np.ndarray, v: np.ndarray, inv_mass: np.ndarray, shape0: np.ndarray,
+                          shape1: np.ndarray, pad: tuple, surface: tuple, ws: tuple) -> tuple[int, int]:
+    """The projection contact's candidates of one step: the free particles, and the boundary edges, near the tool
+    swept from ``shape0`` to ``shape1`` (margin included); returns (particles, edges).
+
+    The reach is the largest plausible particle displacement in the step: free flight (|v|max dt + |g| dt^2)
+    plus the tool's own travel (a particle pushed or dragged by the tool moves at most about as far as it);
+    ``pad`` = (dt [s], |g| dt^2 [m], travel [m]). ``surface`` = (boundary edges (K, 2) int32, use them): the
+    edges' free particles join the particle candidates (:func:`gather_surface_edges`), so the solver runs the
+    projection when either set is non-empty and a particle an edge moves is tested against the tool too. ``ws``
+    = (candidates (N,) int32 out, selected edges (K,) int32, a mark (N,) bool all False, edges (K, 2) int32 out).
+    The one detection the Simulation's step and a fused rollout share.
+    """
+    dt, free_fall, travel = pad
+    boundary_edges, use_edges = surface
+    cand, edge_sel, mark, edge_rows = ws
+    n = x.shape[0]
+    vmax2 = 0.0
+    for i in range(n):
+        q = v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]
+        if q > vmax2:
+            vmax2 = q
+    vmax = math.sqrt(vmax2) if n else 0.0
+    reach = vmax * dt + free_fall + travel
+    n_cand = swept_candidates(x, inv_mass, shape0, shape1, reach, cand)
+    n_edges = 0
+    if use_edges:
+        n_sel = swept_edge_candidates(x, inv_mass, boundary_edges, shape0, shape1, reach, edge_sel)
+        if n_sel:
+            n_cand = gather_surface_edges(boundary_edges, edge_sel, n_sel, inv_mass, cand, n_cand, mark, edge_rows)
+            n_edges = n_sel
+    return n_cand, n_edges

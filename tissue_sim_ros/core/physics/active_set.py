@@ -35,6 +35,8 @@ MAX_TURNS = 3
 TOUCH_EPS = 1e-9
 #: Pushes of the contacts at or below this [m] are round-off and hold nothing.
 PUSH_EPS = 1e-12
+#: The elimination's workspace, in the order of its bundle (:func:`build_constraints`).
+ELIMINATION_FIELDS = ("wcol", "wkey", "cur_slot", "cur_i", "cur_n", "cur_c", "smat", "sinv", "used", "t")
 
 
 @njit(cache=True, nogil=True)
@@ -101,16 +103,18 @@ def touching(x: np.ndarray, kind: np.ndarray, normal: np.ndarray, candidates: np
 
 
 @njit(cache=True, nogil=True)
-def enforce_bounds(x: np.ndarray, x_start: np.ndarray, w: np.ndarray, kind: np.ndarray, normal: np.ndarray,
-                   candidates: np.ndarray, surface_edges: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
-                   side_tol: float, scratch: np.ndarray, y_top: float, y_bottom: float, wall_bottom: float,
-                   wall_top: float, turns: np.ndarray) -> int:
+def enforce_bounds(x: np.ndarray, w: np.ndarray, kind: np.ndarray, normal: np.ndarray, tool: tuple, lines: tuple,
+                   scratch: np.ndarray, turns: np.ndarray) -> int:
     """Put back every free particle past the tool, a line or a wall, and hold it along the push (its normal).
 
-    The tool: ``project_tool`` / ``project_edges`` (swept from ``x_start`` and ``shape0`` to ``x`` and
-    ``shape1``), the push's direction its normal (kind TOOL). Lines and walls: y clamped, normal +-y (LINE).
+    The tool: ``tool`` = (x_start, candidates, shape0, shape1, dx_accum, surface_edges, side_tol), the bundle of
+    ``sweeps.tool_contact`` (its ``dx_accum`` unused here: the pushes go to ``scratch``), swept from ``x_start``
+    and ``shape0`` to ``x`` and ``shape1``; the push's direction is the normal (kind TOOL, EDGE). Lines and walls:
+    ``lines`` = (y_top, y_bottom, wall_bottom, wall_top) [m] (NaN: none), y clamped, normal +-y (LINE).
     Returns how many particles joined the active set (a particle already held is moved back but not counted).
     """
+    x_start, candidates, shape0, shape1, _dx_accum, surface_edges, side_tol = tool
+    y_top, y_bottom, wall_bottom, wall_top = lines
     n = x.shape[0]
     moved = 0
     if candidates.shape[0] > 0:
@@ -165,11 +169,8 @@ def enforce_bounds(x: np.ndarray, x_start: np.ndarray, w: np.ndarray, kind: np.n
 
 @njit(cache=True, nogil=True)
 def build_constraints(kind: np.ndarray, normal: np.ndarray, inv_mass: np.ndarray, in_factor: np.ndarray,
-                      l_ptr: np.ndarray, l_idx: np.ndarray, l_val: np.ndarray, u_ptr: np.ndarray, u_idx: np.ndarray,
-                      u_val: np.ndarray, perm_r: np.ndarray, perm_c: np.ndarray, wcol: np.ndarray,
-                      wkey: np.ndarray, cur_slot: np.ndarray, cur_i: np.ndarray, cur_n: np.ndarray,
-                      smat: np.ndarray, sinv: np.ndarray, used: np.ndarray, b: np.ndarray, z: np.ndarray,
-                      attach_idx: np.ndarray, attach_c: float, cur_c: np.ndarray) -> int:
+                      factor: tuple, elim: tuple, b: np.ndarray, z: np.ndarray, attach_idx: np.ndarray,
+                      attach_c: float) -> int:
     """The active set's rows C for the preconditioner's exact elimination (:func:`apply_preconditioner`).
 
     Rows, in particle order: n_i at a TOOL or LINE particle the factor does not already hold
@@ -177,11 +178,18 @@ def build_constraints(kind: np.ndarray, normal: np.ndarray, inv_mass: np.ndarray
     by the paper contact, asleep); pinned ones are identity rows of A0. Then the unit x and y rows of each
     particle held to the tool by an attachment (``attach_idx``): a spring, not a constraint, of compliance
     ``attach_c`` = 1 / (dt^2 k) in these units, which enters S's diagonal (``cur_c``), so the preconditioner is
-    the inverse of A0 + C^T diag(1/c) C for them (Woodbury) and a stiff grasp does not slow the solve. Each row's column W = A0^-1 c is kept in
-    ``wcol`` under its key (particle, n_x, n_y) in ``wkey`` and reused while the factor is the same (its value
-    is a function of the key alone, so reuse changes no bit). S = C W and its inverse go to ``smat``, ``sinv``.
-    Returns the number of rows k, or -1 when they would exceed the workspace (no elimination then).
+    the inverse of A0 + C^T diag(1/c) C for them (Woodbury) and a stiff grasp does not slow the solve. Each row's
+    column W = A0^-1 c is kept in ``wcol`` under its key (particle, n_x, n_y) in ``wkey`` and reused while the
+    factor is the same (its value is a function of the key alone, so reuse changes no bit). S = C W and its
+    inverse go to ``smat``, ``sinv``. Returns the number of rows k, or -1 when they would exceed the workspace (no
+    elimination then).
+
+    ``factor``: A0's factor (:attr:`~tissue_sim_ros.core.physics.prefactor.Prefactor.arrays`); ``elim`` = (wcol
+    (cap, 2N), wkey (cap, 3), cur_slot (cap,), cur_i (cap,), cur_n (cap, 2), cur_c (cap,), smat (cap, cap), sinv
+    (cap, cap), used (cap,), t (cap,)) the elimination's workspace (:data:`ELIMINATION_FIELDS`); ``b``, ``z``
+    (2N,) scratch.
     """
+    wcol, wkey, cur_slot, cur_i, cur_n, cur_c, smat, sinv, used, _t = elim
     n = kind.shape[0]
     cap = wcol.shape[0]
     k = 0
@@ -232,7 +240,7 @@ def build_constraints(kind: np.ndarray, normal: np.ndarray, inv_mass: np.ndarray
         i = cur_i[a]
         b[2 * i] = cur_n[a, 0]
         b[2 * i + 1] = cur_n[a, 1]
-        apply_inverse(l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, perm_r, perm_c, b, z, wcol[free])
+        apply_inverse(factor, b, z, wcol[free])
         b[2 * i] = 0.0
         b[2 * i + 1] = 0.0
         wkey[free, 0] = i
@@ -253,14 +261,12 @@ def build_constraints(kind: np.ndarray, normal: np.ndarray, inv_mass: np.ndarray
 
 
 @njit(cache=True, nogil=True)
-def apply_preconditioner(l_ptr: np.ndarray, l_idx: np.ndarray, l_val: np.ndarray, u_ptr: np.ndarray,
-                         u_idx: np.ndarray, u_val: np.ndarray, perm_r: np.ndarray, perm_c: np.ndarray, q: np.ndarray,
-                         z: np.ndarray, out: np.ndarray, k: int, wcol: np.ndarray, cur_slot: np.ndarray,
-                         cur_i: np.ndarray, cur_n: np.ndarray, sinv: np.ndarray, t: np.ndarray) -> None:
+def apply_preconditioner(factor: tuple, elim: tuple, q: np.ndarray, z: np.ndarray, out: np.ndarray, k: int) -> None:
     """out = (A0^-1 - W S^-1 W^T) q with W = A0^-1 C^T, S = C W: the inverse of A0 on the active set's null
     space (the Newton step of the quadratic model min 1/2 d^T A0 d - q^T d subject to C d = 0), from the
-    rows :func:`build_constraints` made (k <= 0: A0^-1 q)."""
-    apply_inverse(l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, perm_r, perm_c, q, z, out)
+    rows :func:`build_constraints` made (k <= 0: A0^-1 q); ``factor``, ``elim`` as there, ``z`` (2N,) scratch."""
+    wcol, _wkey, cur_slot, cur_i, cur_n, _cur_c, _smat, sinv, _used, t = elim
+    apply_inverse(factor, q, z, out)
     if k <= 0:
         return
     for a in range(k):

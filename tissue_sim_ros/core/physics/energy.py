@@ -21,6 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ..errors import InputError
 from .kernels import energy_terms_kernel
@@ -72,12 +73,75 @@ class EnergyTerms:
 
     @classmethod
     def zeros(cls, n_bodies: int) -> "EnergyTerms":
-        return cls(np.zeros(n_bodies), np.zeros(n_bodies), np.zeros(n_bodies), np.zeros(n_bodies),
-                   np.zeros(n_bodies))
+        return cls(*(np.zeros(n_bodies) for _ in range(6)))
+
+    @property
+    def arrays(self) -> tuple:
+        """(inertial, spring, area, strain, potential, attach): the bundle :func:`step_energy` writes."""
+        return (self.inertial, self.spring, self.area, self.strain, self.potential, self.attach)
+
+
+def energy_model(model: Model) -> tuple:
+    """The model's part of :func:`step_energy`'s bundle ``terms``: (mass, particle_body, edge_set, tri_set, K_s, K_a,
+    signed, material, triangles, elastic, tri_body) (the material's constraint sets empty, K 0: its energy is the
+    strain)."""
+    p = model.params
+    edge_set = (model.edge_indices, model.edge_rest_length, model.edge_body)
+    tri_set = (model.tri_indices, model.tri_rest_area, model.tri_body)
+    if model.is_material:
+        edge_set = tuple(a[:0] for a in edge_set)
+        tri_set = tuple(a[:0] for a in tri_set)
+        k_spring = k_area = 0.0
+        signed = True
+    else:
+        k_spring, k_area, signed = p.k_spring_effective, p.k_area_effective, p.area_mode == "signed"
+    return (model.particle_mass, model.particle_body, edge_set, tri_set, float(k_spring), float(k_area), bool(signed),
+            bool(model.is_material), model.tri_indices, model.tri_elastic, model.tri_body)
+
+
+NO_ATTACH = (np.zeros(0, np.int64), np.zeros((0, 2)), 1.0)
+"""An empty attachment bundle of :func:`step_energy` (no grasp)."""
+
+
+@njit(cache=True, nogil=True)
+def step_energy(x: np.ndarray, x_pred: np.ndarray, terms: tuple, dt: float, attach: tuple, out: tuple) -> None:
+    """Every energy term of a step per body (module docstring) into ``out`` = (inertial, spring, area, strain,
+    potential, attach), (B,) float64 each, overwritten.
+
+    ``terms``: :func:`energy_model`. ``attach`` = (attach_idx (K,) int64, attach_target (K, 2) [m], compliance
+    [m/N]): the grasp's springs, dt^2 sum |x - target|^2 / (2 c) per body (``core/physics/attach.py``); K = 0:
+    none. The constraints' terms come from :func:`~tissue_sim_ros.core.physics.kernels.energy_terms_kernel` and
+    potential = (spring + area) / dt^2; the material's inertial term from it (no constraints), its potential from
+    :func:`~tissue_sim_ros.core.physics.material.strain_energy_kernel` and strain = dt^2 potential.
+    """
+    inertial, spring, area, strain, potential, e_attach = out
+    mass, body, edge_set, tri_set, k_spring, k_area, signed, material, tris, elastic, tri_body = terms
+    for b in range(inertial.shape[0]):
+        strain[b] = 0.0
+        potential[b] = 0.0
+        e_attach[b] = 0.0
+    energy_terms_kernel(x, x_pred, mass, body, edge_set, tri_set, (k_spring, k_area, dt, signed),
+                        (inertial, spring, area))
+    if material:
+        strain_energy_kernel(x, tris, elastic, tri_body, potential)
+        for b in range(inertial.shape[0]):
+            strain[b] = dt * dt * potential[b]
+    else:
+        for b in range(inertial.shape[0]):
+            potential[b] = (spring[b] + area[b]) / (dt * dt)
+    attach_idx, target, compliance = attach
+    if attach_idx.shape[0]:
+        for a in range(attach_idx.shape[0]):
+            i = attach_idx[a]
+            ex = x[i, 0] - target[a, 0]
+            ey = x[i, 1] - target[a, 1]
+            e_attach[body[i]] += 0.5 * (ex * ex + ey * ey) / compliance
+        for b in range(inertial.shape[0]):
+            e_attach[b] = dt * dt * e_attach[b]
 
 
 def energy_terms(model: Model, x: np.ndarray, x_pred: np.ndarray) -> EnergyTerms:
-    """Implicit Euler energy terms of positions ``x`` given predictions ``x_pred``, per body.
+    """Implicit Euler energy terms of positions ``x`` given predictions ``x_pred``, per body (no attachments).
 
     Parameters
     ----------
@@ -94,21 +158,6 @@ def energy_terms(model: Model, x: np.ndarray, x_pred: np.ndarray) -> EnergyTerms
     for name, arr in (("x", x), ("x_pred", x_pred)):
         if arr.shape != (n, 2):
             raise InputError(f"energy_terms: {name} has shape {arr.shape}: expected ({n}, 2)")
-    p = model.params
     out = EnergyTerms.zeros(model.n_bodies)
-    if model.is_material:
-        # inertial term only from the kernel (no springs, no areas), then the strain energy [J]
-        energy_terms_kernel(x, x_pred, model.particle_mass, model.particle_body,
-                            model.edge_indices[:0], model.edge_rest_length[:0], model.edge_body[:0],
-                            model.tri_indices[:0], model.tri_rest_area[:0], model.tri_body[:0],
-                            0.0, 0.0, p.dt, True, out.inertial, out.spring, out.area)
-        strain_energy_kernel(x, model.tri_indices, model.tri_elastic, model.tri_body, out.potential)
-        out.strain[:] = p.dt * p.dt * out.potential
-        return out
-    energy_terms_kernel(x, x_pred, model.particle_mass, model.particle_body,
-                        model.edge_indices, model.edge_rest_length, model.edge_body,
-                        model.tri_indices, model.tri_rest_area, model.tri_body,
-                        p.k_spring_effective, p.k_area_effective, p.dt, p.area_mode == "signed",
-                        out.inertial, out.spring, out.area)
-    out.potential[:] = (out.spring + out.area) / (p.dt * p.dt)
+    step_energy(x, x_pred, energy_model(model), float(model.params.dt), NO_ATTACH, out.arrays)
     return out

@@ -177,17 +177,20 @@ def apply_boundary_lines(x: np.ndarray, v: np.ndarray, inv_mass: np.ndarray, y_t
 
 @njit(cache=True, nogil=True)
 def energy_terms_kernel(x: np.ndarray, x_pred: np.ndarray, mass: np.ndarray, particle_body: np.ndarray,
-                        edges: np.ndarray, rest: np.ndarray, edge_body: np.ndarray,
-                        tris: np.ndarray, area0: np.ndarray, tri_body: np.ndarray,
-                        k_spring: float, k_area: float, dt: float, signed: bool,
-                        inertial: np.ndarray, spring: np.ndarray, area: np.ndarray) -> None:
-    """Implicit Euler energy terms per body.
+                        edge_set: tuple, tri_set: tuple, coeffs: tuple, out: tuple) -> None:
+    """Implicit Euler energy terms of the constraints per body.
 
     inertial_b = 1/2 sum_i m_i |x_i - x*_i|^2;
     spring_b = dt^2 sum_e 1/2 K_s (|x_a - x_b| - l0)^2 (current lengths only, so
     a rigid rotation leaves it unchanged); area_b = dt^2 sum_t 1/2 K_a C_t^2.
-    Outputs (B,) float64 are overwritten.
+    ``edge_set`` = (edges (E, 2), rest lengths (E,) [m], edge_body (E,)), ``tri_set`` = (triangles (T, 3),
+    signed rest areas (T,) [m^2], tri_body (T,)) (empty: none), ``coeffs`` = (K_s, K_a, dt [s], signed),
+    ``out`` = (inertial, spring, area), (B,) float64 each, overwritten.
     """
+    edges, rest, edge_body = edge_set
+    tris, area0, tri_body = tri_set
+    k_spring, k_area, dt, signed = coeffs
+    inertial, spring, area = out
     for b in range(inertial.shape[0]):
         inertial[b] = 0.0
         spring[b] = 0.0

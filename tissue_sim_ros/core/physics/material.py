@@ -277,16 +277,15 @@ def solve_elements_partitioned(x: np.ndarray, inv_mass: np.ndarray, tris: np.nda
 @njit(cache=True, nogil=True)
 def material_gauss_seidel(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elastic: np.ndarray,
                           inv_h2: float, lam: np.ndarray, offsets: np.ndarray, partitioned: bool,
-                          iterations: int, x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray,
-                          shape1: np.ndarray, dx_accum: np.ndarray, surface_edges: np.ndarray,
-                          edge_side_tol: float) -> None:
-    """``iterations`` sweeps: every element, then the tool (as ``kernels.gauss_seidel_iterations``)."""
+                          iterations: int, tool: tuple) -> None:
+    """``iterations`` sweeps: every element, then the tool (``sweeps.tool_contact``, ``tool`` its bundle), as
+    ``sweeps.gauss_seidel_iterations``."""
     for _ in range(iterations):
         if partitioned:
             solve_elements_partitioned(x, inv_mass, tris, elastic, inv_h2, lam, offsets)
         else:
             solve_elements(x, inv_mass, tris, elastic, inv_h2, lam)
-        tool_contact(x, inv_mass, (x_start, candidates, shape0, shape1, dx_accum, surface_edges, edge_side_tol))
+        tool_contact(x, inv_mass, tool)
 
 
 # ----------------------------------------------------------------------------- Jacobi
@@ -440,9 +439,9 @@ def jacobi_relaxation_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.nda
 @njit(cache=True, nogil=True)
 def material_jacobi(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elastic: np.ndarray,
                     inv_h2: float, lam: np.ndarray, omega: np.ndarray, iterations: int, dx_acc: np.ndarray,
-                    x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
-                    dx_accum: np.ndarray, surface_edges: np.ndarray, edge_side_tol: float) -> None:
-    """``iterations`` Jacobi sweeps (every element sees the sweep's start), then the tool each sweep.
+                    tool: tuple) -> None:
+    """``iterations`` Jacobi sweeps (every element sees the sweep's start), then the tool each sweep
+    (``sweeps.tool_contact``, ``tool`` its bundle).
 
     ``dx_acc`` (N, 2) must be zero on entry and is zero on exit.
     """
@@ -454,7 +453,7 @@ def material_jacobi(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elast
             x[i, 1] += dx_acc[i, 1]
             dx_acc[i, 0] = 0.0
             dx_acc[i, 1] = 0.0
-        tool_contact(x, inv_mass, (x_start, candidates, shape0, shape1, dx_accum, surface_edges, edge_side_tol))
+        tool_contact(x, inv_mass, tool)
 
 
 # ----------------------------------------------------------------------------- energy and forces

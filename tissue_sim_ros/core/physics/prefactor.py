@@ -80,6 +80,9 @@ class Prefactor:
                                               up.data.astype(np.float64))
         self.perm_r = lu.perm_r.astype(np.int64)
         self.perm_c = lu.perm_c.astype(np.int64)
+        self.arrays = (self.l_ptr, self.l_idx, self.l_val, self.u_ptr, self.u_idx, self.u_val, self.perm_r,
+                       self.perm_c)
+        """The factor as the compiled solve takes it (:func:`apply_inverse`'s ``factor``)."""
         self.nnz = int(lo.nnz + up.nnz)
         self.matrix = a
         self.scratch = np.zeros(2 * n)
@@ -87,20 +90,18 @@ class Prefactor:
     def solve(self, b: np.ndarray) -> np.ndarray:
         """A0^-1 b for a (2N,) vector (the compiled loop's own triangular solves, from Python; for tests)."""
         out = np.zeros_like(b, dtype=np.float64)
-        apply_inverse(self.l_ptr, self.l_idx, self.l_val, self.u_ptr, self.u_idx, self.u_val, self.perm_r,
-                      self.perm_c, np.ascontiguousarray(b, dtype=np.float64), self.scratch, out)
+        apply_inverse(self.arrays, np.ascontiguousarray(b, dtype=np.float64), self.scratch, out)
         return out
 
 
 @njit(cache=True, nogil=True)
-def apply_inverse(l_ptr: np.ndarray, l_idx: np.ndarray, l_val: np.ndarray, u_ptr: np.ndarray, u_idx: np.ndarray,
-                  u_val: np.ndarray, perm_r: np.ndarray, perm_c: np.ndarray, b: np.ndarray, z: np.ndarray,
-                  out: np.ndarray) -> None:
+def apply_inverse(factor: tuple, b: np.ndarray, z: np.ndarray, out: np.ndarray) -> None:
     """out = A0^-1 b with Pr A0 Pc = L U (SuperLU's convention): z = Pr b, L y = z, U w = y, out = Pc w.
 
-    L, U in CSC with sorted row indices; L's diagonal is each column's first entry, U's its last.
-    ``z`` (2N,) is scratch.
+    ``factor`` = (l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, perm_r, perm_c) (:attr:`Prefactor.arrays`): L, U in
+    CSC with sorted row indices; L's diagonal is each column's first entry, U's its last. ``z`` (2N,) is scratch.
     """
+    l_ptr, l_idx, l_val, u_ptr, u_idx, u_val, perm_r, perm_c = factor
     n = b.shape[0]
     for j in range(n):
         z[perm_r[j]] = b[j]

@@ -369,33 +369,29 @@ def solve_areas_coloured(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, 
 
 @njit(cache=True, nogil=True)
 def gauss_seidel_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple, tri_set: tuple, tool: tuple,
-                            k_e: float, alpha_e: float, lam_e: np.ndarray, k_t: float, alpha_t: float,
-                            lam_t: np.ndarray, signed: bool, iterations: int, mode: int,
+                            coeffs: tuple, mults: tuple, signed: bool, iterations: int, mode: int,
                             skip_multipliers: bool = False) -> None:
-    """``iterations`` Gauss-Seidel sweeps: all edges, then all triangles, then the tool.
+    """``iterations`` Gauss-Seidel sweeps: all edges, then all triangles, then the tool (:func:`tool_contact`).
 
     Pass empty ``edges``/``tris`` to switch a constraint type off. ``mode``:
     :data:`GS_SERIAL` sweeps in array order (offsets ignored);
     :data:`GS_COLOURED` needs constraints sorted by colour (``*_offsets``
     delimit colours) and runs each colour on all threads;
     :data:`GS_PARTITIONED` needs constraints grouped by part
-    (:func:`solve_partitioned`). The projection contact
-    (:func:`~tissue_sim_ros.core.contact.kernels.project_tool`) runs after the
-    constraints of every iteration, so the last word is the tool's and no
-    particle ends inside it; an empty ``candidates`` skips it. Then the
-    boundary edges ``surface_edges`` (K, 2) int32 (body on the left; empty:
-    none) are kept out of it (:func:`~tissue_sim_ros.core.contact.kernels.project_edges`).
+    (:func:`solve_partitioned`). The tool runs after the constraints of every
+    iteration, so the last word is the tool's and no particle ends inside it.
 
-    The constant arrays come packed: ``edge_set`` = (edges (E, 2) int32, rest
-    lengths (E,) [m], offsets (G + 1,) int64), ``tri_set`` = (triangles (T, 3)
-    int32, signed rest areas (T,) [m^2], offsets), and ``tool`` = (x_start
-    (N, 2), candidates (C,) int32, shape0 (7,), shape1 (7,), dx_accum (N, 2)
-    out, surface_edges (K, 2) int32, edge_side_tol [m]) (:func:`tool_pack`).
+    Bundles: ``edge_set`` = (edges (E, 2) int32, rest lengths (E,) [m], offsets (G + 1,) int64), ``tri_set`` =
+    (triangles (T, 3) int32, signed rest areas (T,) [m^2], offsets), ``tool`` as :func:`tool_contact` takes it
+    (:func:`tool_pack`), ``coeffs`` = (k_e, alpha_e, k_t, alpha_t) (PBD coefficients and compliances / h^2),
+    ``mults`` = (lam_e (E,), lam_t (T,), omega_e, omega_t) (the omegas unused here). ``skip_multipliers``: the
+    paper's PBD (alpha 0 for both types) sweeps serially without multipliers (they never enter its projections:
+    the same positions bit for bit); lam_e, lam_t stay as they were.
     """
     edges, rest, edge_offsets = edge_set
     tris, area0, tri_offsets = tri_set
-    # skip_multipliers: the paper's PBD (alpha 0 for both types) sweeps serially without multipliers (they
-    # never enter its projections: the same positions bit for bit); lam_e, lam_t stay as they were
+    k_e, alpha_e, k_t, alpha_t = coeffs
+    lam_e, lam_t, _omega_e, _omega_t = mults
     pbd = skip_multipliers and alpha_e == 0.0 and alpha_t == 0.0
     for _ in range(iterations):
         if mode == GS_COLOURED:
@@ -582,20 +578,21 @@ def jacobi_relaxation(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, al
 
 @njit(cache=True, nogil=True)
 def jacobi_iterations(x: np.ndarray, inv_mass: np.ndarray, edge_set: tuple, tri_set: tuple, tool: tuple,
-                      k_e: float, alpha_e: float, lam_e: np.ndarray, omega_e: np.ndarray,
-                      k_t: float, alpha_t: float, lam_t: np.ndarray, omega_t: np.ndarray,
-                      signed: bool, iterations: int, particle_scale: np.ndarray, dx_acc: np.ndarray) -> None:
+                      coeffs: tuple, mults: tuple, signed: bool, iterations: int, particle_scale: np.ndarray,
+                      dx_acc: np.ndarray) -> None:
     """``iterations`` Jacobi sweeps: every constraint sees the positions of the sweep's start.
 
     Corrections are summed per particle and applied as
     ``x += particle_scale * sum`` (``1 / constraint count`` for the paper
     authors' averaging, 1 with per-constraint relaxation ``omega_*``); then
-    the tool projection, as in :func:`gauss_seidel_iterations`.
-    ``dx_acc`` (N, 2) must be zero on entry and is zero on exit. The packed
-    arrays are those of :func:`gauss_seidel_iterations` (offsets unused).
+    the tool, as in :func:`gauss_seidel_iterations`, whose bundles these are (offsets unused; ``mults`` =
+    (lam_e, lam_t, omega_e, omega_t) with the relaxations used). ``dx_acc`` (N, 2) must be zero on entry and is
+    zero on exit.
     """
     edges, rest, _edge_offsets = edge_set
     tris, area0, _tri_offsets = tri_set
+    k_e, alpha_e, k_t, alpha_t = coeffs
+    lam_e, lam_t, omega_e, omega_t = mults
     for _ in range(iterations):
         jacobi_edges(x, inv_mass, edges, rest, k_e, alpha_e, lam_e, omega_e, dx_acc)
         jacobi_areas(x, inv_mass, tris, area0, k_t, alpha_t, lam_t, signed, omega_t, dx_acc)

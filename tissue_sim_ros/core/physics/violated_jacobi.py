@@ -48,10 +48,8 @@ EPS_LEN2 = 1e-30
 
 
 @njit(cache=True, nogil=True)
-def violated_jacobi_pass(x: np.ndarray, w: np.ndarray, w_move: np.ndarray,
-                         edges: np.ndarray, rest: np.ndarray, k_e: float, tol_e: float,
-                         tris: np.ndarray, area0: np.ndarray, k_t: float, tol_a: float, signed: bool,
-                         dxs: np.ndarray, dxa: np.ndarray, ns: np.ndarray, na: np.ndarray) -> None:
+def violated_jacobi_pass(x: np.ndarray, w: np.ndarray, w_move: np.ndarray, constraints: tuple,
+                         scratch: tuple) -> None:
     """One authors' Jacobi iteration: corrections from the same ``x``, averaged per type over violated constraints.
 
     Parameters
@@ -62,13 +60,15 @@ def violated_jacobi_pass(x: np.ndarray, w: np.ndarray, w_move: np.ndarray,
         Inverse masses weighting the corrections [1/kg] (0 = pinned).
     w_move : (N,) float64
         A particle moves only where ``w_move > 0`` (the step's held particles are 0 here, not in ``w``).
-    edges, rest, k_e, tol_e
-        Springs (E, 2) int32, rest lengths (E,) [m], coefficient, violation tolerance [m].
-    tris, area0, k_t, tol_a, signed
-        Triangles (T, 3) int32, signed rest areas (T,) [m^2], coefficient, tolerance [m^2], signed or |area|.
-    dxs, dxa : (N, 2) float64; ns, na : (N,) float64
-        Scratch: summed spring / area corrections and violated counts (overwritten).
+    constraints : tuple
+        (edges (E, 2) int32, rest lengths (E,) [m], k_e, tol_e [m], triangles (T, 3) int32, signed rest areas
+        (T,) [m^2], k_t, tol_a [m^2], signed): the springs' and areas' coefficients and violation tolerances.
+    scratch : tuple
+        (dxs (N, 2), dxa (N, 2), ns (N,), na (N,)) float64: summed spring / area corrections and violated
+        counts (overwritten).
     """
+    edges, rest, k_e, tol_e, tris, area0, k_t, tol_a, signed = constraints
+    dxs, dxa, ns, na = scratch
     n = x.shape[0]
     for i in range(n):
         dxs[i, 0] = 0.0
@@ -141,17 +141,12 @@ def violated_jacobi_pass(x: np.ndarray, w: np.ndarray, w_move: np.ndarray,
 
 
 @njit(cache=True, nogil=True)
-def violated_jacobi_iterations(x: np.ndarray, w: np.ndarray, w_move: np.ndarray,
-                               edges: np.ndarray, rest: np.ndarray, k_e: float, tol_e: float,
-                               tris: np.ndarray, area0: np.ndarray, k_t: float, tol_a: float, signed: bool,
-                               iterations: int, y_bottom: float, y_top: float,
-                               dxs: np.ndarray, dxa: np.ndarray, ns: np.ndarray, na: np.ndarray,
-                               x_start: np.ndarray, candidates: np.ndarray, shape0: np.ndarray, shape1: np.ndarray,
-                               dx_accum: np.ndarray, surface_edges: np.ndarray, edge_side_tol: float) -> None:
-    """``iterations`` of :func:`violated_jacobi_pass`, each followed by the tool projection (projection
-    contact, as :func:`~tissue_sim_ros.core.physics.sweeps.jacobi_iterations`) and the walls (:func:`apply_walls`)."""
+def violated_jacobi_iterations(x: np.ndarray, w: np.ndarray, w_move: np.ndarray, constraints: tuple,
+                               iterations: int, walls: tuple, scratch: tuple, tool: tuple) -> None:
+    """``iterations`` of :func:`violated_jacobi_pass` (its ``constraints`` and ``scratch``), each followed by the
+    tool (:func:`~tissue_sim_ros.core.physics.sweeps.tool_contact`, ``tool`` its bundle, moving ``w_move``'s
+    particles) and the walls (:func:`apply_walls`; ``walls`` = (y_bottom, y_top), NaN: none)."""
     for _ in range(iterations):
-        violated_jacobi_pass(x, w, w_move, edges, rest, k_e, tol_e, tris, area0, k_t, tol_a, signed,
-                             dxs, dxa, ns, na)
-        tool_contact(x, w_move, (x_start, candidates, shape0, shape1, dx_accum, surface_edges, edge_side_tol))
-        apply_walls(x, y_bottom, y_top)
+        violated_jacobi_pass(x, w, w_move, constraints, scratch)
+        tool_contact(x, w_move, tool)
+        apply_walls(x, walls[0], walls[1])

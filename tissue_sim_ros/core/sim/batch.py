@@ -80,7 +80,7 @@ from ..contact.tool import (
 from ..errors import InputError
 from ..physics.model import Model, State
 from ..physics.solvers import Solver
-from .fused import FusedWorkspace, fused_applies, rollout_fused, warm_fused
+from .fused import FusedWorkspace, fused_applies, penetration_and_displacement, rollout_fused, warm_fused
 from .simulation import Simulation
 from .snapshot import SimSnapshot, scene_key
 
@@ -473,9 +473,9 @@ def rollout_candidate(sim: Simulation, snap: SimSnapshot, path: ToolPath, index:
         peak_force = max(peak_force, math.sqrt(fx * fx + fy * fy))  # as np.linalg.norm rounds it
         x = sim.state.particle_q
         if n_part:
-            points_sdf(x, tool_shape_array(sim.tool, pose, 0.0), sdf, grad)
-            max_pen = max(max_pen, -float(sdf.min()))
-            max_disp = max(max_disp, max_displacement(x, x0))
+            pen, disp = penetration_and_displacement(x, x0, tool_shape_array(sim.tool, pose, 0.0), sdf, grad)
+            max_pen = max(max_pen, pen)
+            max_disp = max(max_disp, disp)
         contact += bool(r.in_contact.any())
         inverted = max(inverted, r.n_inverted)
         diverged += bool(r.diverged)

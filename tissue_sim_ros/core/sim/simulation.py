@@ -32,11 +32,11 @@ from ..contact.collision import ContactModel, Contacts
 from ..contact.tool import ToolPose, ToolShape, ToolTwist, tool_shape_array, twist_from_poses
 from ..contact.tool_checks import INSIDE_TOL, tool_checks
 from ..errors import InputError
-from ..physics.attach import attachment_energy, attachment_wrench
-from ..physics.energy import EnergyTerms, energy_terms
+from ..physics.energy import NO_ATTACH, EnergyTerms, energy_model
 from ..physics.kernels import count_inverted
 from ..physics.model import Model, State
-from ..physics.solvers import SolveInfo, Solver
+from ..physics.reaction import attach_reaction, push_reaction, touched_particles
+from ..physics.solvers import SolveInfo, default_solver
 from ..physics.step_kernels import finish_step
 from .grasp import Grasp
 from .snapshot import SimSnapshot, carry_state, restore_carry, scene_key
@@ -46,15 +46,6 @@ if TYPE_CHECKING:
 
 SolverFactory = Callable[[Model], Any]
 """Makes the solver of a Model (a :class:`~tissue_sim_ros.core.physics.solvers.Solver` or one with its step())."""
-
-
-def default_solver(model: Model) -> Any:
-    """The solver a Model's parameters ask for: sleeping when ``sleep_speed`` > 0, else :class:`Solver`."""
-    if model.params.sleep_speed > 0:
-        from ..physics.solvers.sleeping import SleepingSolver  # noqa: PLC0415  (a scene that asks for it)
-
-        return SleepingSolver(model, wake_radius=model.params.sleep_wake_radius, sleep_speed=model.params.sleep_speed)
-    return Solver(model)
 
 
 @dataclass
@@ -188,6 +179,7 @@ class Simulation:
         self._solver_factory: SolverFactory = solver or default_solver
         self.solver = self._solver_factory(model)
         self.contact = ContactModel(model, tool) if tool is not None else None
+        self._bind_model()
         self.state: State = model.state()
         self._state_out: State = model.state()
         self.step_count = 0
@@ -281,7 +273,16 @@ class Simulation:
         self.config = cfg
         self.solver = self._solver_factory(model)
         self.contact = ContactModel(model, self.tool) if self.tool is not None else None
+        self._bind_model()
         self.state, self._state_out, self._last_good = state, model.state(), last_good
+
+    def _bind_model(self) -> None:
+        """The step's model bundles and scratch (:func:`~tissue_sim_ros.core.physics.energy.energy_model`, the
+        reaction's per-particle torques), made again when the model changes."""
+        n = self.model.n_particles
+        self._energy_model = energy_model(self.model)
+        self._touched = np.empty(n, dtype=np.int64)
+        self._torque_each = np.empty(n)
 
     def settle(self):
         """Put the tissue at its static equilibrium under gravity and the pins, at rest; returns its SettleInfo.
@@ -423,41 +424,36 @@ class Simulation:
         with self.lock:
             return self._step(tool_pose, tool_twist, keep=detail, jaw=jaw)
 
-    def step_reference(self, tool_pose: ToolPose | None = None, tool_twist: ToolTwist | None = None, *,
-                       jaw: float | None = None) -> StepReport:
-        """:meth:`step` as it was before the compiled calls: the solver's :meth:`~tissue_sim_ros.core.physics.solvers.Solver.step_reference`
-        (when it has one), then the finite check, energy terms and inverted triangles each on its own. The same
-        numbers bit for bit (``test/test_step_kernels.py``); kept for that test and ``tissue-sim bench solver``'s
-        ref columns."""
-        with self.lock:
-            return self._step(tool_pose, tool_twist, reference=True, jaw=jaw)
-
-    def _step(self, tool_pose: ToolPose | None, tool_twist: ToolTwist | None, reference: bool = False,
-              keep: bool = False, jaw: float | None = None) -> StepReport:
-        t_start = time.perf_counter()
+    def _contacts(self, tool_pose: ToolPose | None, tool_twist: ToolTwist | None, jaw: float | None) -> Contacts:
+        """The step's contacts: the contact model's detection (the tool from where it is to ``tool_pose``), then
+        the jaw, which closes (grasps at the step's start pose) or opens; held particles follow the end pose."""
         p = self.params
-        model = self.model
-        nb = model.n_bodies
-        if tool_pose is not None and tool_twist is None:
-            tool_twist = twist_from_poses(self.tool_pose, tool_pose, p.dt)
         if self.contact is not None and tool_pose is not None and p.contact_model != "none":
             contacts = self.contact.detect(self.state, self.tool_pose or tool_pose, tool_pose, tool_twist, p.dt)
         else:
-            contacts = Contacts.empty(nb)
-        # the jaw: closes (grasps at the step's start pose) or opens; held particles follow the end pose
+            contacts = Contacts.empty(self.model.n_bodies)
         grasper = self.tool is not None and self.tool.kind == "grasper"
         self.grasp.update(jaw, grasper, (self.tool_pose or tool_pose) if tool_pose is not None else None,
-                          self.state.particle_q, model.particle_inv_mass, p.grasp_close_angle, p.grasp_open_angle,
-                          p.grasp_radius)
+                          self.state.particle_q, self.model.particle_inv_mass, p.grasp_close_angle,
+                          p.grasp_open_angle, p.grasp_radius)
         if self.grasp.n_held and tool_pose is not None:
             contacts.attach_idx = self.grasp.idx.copy()
             contacts.attach_target = self.grasp.targets(tool_pose)
             contacts.attach_compliance = float(p.grasp_compliance)
+        return contacts
+
+    def _step(self, tool_pose: ToolPose | None, tool_twist: ToolTwist | None, keep: bool = False,
+              jaw: float | None = None) -> StepReport:
+        """:meth:`step`: detection, the solver's one compiled call, the post-solve call, the reaction."""
+        t_start = time.perf_counter()
+        p = self.params
+        model = self.model
+        if tool_pose is not None and tool_twist is None:
+            tool_twist = twist_from_poses(self.tool_pose, tool_pose, p.dt)
+        contacts = self._contacts(tool_pose, tool_twist, jaw)
         state_in = self.state.copy() if keep else None  # before the solve: a sleeping solver writes into it
         t_contact = time.perf_counter()
-
-        solve = getattr(self.solver, "step_reference", self.solver.step) if reference else self.solver.step
-        info = solve(self.state, self._state_out, contacts, p.dt)
+        info = self.solver.step(self.state, self._state_out, contacts, p.dt)
         t_solve = time.perf_counter()
         if contacts.candidates.size:
             # projection contact: a body is in contact when the solve pushed one of its particles
@@ -465,56 +461,29 @@ class Simulation:
             contacts.in_contact[model.particle_body[contacts.touched]] = True
         detail = StepDetail(state_in, contacts, _detached(info), (self.tool_pose or tool_pose) if tool_pose else None,
                             tool_pose, p.dt) if keep else None
-
         out = self._state_out
-        # one compiled call: finite?, the energy terms (constraints; the material's strain energy after),
-        # inverted triangles (valid when finite)
-        energy = EnergyTerms.zeros(nb)
-        if reference:
-            finite = bool(np.isfinite(out.particle_q).all() and np.isfinite(out.particle_qd).all())
-            n_inverted = count_inverted(out.particle_q, model.tri_indices)
-            if finite:
-                energy = energy_terms(model, out.particle_q, info.x_pred)
-        else:
-            finite, n_inverted = finish_step(
-                out.particle_q, out.particle_qd, info.x_pred, model.particle_mass, model.particle_body,
-                model.edge_indices, model.edge_rest_length, model.edge_body, model.tri_indices, model.tri_rest_area,
-                model.tri_body, p.k_spring_effective, p.k_area_effective, p.dt, p.area_mode == "signed",
-                not model.is_material, energy.inertial, energy.spring, energy.area)
-        diverged = not finite
-        if diverged:
+        # one compiled call: finite?, every energy term, inverted triangles
+        energy = EnergyTerms.zeros(model.n_bodies)
+        attach = ((contacts.attach_idx, contacts.attach_target, contacts.attach_compliance)
+                  if contacts.attach_idx.shape[0] else NO_ATTACH)
+        finite, n_inverted = finish_step(out.particle_q, out.particle_qd, info.x_pred, self._energy_model, p.dt,
+                                         attach, energy.arrays)
+        force, torque, attach_force = np.zeros(2), 0.0, np.zeros(2)
+        if not finite:
             # restore the last good state; never hand NaN to anyone
             out.particle_q[:] = self._last_good.particle_q
             out.particle_qd[:] = 0.0
             n_inverted = int(count_inverted(out.particle_q, model.tri_indices))
-            force = np.zeros(2)
-            torque = 0.0
-            attach_force = np.zeros(2)
+            energy = EnergyTerms.zeros(model.n_bodies)
             self.grasp.release()  # what diverged tore loose: the jaw holds nothing until it opens and closes again
-        else:
-            if model.is_material and not reference:
-                energy = energy_terms(model, out.particle_q, info.x_pred)
-            elif not reference:  # as energy_terms
-                energy.potential[:] = (energy.spring + energy.area) / (p.dt * p.dt)
-            force, torque = self._reaction(info.contact_dx, tool_pose, p.dt, contacts, out.particle_q)
-            attach_force = np.zeros(2)
-            if contacts.attach_idx.shape[0]:
-                # the held particles pull the tool (x - target) / c, and their springs hold dt^2 E_attach
-                attach_force, attach_torque = attachment_wrench(out.particle_q, contacts.attach_idx,
-                                                                contacts.attach_target, contacts.attach_compliance,
-                                                                (tool_pose.x, tool_pose.y))
-                force = force + attach_force
-                torque = torque + attach_torque
-                e_attach = np.zeros(nb)
-                attachment_energy(out.particle_q, model.particle_body, contacts.attach_idx, contacts.attach_target,
-                                  contacts.attach_compliance, e_attach)
-                energy.attach = p.dt * p.dt * e_attach
+        elif tool_pose is not None:
+            force, torque, attach_force = self._reaction(info.contact_dx, tool_pose, p.dt, contacts, out.particle_q)
         checks = (self._tool_checks(self.state.particle_q, out.particle_q, self.tool_pose or tool_pose, tool_pose)
                   if self.report_tool_checks else (0, 0.0, -1, 0, False))
         t_energy = time.perf_counter()
 
         self.state, self._state_out = out, self.state
-        if not diverged:
+        if finite:
             self._last_good.particle_q[:] = self.state.particle_q
             self._last_good.particle_qd[:] = self.state.particle_qd
         self.step_count += 1
@@ -525,7 +494,7 @@ class Simulation:
             step=self.step_count, time=self.time, energy=energy, residual=float(info.residual),
             in_contact=contacts.in_contact.copy(), d_star=contacts.d_star.copy(),
             n_contact_particles=int(contacts.touched.size), contact_particles=contacts.touched.copy(),
-            reaction_force=force, reaction_torque=torque, n_inverted=int(n_inverted), diverged=diverged,
+            reaction_force=force, reaction_torque=torque, n_inverted=int(n_inverted), diverged=not finite,
             timings={"contact": t_contact - t_start, "solve": t_solve - t_contact,
                      "energy": t_energy - t_solve, "total": time.perf_counter() - t_start},
             x_pred=info.x_pred.copy(), held_idx=np.asarray(contacts.held_idx, dtype=np.int32).copy(),
@@ -548,36 +517,42 @@ class Simulation:
             self.model.tri_indices, INSIDE_TOL)
         return int(n_in), float(depth), int(arg), int(n_tunnel), bool(buried)
 
-    def _reaction(self, contact_dx: np.ndarray | None, tool_pose: ToolPose | None, dt: float,
-                  contacts: Contacts | None = None, x: np.ndarray | None = None) -> tuple[np.ndarray, float]:
-        """Reaction on the tool: the tool pushed particles by dx, so they push back with -m dx / h^2.
+    def _reaction(self, contact_dx: np.ndarray | None, tool_pose: ToolPose, dt: float, contacts: Contacts,
+                  x: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+        """The tissue's reaction on the tool: (force [N] (2,), torque about the tool's centre [N m], the grasp's
+        part of the force (2,)) (``core/physics/reaction.py``).
 
-        ``contact_dx`` (N, 2) are the projection model's corrections summed over the step's
-        n = ``substeps`` substeps of h = dt / n: a correction dx in a substep is a force m dx / h^2
-        acting for h, so the step's mean force is m sum(dx) / (n h^2) = m sum(dx) / (dt h) (dividing
-        by dt^2 made the force n times too small). Without them the paper model's held displacements
-        (``contacts.held_dx``, prescribed over the whole step) give m dx / dt^2.
-        The torque is about the tool's centre, with the particles at ``x`` (their
-        positions after the step; default: the current state).
+        ``contact_dx`` (N, 2) are the projection model's corrections summed over the step's n = ``substeps``
+        substeps of h = dt / n: a correction dx in a substep is a force m dx / h^2 acting for h, so the step's
+        mean force is m sum(dx) / (n h^2) = m sum(dx) / (dt h). Without them the paper model's held
+        displacements (``contacts.held_dx``, prescribed over the whole step) give m dx / dt^2. The held
+        particles pull the tool (x - target) / c. The particles are at ``x`` (their positions after the step).
         """
-        if tool_pose is None:
-            return np.zeros(2), 0.0
         m = self.model.particle_mass
+        centre = (float(tool_pose.x), float(tool_pose.y))
+        each = self._torque_each
+        force, torque = np.zeros(2), 0.0
         if contact_dx is not None:
-            idx = np.flatnonzero(contact_dx.any(axis=1))
-            dx = contact_dx[idx]
-            denominator = dt * (dt / self.params.substeps)
-        elif contacts is not None and contacts.held_idx.size:
-            idx, dx = contacts.held_idx, contacts.held_dx
-            denominator = dt * dt
-        else:
-            return np.zeros(2), 0.0
-        f_particles = -m[idx, None] * dx / denominator
-        force = f_particles.sum(axis=0)
-        x = self.state.particle_q if x is None else x
-        r = x[idx] - np.array([tool_pose.x, tool_pose.y])
-        torque = float(np.sum(r[:, 0] * f_particles[:, 1] - r[:, 1] * f_particles[:, 0]))
-        return force, torque
+            k = touched_particles(contact_dx, self._touched)
+            fx, fy = push_reaction(self._touched[:k], contact_dx, True, m, dt * (dt / self.params.substeps), x,
+                                   centre, each)
+            force, torque = np.array([fx, fy]), float(np.sum(each[:k]))
+        elif contacts.held_idx.size:
+            k = contacts.held_idx.shape[0]
+            fx, fy = push_reaction(np.ascontiguousarray(contacts.held_idx, dtype=np.int64),
+                                   np.ascontiguousarray(contacts.held_dx, dtype=np.float64).reshape(-1, 2), False, m,
+                                   dt * dt, x, centre, each)
+            force, torque = np.array([fx, fy]), float(np.sum(each[:k]))
+        attach_force = np.zeros(2)
+        k = contacts.attach_idx.shape[0]
+        if k:
+            ax, ay = attach_reaction(np.ascontiguousarray(contacts.attach_idx, dtype=np.int64), x,
+                                     np.ascontiguousarray(contacts.attach_target, dtype=np.float64),
+                                     float(contacts.attach_compliance), centre, each)
+            attach_force = np.array([ax, ay])
+            force = force + attach_force
+            torque = torque + float(np.sum(each[:k]))
+        return force, torque, attach_force
 
     def count_inverted(self) -> int:
         """Triangles with signed area <= 0 in the current state."""

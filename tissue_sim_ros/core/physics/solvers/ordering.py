@@ -7,9 +7,12 @@ colour (:func:`colour_constraints`): still Gauss-Seidel, in another order, and i
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import numba
 import numpy as np
 
-from .. import kernels
+from .. import kernels, sweeps
 
 PARALLEL_MODES = ("partition", "colour")
 JACOBI_RELAXATIONS = ("stiffness", "uniform")
@@ -130,3 +133,61 @@ def wavefront_order(indices: np.ndarray, n_particles: int, block: int | None = N
     if m:
         kernels.wavefront_levels(np.ascontiguousarray(indices, dtype=np.int32), n_particles, block, level)
     return np.lexsort((level, np.arange(m) // block))
+
+
+@dataclass(frozen=True)
+class SolveOrder:
+    """A model's constraints in the order a solver sweeps them (:func:`solve_order`)."""
+
+    name: str
+    """``mesh``, ``colour``, ``stored`` (serial) or ``partition``, ``colour`` (parallel)."""
+    gs_mode: int
+    """How Gauss-Seidel runs them: ``sweeps.GS_SERIAL``, ``GS_COLOURED`` or ``GS_PARTITIONED``."""
+    edges: np.ndarray
+    """(E, 2) int32, in solve order."""
+    rest: np.ndarray
+    """(E,) rest lengths [m], in solve order."""
+    edge_offsets: np.ndarray
+    """Groups of edges (colours, parts and the separator; [0, E] serially), int64."""
+    tris: np.ndarray
+    """(T, 3) int32, in solve order."""
+    area0: np.ndarray
+    """(T,) signed rest areas [m^2], in solve order."""
+    tri_offsets: np.ndarray
+    """Groups of triangles, int64."""
+    tri_perm: np.ndarray | None
+    """The triangles' permutation from mesh order (per-triangle data follows it), None: mesh order."""
+
+
+def solve_order(model, order: str, parallel: bool, jacobi: bool) -> SolveOrder:
+    """The model's constraints ordered for a sweep.
+
+    ``order``: ``mesh`` (serial Gauss-Seidel: mesh order in a wavefront schedule, :func:`wavefront_order`; Jacobi:
+    as stored), ``colour`` (sorted by greedy colour; run on all threads when ``parallel``), ``stored`` (the
+    array order), ``partition`` (one part per thread, then the separator: ``parallel`` only).
+    """
+    n = model.n_particles
+    edges = np.ascontiguousarray(model.edge_indices, dtype=np.int32)
+    rest = np.ascontiguousarray(model.edge_rest_length, dtype=np.float64)
+    tris = np.ascontiguousarray(model.tri_indices, dtype=np.int32)
+    area0 = np.ascontiguousarray(model.tri_rest_area, dtype=np.float64)
+    edge_offsets = np.array([0, edges.shape[0]], dtype=np.int64)
+    tri_offsets = np.array([0, tris.shape[0]], dtype=np.int64)
+    perm_e = perm_t = None
+    gs_mode = sweeps.GS_SERIAL
+    if order == "partition":
+        n_parts = numba.get_num_threads()
+        part = partition_particles(model.particle_q0, n_parts, model.edge_indices)
+        perm_e, edge_offsets = partition_constraints(edges, part, n_parts)
+        perm_t, tri_offsets = partition_constraints(tris, part, n_parts)
+        gs_mode = sweeps.GS_PARTITIONED
+    elif order == "colour":
+        perm_e, edge_offsets = colour_constraints(edges, n)
+        perm_t, tri_offsets = colour_constraints(tris, n)
+        gs_mode = sweeps.GS_COLOURED if parallel else sweeps.GS_SERIAL
+    elif order == "mesh" and not jacobi:
+        perm_e, perm_t = wavefront_order(edges, n), wavefront_order(tris, n)
+    if perm_e is not None:
+        edges, rest = np.ascontiguousarray(edges[perm_e]), np.ascontiguousarray(rest[perm_e])
+        tris, area0 = np.ascontiguousarray(tris[perm_t]), np.ascontiguousarray(area0[perm_t])
+    return SolveOrder(order, gs_mode, edges, rest, edge_offsets, tris, area0, tri_offsets, perm_t)

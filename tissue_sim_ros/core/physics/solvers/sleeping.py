@@ -1,7 +1,7 @@
 """Sleeping: skip particles far from any contact whose motion has died down.
 
-A separate code path around :class:`~tissue_sim_ros.core.physics.solvers.Solver`
-(the kernels are untouched): a particle sleeps once it has been slower than
+A wrapper around the method's own solver (:func:`~tissue_sim_ros.core.physics.solvers.Solver`;
+the kernels are untouched): a particle sleeps once it has been slower than
 ``sleep_speed`` and farther than ``wake_radius`` (at rest) from every
 particle the contact model touches for ``quiet_steps`` consecutive steps; a
 sleeping particle is held where it is (inverse mass 0, velocity 0) and every
@@ -27,11 +27,13 @@ from ...contact.collision import Contacts
 from ...errors import InputError
 from ...mesh import TissueMesh, edges_from_triangles
 from ..model import Model, State
-from .constraint import SolveInfo, Solver
+from . import Solver
+from .base import SolveInfo
 
 
 class SleepingSolver:
-    """A Solver that skips sleeping particles and the constraints among them.
+    """A solver that skips sleeping particles and the constraints among them: the method's own solver (the
+    registry's) on a reduced Model.
 
     Parameters
     ----------
@@ -132,7 +134,7 @@ class SleepingSolver:
             self._rebuild()
 
     def step(self, state_in: State, state_out: State, contacts: Contacts, dt: float) -> SolveInfo:
-        """As :meth:`Solver.step`, with sleepers held and their constraints skipped."""
+        """As the method's own ``step``, with sleepers held and their constraints skipped."""
         contact_idx = np.union1d(np.asarray(contacts.held_idx, dtype=np.int64),
                                  np.asarray(contacts.candidates, dtype=np.int64))
         contact_idx = np.union1d(contact_idx, self._last_contact)
