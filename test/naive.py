@@ -1009,3 +1009,176 @@ def rollout_stepped(sim, snap, poses, start):
         pen.append(-sdf.min())
     return (sim.state.particle_q.copy(), sim.state.particle_qd.copy(), np.array(energy), np.array(force),
             np.array(pen))
+
+
+def solver_step_reference(solver, state_in, state_out, contacts, dt):
+    """Twin of the solvers' compiled steps (core/physics/step_kernels.py, quasi_newton.quasi_newton_step): the same
+    loop in Python, calling the building blocks (prediction, sweeps, tool, attachments, walls, velocities, lines)
+    one at a time with the same scalars, so the positions must come out the same bit for bit. Works on the
+    solver's own workspaces and returns its SolveInfo, as ``solver.step`` does."""
+    from tissue_sim_ros.core.physics import kernels, material, sweeps
+    from tissue_sim_ros.core.physics.attach import project_attachments
+    from tissue_sim_ros.core.physics.quasi_newton import quasi_newton_solve
+    from tissue_sim_ros.core.physics.solvers import ConstraintSolver, MaterialXPBDSolver, QuasiNewtonSolver
+    from tissue_sim_ros.core.physics.solvers.base import interpolate_shape
+    from tissue_sim_ros.core.physics.solvers.quasi_newton import attachments
+    from tissue_sim_ros.core.physics.step_kernels import SWEEP_JACOBI, SWEEP_VIOLATED
+    from tissue_sim_ros.core.physics.violated_jacobi import violated_jacobi_iterations
+    from tissue_sim_ros.core.physics.walls import apply_walls
+
+    p = solver.params
+    model = solver.model
+    step = solver.check_step(state_in, state_out, contacts, dt)
+    inv_mass = model.particle_inv_mass
+    x0, v0 = state_in.particle_q, state_in.particle_qd
+    x, v = state_out.particle_q, state_out.particle_qd
+    walls = solver.walls
+    # the full-step prediction x* and the held set
+    kernels.predict(x0, v0, inv_mass, dt, p.gravity, solver.damp_factor(dt), solver.x_pred)
+    kernels.hold_displaced(solver.x_pred, inv_mass, step.held_idx, step.held_dx, 1.0, solver.inv_mass_eff)
+    if walls:
+        apply_walls(solver.x_pred, p.wall_y_bottom, p.wall_y_top)
+    w = solver.inv_mass_eff
+    if isinstance(solver, QuasiNewtonSolver):
+        ms = solver.material_solve
+        shape0, shape1 = solver._shape0, solver._shape1
+        if step.projection:
+            np.copyto(shape0, contacts.tool_shape0)
+            np.copyto(shape1, contacts.tool_shape1)
+        np.copyto(x, solver.x_pred)
+        guess = v0 * (dt * solver.damp_factor(dt))
+        guess += x0
+        quasi_newton_solve(x, solver.x_pred, w, guess, ms.mat, ms.step_factor(dt).arrays, ms.lines,
+                           (x0, step.candidates, shape0, shape1, solver.contact_dx, step.surface_edges,
+                            float(contacts.edge_side_tol)), attachments(contacts), ms.ws, ms.elim,
+                           (dt * dt, p.gravity) + solver.solve_options)
+        kernels.update_velocity(x, x0, dt, v)
+        kernels.apply_boundary_lines(x, v, inv_mass, p.boundary_y_top, p.boundary_y_bottom)
+        info = solver.finish(contacts, step, kernels.constraint_residual(x, solver.edges, solver.rest, solver.tris,
+                                                                          solver.area0, solver.signed))
+        info.solve_iterations, info.solve_residual = int(ms.out[0]), float(ms.out[1])
+        info.solve_converged = info.solve_residual <= p.solve_tolerance
+        return info
+    n_sub = p.substeps
+    h = dt / n_sub
+    if step.projection:
+        solver.contact_dx.fill(0.0)
+        s0 = np.asarray(contacts.tool_shape0, dtype=np.float64)
+        s1 = np.asarray(contacts.tool_shape1, dtype=np.float64)
+    a_idx, a_target, a_compliance = solver.attachments(contacts)
+    alpha_a = a_compliance / (h * h)
+    is_material = isinstance(solver, MaterialXPBDSolver)
+    np.copyto(v, v0)
+    np.copyto(x, x0)
+    for sub in range(n_sub):
+        np.copyto(solver.x_start, x)
+        if n_sub == 1:
+            np.copyto(x, solver.x_pred)
+        else:
+            kernels.predict(solver.x_start, v, inv_mass, h, p.gravity, solver.damp_factor(h), x)
+            kernels.place_held(x, x0, solver.x_pred, inv_mass, step.held_idx, (sub + 1) / n_sub)
+            if walls:
+                apply_walls(x, p.wall_y_bottom, p.wall_y_top)
+        solver.lam_a.fill(0.0)
+        if step.projection:
+            interpolate_shape(s0, s1, sub / n_sub, solver._shape0)
+            interpolate_shape(s0, s1, (sub + 1) / n_sub, solver._shape1)
+            cand, surf = step.candidates, step.surface_edges
+        else:
+            cand, surf = np.zeros(0, np.int32), np.zeros((0, 2), np.int32)
+        tool = sweeps.tool_pack(solver.x_start, cand, solver._shape0, solver._shape1, solver.contact_dx, surf,
+                                contacts.edge_side_tol)
+        calls = [1] * p.iterations if a_idx.shape[0] else [p.iterations]
+        if is_material:
+            solver.lam_m.fill(0.0)
+            if sub == n_sub - 1:
+                np.copyto(solver.material_solve.x_pred_h, x)
+            jac, stiff, _, relaxation, scale, lam_m, omega_m, node_sum, dx_acc = solver._sweep
+            inv_h2 = 1.0 / (h * h)
+            if jac and stiff:
+                material.jacobi_relaxation_elements(x, w, solver.tris, solver.elastic, inv_h2, scale, node_sum, omega_m)
+            elif jac:
+                omega_m[:] = relaxation
+            for iters in calls:
+                if jac:
+                    material.material_jacobi(x, w, solver.tris, solver.elastic, inv_h2, lam_m, omega_m, iters, dx_acc,
+                                             tool)
+                else:
+                    material.material_gauss_seidel(x, w, solver.tris, solver.elastic, inv_h2, lam_m,
+                                                   solver._elements[2], solver._elements[3], iters, tool)
+                if a_idx.shape[0]:
+                    project_attachments(x, w, a_idx, a_target, alpha_a, solver.lam_a)
+            if walls:
+                apply_walls(x, p.wall_y_bottom, p.wall_y_top)
+        else:
+            assert isinstance(solver, ConstraintSolver)
+            sw = solver.sweep
+            sw.lam_e.fill(0.0)
+            sw.lam_t.fill(0.0)
+            edge_set, tri_set, _, signed = solver._sets
+            coeffs = solver.coefficients(h)
+            if sw.mode == SWEEP_VIOLATED:
+                tol_e, tol_a, dxa, ns, na = sw.violated
+                violated_jacobi_iterations(x, inv_mass, w, (edge_set[0], edge_set[1], coeffs[0], tol_e, tri_set[0],
+                                                            tri_set[1], coeffs[2], tol_a, signed),
+                                           p.iterations, (p.wall_y_bottom, p.wall_y_top),
+                                           (sw.jac[4], dxa, ns, na), tool)
+                if a_idx.shape[0]:
+                    project_attachments(x, w, a_idx, a_target, alpha_a, solver.lam_a)
+            else:
+                if sw.mode == SWEEP_JACOBI and sw.jac[0]:
+                    sweeps.jacobi_relaxation(x, w, edge_set[0], coeffs[1], tri_set[0], coeffs[3], signed, sw.jac[1],
+                                             sw.jac[2], sw.omega_e, sw.omega_t)
+                for iters in ([1] * p.iterations if walls else calls):
+                    if sw.mode == SWEEP_JACOBI:
+                        sweeps.jacobi_iterations(x, w, edge_set, tri_set, tool, coeffs, sw.mults, signed, iters,
+                                                 sw.jac[3], sw.jac[4])
+                    else:
+                        sweeps.gauss_seidel_iterations(x, w, edge_set, tri_set, tool, coeffs, sw.mults, signed, iters,
+                                                       sw.mode)
+                    if a_idx.shape[0]:
+                        project_attachments(x, w, a_idx, a_target, alpha_a, solver.lam_a)
+                    if walls:
+                        apply_walls(x, p.wall_y_bottom, p.wall_y_top)
+        kernels.update_velocity(x, solver.x_start, h, v)
+        kernels.apply_boundary_lines(x, v, inv_mass, p.boundary_y_top, p.boundary_y_bottom)
+    info = solver.finish(contacts, step, kernels.constraint_residual(x, solver.edges, solver.rest, solver.tris,
+                                                                      solver.area0, solver.signed))
+    if is_material:
+        info.solve_iterations = p.iterations
+        info.solve_residual = solver.material_solve.sweep_residual(
+            x, solver.x_start, w, h, solver.contact_dx if step.projection else None, contacts)
+        info.solve_converged = info.solve_residual <= p.solve_tolerance
+    return info
+
+
+def finish_reference(model, x, v, x_pred, contacts, dt):
+    """Twin of step_kernels.finish_step: NumPy's finite check, the energy terms of energy_terms (below) with the
+    attachments' springs, and count_inverted. Returns (finite, n_inverted, terms (6, B))."""
+    finite = bool(np.isfinite(x).all() and np.isfinite(v).all())
+    p = model.params
+    nb = model.n_bodies
+    terms = np.zeros((6, nb))
+    if finite:
+        if model.is_material:
+            e = energy_terms(x, x_pred, model.particle_mass, model.particle_body, model.edge_indices[:0],
+                             model.edge_rest_length[:0], model.edge_body[:0], model.tri_indices[:0],
+                             model.tri_rest_area[:0], model.tri_body[:0], 0.0, 0.0, p.dt, True, nb)
+            terms[0] = e[0]
+            pot = strain_energy(x, model.particle_q0, model.tri_indices, model.tri_body, nb, p.young_modulus,
+                                p.poisson_ratio, p.thickness)
+            terms[4] = pot
+            terms[3] = dt * dt * pot
+        else:
+            e = energy_terms(x, x_pred, model.particle_mass, model.particle_body, model.edge_indices,
+                             model.edge_rest_length, model.edge_body, model.tri_indices, model.tri_rest_area,
+                             model.tri_body, p.k_spring_effective, p.k_area_effective, p.dt, p.area_mode == "signed",
+                             nb)
+            terms[0], terms[1], terms[2] = e
+            terms[4] = (terms[1] + terms[2]) / (dt * dt)
+        idx = np.asarray(contacts.attach_idx)
+        if idx.size:
+            d = x[idx] - contacts.attach_target
+            np.add.at(terms[5], model.particle_body[idx], 0.5 * (d * d).sum(axis=1) / contacts.attach_compliance)
+            terms[5] *= dt * dt
+    return finite, count_inverted(x, model.tri_indices), terms

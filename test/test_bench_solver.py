@@ -60,16 +60,3 @@ def test_bench_solver_rejects_bad_arguments(tmp_path) -> None:
 
     assert main(["bench", "solver", "--steps", "0", "--out", str(tmp_path)]) == 2
     assert main(["bench", "solver", "--sizes", "2", "--out", str(tmp_path)]) == 2
-
-
-def test_bench_solver_paper_only_times_both_paths_and_checks_them(tmp_path, capsys) -> None:
-    from tissue_sim_ros.cli import main
-
-    assert main(["bench", "solver", "--paper-only", "--steps", "3", "--iterations", "2", "--out", str(tmp_path)]) == 0
-    with open(tmp_path / "solver_paper.csv") as f:
-        rows = list(csv.DictReader(f))
-    assert {r["phase"] for r in rows} == {"tool-free", "contact"}
-    assert all(r["identical"] == "yes" and float(r["ms_per_step"]) > 0 and float(r["ref_ms_per_step"]) > 0
-               for r in rows)
-    assert (tmp_path / "solver_paper.png").stat().st_size > 0
-    assert "one compiled call per step" in capsys.readouterr().out

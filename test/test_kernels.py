@@ -237,8 +237,8 @@ def test_energy_and_residual(scene, signed: bool) -> None:
     edge_body = body[s["edges"][:, 0]]
     tri_body = body[s["tris"][:, 0]]
     out = [np.zeros(2) for _ in range(3)]
-    kernels.energy_terms_kernel(s["x"], x_pred, mass, body, s["edges"], s["rest"], edge_body, s["tris"], s["area0"],
-                                tri_body, 100.0, 1e5, 0.01, signed, *out)
+    kernels.energy_terms_kernel(s["x"], x_pred, mass, body, (s["edges"], s["rest"], edge_body),
+                                (s["tris"], s["area0"], tri_body), (100.0, 1e5, 0.01, signed), tuple(out))
     ref = naive.energy_terms(s["x"], x_pred, mass, body, s["edges"], s["rest"], edge_body, s["tris"], s["area0"],
                              tri_body, 100.0, 1e5, 0.01, signed, 2)
     for got, want in zip(out, ref):

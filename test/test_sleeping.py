@@ -8,7 +8,7 @@ from tissue_sim_ros.core.contact.collision import Contacts
 from tissue_sim_ros.core.errors import InputError
 from tissue_sim_ros.core.mesh import mesh_rectangle
 from tissue_sim_ros.core.physics.model import Model, SimParams
-from tissue_sim_ros.core.physics.solvers import Solver
+from tissue_sim_ros.core.physics.solvers import ConstraintSolver, Solver
 from tissue_sim_ros.core.physics.solvers.sleeping import SleepingSolver
 
 
@@ -68,7 +68,7 @@ def test_a_scene_asks_for_sleeping_by_parameter() -> None:
 
     mesh = mesh_rectangle(1.0, 0.5, 0.1)
     plain = build_simulation({"boundary_y_bottom": 0.01, "boundary_y_top": 0.49}, mesh=mesh)
-    assert type(plain.solver) is Solver
+    assert type(plain.solver) is type(Solver(plain.model)) is ConstraintSolver
     sim = build_simulation({"boundary_y_bottom": 0.01, "boundary_y_top": 0.49, "sleep_speed": 1e-3,
                             "sleep_wake_radius": 0.1}, mesh=mesh)
     assert isinstance(sim.solver, SleepingSolver) and sim.solver.wake_radius == 0.1

@@ -35,7 +35,6 @@ import csv
 import functools
 import math
 import os
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -189,101 +188,8 @@ def paper_scene_rows(methods: list[Method], iterations: int, steps: int, progres
     return rows
 
 
-STEP_METHODS = (("pbd_gs", "paper PBD GS, paper contact (default)", {}),
-                ("xpbd_gs", "XPBD GS, paper contact", {"method": "xpbd"}),
-                ("xpbd_gs_projection", "XPBD GS, projection contact", {"method": "xpbd", "contact_model": "projection"}),
-                ("xpbd_jacobi", "XPBD Jacobi, paper contact", {"method": "xpbd", "scheme": "jacobi"}))
-STEP_COLUMNS = ("method", "iterations", "phase", "steps_timed", "ms_per_step", "ref_ms_per_step", "speedup",
-                "identical", "load_1min")
-
-
-def paper_step_rows(iterations: int, steps: int, progress: Any = None) -> list[dict[str, Any]]:
-    """One compiled call per step against the step before it, side by side on the paper scene.
-
-    Two simulations of each method step experiment a together, one with ``Simulation.step`` (compiled:
-    ``core/physics/step_kernels.py``), one with ``Simulation.step_reference`` (the Python loop around the kernels),
-    alternating step by step so both see the same load; the wall time of the whole call (report included) is
-    timed, tool-free (the steps before the tool touches) and in contact, ``steps`` of each. ``identical``: the
-    two states were equal bit for bit after every step.
-    """
-    from ..core.timing.trajectories import experiment_a  # noqa: PLC0415
-
-    rows = []
-    for name, _, values in STEP_METHODS:
-        cfg = resolve_config({"iterations": iterations, **values}, source=f"bench solver --paper-only {name}")
-        new, ref = Simulation.from_config(cfg), Simulation.from_config(cfg)
-        traj = experiment_a(new.tool, new.params.dt)
-        times: dict[str, tuple[list[float], list[float]]] = {"tool-free": ([], []), "contact": ([], [])}
-        same = True
-        for k, (pose, twist) in enumerate(traj.steps(new.params.dt)):
-            if k % 2:  # alternate which goes first
-                t0 = time.perf_counter()
-                r = new.step(pose, twist)
-                t1 = time.perf_counter()
-                ref.step_reference(pose, twist)
-                t2 = time.perf_counter()
-                t_new, t_ref = t1 - t0, t2 - t1
-            else:
-                t0 = time.perf_counter()
-                ref.step_reference(pose, twist)
-                t1 = time.perf_counter()
-                r = new.step(pose, twist)
-                t2 = time.perf_counter()
-                t_new, t_ref = t2 - t1, t1 - t0
-            same = same and np.array_equal(new.state.particle_q, ref.state.particle_q) \
-                and np.array_equal(new.state.particle_qd, ref.state.particle_qd)
-            phase = "contact" if r.n_contact_particles else "tool-free"
-            if k >= 5 and len(times[phase][0]) < steps:  # past the first steps (cache loads)
-                times[phase][0].append(t_new)
-                times[phase][1].append(t_ref)
-            if all(len(t[0]) >= steps for t in times.values()):
-                break
-        for phase, (t_new, t_ref) in times.items():
-            if not t_new:
-                continue
-            a, b = float(np.median(t_new)), float(np.median(t_ref))
-            rows.append({"method": name, "iterations": cfg.sim.iterations, "phase": phase, "steps_timed": len(t_new),
-                         "ms_per_step": 1e3 * a, "ref_ms_per_step": 1e3 * b, "speedup": b / a,
-                         "identical": "yes" if same else "NO", "load_1min": os.getloadavg()[0]})
-        if progress is not None:
-            progress.update(1)
-    return rows
-
-
-def print_step_rows(rows: list[dict[str, Any]]) -> None:
-    print(f"\npaper scene, one compiled call per step (whole Simulation.step, median wall ms) vs the step before it "
-          f"(step_reference), alternating; load {min(r['load_1min'] for r in rows):.2f}-"
-          f"{max(r['load_1min'] for r in rows):.2f}:")
-    print(f"{'method':<20} {'it':>3} {'phase':<10} {'steps':>5} {'ms/step':>8} {'ref ms':>8} {'speedup':>8} identical")
-    for r in rows:
-        print(f"{r['method']:<20} {r['iterations']:>3} {r['phase']:<10} {r['steps_timed']:>5} {r['ms_per_step']:>8.3f} "
-              f"{r['ref_ms_per_step']:>8.3f} {r['speedup']:>7.2f}x {r['identical']}")
-
-
-def plot_step_rows(path: Path, rows: list[dict[str, Any]]) -> None:
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    fig, ax = plt.subplots(figsize=(8, 4))
-    labels = [f"{r['method']}\n{r['phase']}" for r in rows]
-    x = np.arange(len(rows))
-    ax.bar(x - 0.2, [r["ref_ms_per_step"] for r in rows], 0.4, label="before (step_reference)", color="#9e9e9e")
-    ax.bar(x + 0.2, [r["ms_per_step"] for r in rows], 0.4, label="one compiled call per step", color="#1565c0")
-    ax.axhline(0.2, color="#c62828", lw=0.8, ls="--", label="goal 0.2 ms")
-    ax.set_xticks(x, labels, fontsize=7)
-    ax.set_ylabel("ms per step (median)")
-    ax.set_title(f"paper scene, {rows[0]['iterations']} iterations; load {min(r['load_1min'] for r in rows):.1f}-"
-                 f"{max(r['load_1min'] for r in rows):.1f}", fontsize=9)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
 def run(out: str | Path, *, sizes: Sequence[int] | None = None, steps: int | None = None, iterations: int = 30,
-        quick: bool = False, paper_only: bool = False) -> int:
+        quick: bool = False) -> int:
     """Time every method on every strip size and the paper scene; print, write solver.csv/png into ``out``.
 
     Parameters
@@ -298,13 +204,11 @@ def run(out: str | Path, *, sizes: Sequence[int] | None = None, steps: int | Non
         Solver iterations per step.
     quick : bool
         Small sizes, few steps (smoke test).
-    paper_only : bool
-        Only the paper scene's whole step, one compiled call against the step before it (solver_paper.csv/png).
 
     Returns
     -------
     int
-        0; with ``paper_only``, 1 when a compiled step differs from the step before it.
+        0.
     """
     from tqdm import tqdm  # noqa: PLC0415
 
@@ -320,13 +224,6 @@ def run(out: str | Path, *, sizes: Sequence[int] | None = None, steps: int | Non
             raise InputError(f"--sizes {s}: expected particle counts >= 4")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    if paper_only:
-        step_rows = paper_step_rows(iterations, steps if timed_steps is not None else (20 if quick else 200))
-        write_csv(out / "solver_paper.csv", step_rows, STEP_COLUMNS)
-        print_step_rows(step_rows)
-        plot_step_rows(out / "solver_paper.png", step_rows)
-        print(f"wrote {out / 'solver_paper.csv'} and {out / 'solver_paper.png'}")
-        return 0 if all(r["identical"] == "yes" for r in step_rows) else 1
 
     rows: list[dict[str, Any]] = []
     paper_methods = [m for m in METHODS if m.name in ("pbd_gs", "xpbd_gs", "xpbd_jacobi", "numpy_jacobi")]

@@ -17,11 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--iterations", type=int, default=30, help="solver iterations per step (default 30)")
     parser.add_argument("--quick", action="store_true",
                         help=f"small sizes only ({' '.join(map(str, solver.QUICK_SIZES))}), few steps")
-    parser.add_argument("--paper-only", action="store_true",
-                        help="only the paper scene's whole step, one compiled call vs the step before it (ref "
-                             "columns), tool-free and in contact: solver_paper.csv, solver_paper.png")
 
 
 def run(args: argparse.Namespace) -> int:
-    return solver.run(args.out, sizes=args.sizes, steps=args.steps, iterations=args.iterations, quick=args.quick,
-                      paper_only=args.paper_only)
+    return solver.run(args.out, sizes=args.sizes, steps=args.steps, iterations=args.iterations, quick=args.quick)
