@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..mesh import TissueMesh
+from ..mesh import TissueMesh, signed_areas
 from .params import SIM_PARAMETERS
 from .params import validate as validate_params
 
@@ -206,8 +206,7 @@ class Model:
         tris = np.ascontiguousarray(mesh.triangles, dtype=np.int32)
         d = q0[edges[:, 1]] - q0[edges[:, 0]]
         rest_len = np.sqrt((d * d).sum(axis=1))
-        a, b, c = q0[tris[:, 0]], q0[tris[:, 1]], q0[tris[:, 2]]
-        rest_area = 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+        rest_area = signed_areas(q0, tris)
         mass = np.full(n, params.mass, dtype=np.float64)
         if params.mass_per_area > 0 and len(tris):
             # lumped mass: a third of each triangle's area to each of its corners
