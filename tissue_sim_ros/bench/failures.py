@@ -31,6 +31,7 @@ import numpy as np
 
 from ..core.contact.tool import ToolPose, ToolShape, tool_shape_array
 from ..core.contact.tool_checks import INSIDE_TOL, tool_checks
+from ..core.mesh import signed_areas
 
 if TYPE_CHECKING:
     from ..core.physics.model import Model
@@ -79,9 +80,7 @@ def inverted_triangles(x: np.ndarray, tri_indices: np.ndarray) -> np.ndarray:
     """
     if len(tri_indices) == 0:
         return np.zeros(0, dtype=np.int64)
-    a, b, c = x[tri_indices[:, 0]], x[tri_indices[:, 1]], x[tri_indices[:, 2]]
-    area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-    return np.flatnonzero(~(area2 > 0.0))
+    return np.flatnonzero(~(signed_areas(x, tri_indices) > 0.0))
 
 
 #: No triangles: the buried-tool test of :func:`tool_checks` is not one of these checks.
