@@ -107,6 +107,16 @@ def number(ok: Callable[[Any], bool] | None = None, expected: str = "") -> Value
     return ValueCheck("number", ok, expected)
 
 
+def positive(expected: str) -> ValueCheck:
+    """A finite number > 0."""
+    return number(lambda v: v > 0, expected)
+
+
+def non_negative(expected: str) -> ValueCheck:
+    """A finite number >= 0."""
+    return number(lambda v: v >= 0, expected)
+
+
 def integer(ok: Callable[[Any], bool], expected: str) -> ValueCheck:
     """An integer within ``ok``."""
     return ValueCheck("integer", ok, expected)
@@ -146,26 +156,26 @@ SIM_PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("wall_y_bottom", float, math.nan, "m", "Wall: every particle below this y is put on it, as wall_y_top (the authors' 0.0232); NaN = none.", True, "scene", LINE),
     # physics (Table I)
     ParamSpec("mass", float, 1e-4, "kg", "Mass of each particle (Table I: 1e-4).", True, "physics",
-              number(lambda v: v > 0, "a particle mass > 0 kg")),
+              positive("a particle mass > 0 kg")),
     ParamSpec("mass_per_area", float, 0.0, "kg/m^2", "Areal density: > 0 lumps a third of each triangle's area times it on its corners (refined or graded meshes keep the same tissue); 0 = every particle has mass (the paper).", True, "physics",
-              number(lambda v: v >= 0, "an areal density >= 0 kg/m^2 (0: the per-particle mass)")),
+              non_negative("an areal density >= 0 kg/m^2 (0: the per-particle mass)")),
     ParamSpec("material", str, "constraints", "", f"Tissue model: {', '.join(MATERIALS)} (constraints = the paper's springs and areas; neo_hookean = a plane-stress membrane from young_modulus, poisson_ratio, thickness, density, which brings method quasi_newton (iterations 50 at most, substeps 1) and contact_model projection unless they are given).", True, "physics",
               one_of(MATERIALS)),
     ParamSpec("young_modulus", float, 10e3, "Pa", "neo_hookean: Young's modulus E (> 0); ignored by constraints.", False, "physics",
-              number(lambda v: v > 0, "a Young's modulus > 0 Pa")),
+              positive("a Young's modulus > 0 Pa")),
     ParamSpec("poisson_ratio", float, 0.45, "", "neo_hookean: Poisson's ratio nu in [0, 0.5); ignored by constraints.", False, "physics",
               number(lambda v: 0.0 <= v < 0.5, "a Poisson's ratio in [0, 0.5)")),
     ParamSpec("thickness", float, 0.005, "m", "neo_hookean: membrane thickness (> 0); ignored by constraints.", True, "physics",
-              number(lambda v: v > 0, "a thickness > 0 m")),
+              positive("a thickness > 0 m")),
     ParamSpec("density", float, 1000.0, "kg/m^3", "neo_hookean: density (> 0); each particle's mass is density x thickness x a third of its triangles' rest area (replaces mass and mass_per_area); ignored by constraints.", True, "physics",
-              number(lambda v: v > 0, "a density > 0 kg/m^3")),
+              positive("a density > 0 kg/m^3")),
     ParamSpec("settle", str, "none", "", f"How the simulation starts and every reset puts it: {' or '.join(SETTLE_MODES)}; none = the rest shape, static = the static equilibrium under gravity and the pins, at rest (Newton's method on strain energy + gravity; material neo_hookean only).", True, "scene",
               one_of(SETTLE_MODES)),
     ParamSpec("gravity", float, -9.8, "m/s^2", "Gravity along world y (Table I: -9.8).", False, "physics", number()),
     ParamSpec("dt", float, 0.01, "s", "Time step; the node steps at 1/dt of its clock (Table I: 0.01).", True, "physics",
-              number(lambda v: v > 0, "a time step > 0 s")),
+              positive("a time step > 0 s")),
     ParamSpec("damping", float, 0.0, "1/s", "Velocity damping rate c, applied before each prediction (damping_mode); 0 = off (paper; the authors' code: 8).", False, "physics",
-              number(lambda v: v >= 0, "a damping rate >= 0 1/s")),
+              non_negative("a damping rate >= 0 1/s")),
     ParamSpec("damping_mode", str, "linear", "", f"Damping per (sub)step h: linear v *= max(0, 1 - c h), or exponential v *= exp(-c h) (the authors'); one of {', '.join(DAMPING_MODES)}.", False, "physics",
               one_of(DAMPING_MODES)),
     # solver
@@ -184,41 +194,41 @@ SIM_PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("jacobi_averaging", str, "violated", "", f"PBD Jacobi: violated (the authors': spring and area corrections each averaged over the particle's violated constraints of that type, then added) or all (divided by all its constraints); one of {', '.join(JACOBI_AVERAGINGS)}.", False, "solver",
               one_of(JACOBI_AVERAGINGS)),
     ParamSpec("jacobi_spring_tolerance", float, 1e-4, "m", "PBD Jacobi violated: a spring counts when ||x_i - x_j| - d0| >= this (the authors' 1e-4).", False, "solver",
-              number(lambda v: v >= 0, "a tolerance >= 0")),
+              non_negative("a tolerance >= 0")),
     ParamSpec("jacobi_area_tolerance", float, 1e-11, "m^2", "PBD Jacobi violated: a triangle counts when its area error exceeds this (the authors' 1e-11).", False, "solver",
-              number(lambda v: v >= 0, "a tolerance >= 0")),
+              non_negative("a tolerance >= 0")),
     ParamSpec("k_spring", float, 0.15, "", "PBD distance stiffness coefficient in [0, 1] (Table I: 0.15).", False, "solver",
               number(lambda v: 0.0 <= v <= 1.0, "a PBD stiffness coefficient in [0, 1]")),
     ParamSpec("k_area", float, 1.0, "", "PBD area stiffness coefficient in [0, 1] (Table I: 1).", False, "solver",
               number(lambda v: 0.0 <= v <= 1.0, "a PBD stiffness coefficient in [0, 1]")),
     # XPBD's stiffnesses: calibrated to the paper's PBD sag at 30 iterations (docs/calibration.md)
     ParamSpec("stiffness_spring", float, 13.0, "N/m", "XPBD distance stiffness (method xpbd).", False, "solver",
-              number(lambda v: v >= 0, "a stiffness >= 0")),
+              non_negative("a stiffness >= 0")),
     ParamSpec("stiffness_area", float, 1.3e4, "N/m^3", "XPBD area stiffness (method xpbd).", False, "solver",
-              number(lambda v: v >= 0, "a stiffness >= 0")),
+              non_negative("a stiffness >= 0")),
     ParamSpec("area_mode", str, "signed", "", f"Area constraint: {', '.join(AREA_MODES)} (abs = the paper's |area| form).", False, "solver",
               one_of(AREA_MODES)),
     ParamSpec("sleep_speed", float, 0.0, "m/s", "Sleeping: particles slower than this and far from any contact for 10 steps are skipped by the solver; 0 = off.", False, "solver",
-              number(lambda v: v >= 0, "a value >= 0 (sleep_speed 0 turns sleeping off)")),
+              non_negative("a value >= 0 (sleep_speed 0 turns sleeping off)")),
     ParamSpec("sleep_wake_radius", float, 0.15, "m", "Sleeping: particles within this rest distance of a contact particle stay awake.", False, "solver",
-              number(lambda v: v >= 0, "a value >= 0 (sleep_speed 0 turns sleeping off)")),
+              non_negative("a value >= 0 (sleep_speed 0 turns sleeping off)")),
     # contact
     ParamSpec("contact_model", str, "paper", "", f"Contact: {', '.join(CONTACT_MODELS)}.", False, "contact", one_of(CONTACT_MODELS)),
     ParamSpec("contact_radius", float, 0.25, "m", "Paper contact: radius r of the displaced neighbourhood (Table I: 0.25).", False, "contact",
-              number(lambda v: v > 0, "a radius > 0 m")),
+              positive("a radius > 0 m")),
     ParamSpec("contact_threshold", float, 0.025, "m", "Paper contact: distance alpha below which contact starts (Table I: 0.025).", False, "contact",
-              number(lambda v: v >= 0, "a distance >= 0 m")),
+              non_negative("a distance >= 0 m")),
     ParamSpec("contact_margin", float, 0.002, "m", "Projection contact: the tool inflated by this margin.", False, "contact",
-              number(lambda v: v >= 0, "a margin >= 0 m")),
+              non_negative("a margin >= 0 m")),
     ParamSpec("contact_surface", str, "edges", "", f"Projection contact keeps out of the tool: {', '.join(CONTACT_SURFACES)} (edges = particles and boundary edges; particles = particles only, a thin tool slips between them).", False, "contact",
               one_of(CONTACT_SURFACES)),
     # grasping (tunable)
     ParamSpec("grasp_close_angle", float, 0.2, "rad", "Grasper: a jaw angle (tool/jaw) below this closes the jaw: the free particles within grasp_radius of the tip are held to it.", False, "contact", number()),
     ParamSpec("grasp_open_angle", float, 0.4, "rad", "Grasper: a jaw angle above this opens the jaw and releases what it held (> grasp_close_angle: hysteresis).", False, "contact", number()),
     ParamSpec("grasp_radius", float, 0.004, "m", "Grasper: reach of the closing jaw from its tip (the pose); should exceed contact_margin, which keeps the tissue that far from the tool.", False, "contact",
-              number(lambda v: v > 0, "a radius > 0 m")),
+              positive("a radius > 0 m")),
     ParamSpec("grasp_compliance", float, 1e-4, "m/N", "Grasper: compliance of the zero-length springs holding each grasped particle to its place in the jaws (energy |x - target|^2 / (2 compliance)).", False, "contact",
-              number(lambda v: v > 0, "a compliance > 0 m/N")),
+              positive("a compliance > 0 m/N")),
 )
 
 # The order of the checks decides which parameter is named when several are invalid. It is the order the
