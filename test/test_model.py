@@ -50,3 +50,31 @@ def test_areal_density_makes_the_sag_independent_of_the_mesh():
 def test_bad_density_is_named():
     with pytest.raises(InputError, match="mass_per_area"):
         SimParams(mass_per_area=-1.0)
+
+
+def test_simparams_is_made_from_its_rows():
+    """One home per parameter: each row of SIM_PARAMETERS is a field (its default) and its check."""
+    import math
+    import pickle
+    from dataclasses import fields, replace
+
+    from tissue_sim_ros.core.physics.params import SIM_PARAMETERS
+
+    assert [(f.name, f.default) for f in fields(SimParams)] == [(p.name, p.default) for p in SIM_PARAMETERS]
+    lines = dict(boundary_y_top=0.4, boundary_y_bottom=0.0, pin_y_top=0.4, pin_y_bottom=0.0, wall_y_top=0.5,
+                 wall_y_bottom=-0.1)  # set: a NaN read back is another NaN, and NaN != NaN
+    p = SimParams(dt=0.02, method="xpbd", **lines)
+    back = pickle.loads(pickle.dumps(p))
+    assert type(back) is SimParams and back == p and hash(back) == hash(p) and back.k_spring_effective == 13.0
+    assert p.with_(iterations=5).iterations == 5 and SimParams() == SimParams()
+    with pytest.raises(InputError, match=r"parameter iterations=0: expected at least 1 solver iteration"):
+        replace(p, iterations=0)
+    with pytest.raises(TypeError):
+        SimParams(1e-4)  # keyword only: the fields follow the table, not an order to rely on
+    # every value's type before any value's range: the NaN is named, not the dt it precedes in the table
+    with pytest.raises(InputError, match=r"^parameter gravity=nan: expected a finite number$"):
+        SimParams(dt=-1.0, gravity=math.nan)
+    with pytest.raises(InputError, match=r"^parameter wall_y_top=0.1: expected a line above wall_y_bottom=0.3$"):
+        SimParams(wall_y_top=0.1, wall_y_bottom=0.3)
+    with pytest.raises(InputError, match=r"grasp_open_angle=0.1: expected an angle > grasp_close_angle=0.2 rad"):
+        SimParams(grasp_open_angle=0.1)

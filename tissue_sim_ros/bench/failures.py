@@ -13,7 +13,9 @@ that applies them step by step and keeps the first failure of a run:
   is not a failure; the paper's |area| constraint keeps it);
 * ``tunnelling``: a movable particle whose path relative to the tool went
   right through the tool within one step (the tool passed through tissue);
-  how deep particles sit inside the tool is recorded too, as a metric;
+  how deep particles sit inside the tool is recorded too, as a metric. Both
+  are the simulation's own run-time checks against the tool's exact shape
+  (:func:`~tissue_sim_ros.core.contact.tool_checks.tool_checks`);
 * ``no_convergence``: the constraint residual not falling as the iteration
   count grows (measured on one step by :func:`iteration_residuals`, judged
   by :func:`residual_falls`; the stability bench fails a residual that rises
@@ -27,7 +29,9 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from ..core.contact.tool import ToolPose, ToolShape
+from ..core.contact.tool import ToolPose, ToolShape, tool_shape_array
+from ..core.contact.tool_checks import INSIDE_TOL, tool_checks
+from ..core.mesh import signed_areas
 
 if TYPE_CHECKING:
     from ..core.physics.model import Model
@@ -76,53 +80,43 @@ def inverted_triangles(x: np.ndarray, tri_indices: np.ndarray) -> np.ndarray:
     """
     if len(tri_indices) == 0:
         return np.zeros(0, dtype=np.int64)
-    a, b, c = x[tri_indices[:, 0]], x[tri_indices[:, 1]], x[tri_indices[:, 2]]
-    area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-    return np.flatnonzero(~(area2 > 0.0))
+    return np.flatnonzero(~(signed_areas(x, tri_indices) > 0.0))
 
 
-def _to_tool_frame(x: np.ndarray, pose: ToolPose, shape: ToolShape | None = None) -> np.ndarray:
-    """Points in the frame of the tool's rounded box (:meth:`ToolShape.contact_pose`: the pose itself but for the
-    grasper, whose box is centred up its shaft)."""
-    px, py, yaw = shape.contact_pose(pose) if shape is not None else (pose.x, pose.y, pose.yaw)
-    c, s = math.cos(yaw), math.sin(yaw)
-    d = x - np.array([px, py])
-    return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=1)
+#: No triangles: the buried-tool test of :func:`tool_checks` is not one of these checks.
+_NO_TRIANGLES = np.zeros((0, 3), dtype=np.int32)
 
 
-def _inside(p: np.ndarray, hx: float, hy: float) -> np.ndarray:
-    return (np.abs(p[:, 0]) < hx) & (np.abs(p[:, 1]) < hy)
+def _tool_checks(x0: np.ndarray, x1: np.ndarray, pose0: ToolPose, pose1: ToolPose, shape: ToolShape,
+                 particles: np.ndarray, inside_tol: float) -> tuple[int, float, int, int, bool]:
+    """:func:`tool_checks` of ``particles`` (indices) over one step, the tool posed at ``pose0`` then ``pose1``."""
+    x0 = np.ascontiguousarray(x0[particles], dtype=np.float64)
+    x1 = np.ascontiguousarray(x1[particles], dtype=np.float64)
+    return tool_checks(x0, x1, tool_shape_array(shape, pose0), tool_shape_array(shape, pose1), _NO_TRIANGLES,
+                       inside_tol)
+
+
+def _particles(n: int, movable: np.ndarray | None) -> np.ndarray:
+    return np.arange(n) if movable is None else np.flatnonzero(movable)
 
 
 def penetration_depth(x: np.ndarray, pose: ToolPose, shape: ToolShape, movable: np.ndarray | None = None) -> float:
-    """Deepest a particle lies inside the tool's box [m] (0 if none is inside).
-
-    Depth = distance to the nearest face of the box (a capsule or sphere taken
-    as its bounding box with the radius added).
-    """
-    hx, hy, radius = shape.rounded_box()
-    hx, hy = hx + radius, hy + radius
-    p = _to_tool_frame(x, pose, shape)
-    depth = np.minimum(hx - np.abs(p[:, 0]), hy - np.abs(p[:, 1]))
-    if movable is not None:
-        depth = depth[movable]
-    return float(max(0.0, depth.max())) if depth.size else 0.0
+    """Deepest a particle lies inside the tool [m] (0 if none is inside): minus its signed distance to the tool's
+    exact shape, as the simulation reports it (``StepReport.penetration_depth``)."""
+    return float(_tool_checks(x, x, pose, pose, shape, _particles(len(x), movable), INSIDE_TOL)[1])
 
 
 def tunnelled_particles(x0: np.ndarray, x1: np.ndarray, pose0: ToolPose, pose1: ToolPose, shape: ToolShape,
                         movable: np.ndarray | None = None, tolerance: float = 1e-4) -> np.ndarray:
     """Particles the tool passed right through in one step (discrete contact missing them).
 
-    Each particle's start position is taken into the tool frame at ``pose0``
-    and its end position into the tool frame at ``pose1``; if the straight
-    segment between them passes through the tool's box (half extents shrunk by
-    ``tolerance`` so that particles resting on the surface do not count; a
-    capsule or sphere is taken as its bounding box with the radius added)
-    while both ends lie outside it, the tool went through the particle within
-    the step. A particle that ends inside the tool is penetration (see
-    :func:`penetration_depth`), not tunnelling: a slow tool sinking into
-    tissue shows up there. Exact for a translating box; for a rotating tool
-    the segment approximates the relative path.
+    A particle outside the tool at both ends of the step whose path relative to the tool (its start in the
+    tool's frame at ``pose0`` to its end in the frame at ``pose1``) runs through the tool's exact shape, in on
+    one side and out on the other, at least ``tolerance`` deep (so particles resting on the surface do not
+    count): :func:`~tissue_sim_ros.core.contact.tool_checks.tool_checks`, as the simulation counts
+    ``StepReport.n_tunnelled``. A particle that ends inside the tool is penetration (see
+    :func:`penetration_depth`), not tunnelling: a slow tool sinking into tissue shows up there. For a rotating
+    tool the chord approximates the relative path.
 
     Parameters
     ----------
@@ -140,31 +134,12 @@ def tunnelled_particles(x0: np.ndarray, x1: np.ndarray, pose0: ToolPose, pose1: 
     -------
     ndarray of int64, the tunnelled particles.
     """
-    hx, hy, radius = shape.rounded_box()
-    hx, hy = hx + radius - tolerance, hy + radius - tolerance
-    if hx <= 0 or hy <= 0:
+    particles = _particles(len(x0), movable)
+    if not _tool_checks(x0, x1, pose0, pose1, shape, particles, tolerance)[3]:
         return np.zeros(0, dtype=np.int64)
-    p0 = _to_tool_frame(x0, pose0, shape)
-    p1 = _to_tool_frame(x1, pose1, shape)
-    d = p1 - p0
-    # slab test of the segment p0 + t d, t in [0, 1], against |x| < hx, |y| < hy
-    t_lo = np.zeros(len(p0))
-    t_hi = np.ones(len(p0))
-    for axis, h in ((0, hx), (1, hy)):
-        dd = d[:, axis]
-        pp = p0[:, axis]
-        still = np.abs(dd) < 1e-300
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ta = (-h - pp) / dd
-            tb = (h - pp) / dd
-        t_near = np.where(still, np.where(np.abs(pp) < h, -np.inf, np.inf), np.minimum(ta, tb))
-        t_far = np.where(still, np.where(np.abs(pp) < h, np.inf, -np.inf), np.maximum(ta, tb))
-        t_lo = np.maximum(t_lo, t_near)
-        t_hi = np.minimum(t_hi, t_far)
-    hit = (t_lo < t_hi) & ~_inside(p0, hx, hy) & ~_inside(p1, hx, hy)
-    if movable is not None:
-        hit &= movable
-    return np.flatnonzero(hit)
+    # the kernel counts; which particles it counted, one by one (a step where the tool went through tissue)
+    return np.array([i for i in particles
+                     if _tool_checks(x0, x1, pose0, pose1, shape, np.array([i]), tolerance)[3]], dtype=np.int64)
 
 
 def residual_falls(residuals: Sequence[float], min_drop: float = 0.5) -> bool:
@@ -239,6 +214,7 @@ class FailureMonitor:
         self.mass = np.asarray(model.particle_mass)
         self.total_mass = float(self.mass[np.asarray(model.particle_inv_mass) > 0].sum())
         self.movable = np.asarray(model.particle_inv_mass) > 0
+        self._movable = np.flatnonzero(self.movable)
         self._inverted_run = np.zeros(model.n_triangles, dtype=np.int64)
         self.first: Failure | None = None
         self.max_kinetic_ratio = 0.0
@@ -289,18 +265,18 @@ class FailureMonitor:
             run = np.zeros_like(self._inverted_run)
             run[inv] = self._inverted_run[inv] + 1
             self._inverted_run = run
-            tunnelled = np.zeros(0, dtype=np.int64)
+            n_tunnelled = 0
             if self.tool is not None and pose0 is not None and pose1 is not None:
-                tunnelled = tunnelled_particles(x_prev, x, pose0, pose1, self.tool, self.movable,
-                                                self.tunnel_tolerance)
-                self.n_tunnelled += int(tunnelled.size)
+                n_tunnelled = _tool_checks(x_prev, x, pose0, pose1, self.tool, self._movable,
+                                           self.tunnel_tolerance)[3]
+                self.n_tunnelled += n_tunnelled
                 self.max_penetration = max(self.max_penetration,
                                            penetration_depth(x, pose1, self.tool, self.movable))
             if ratio > self.energy_factor:
                 failure = Failure("energy_growth", step,
                                   f"kinetic energy {ke:.3g} J is {ratio:.3g}x the plausible {bound:.3g} J")
-            elif tunnelled.size:
-                failure = Failure("tunnelling", step, f"{tunnelled.size} particles passed through the tool")
+            elif n_tunnelled:
+                failure = Failure("tunnelling", step, f"{n_tunnelled} particles passed through the tool")
             elif run.size and run.max() >= self.inverted_steps:
                 failure = Failure("inverted", step,
                                   f"{int(np.count_nonzero(run >= self.inverted_steps))} triangles inverted "

@@ -7,7 +7,9 @@ would give a parameter two homes.
 Every parameter of the simulator (the YAML file, the node, every ``tissue-sim``
 command and the library alike) is one row of :data:`PARAMETERS`: its flat name,
 type, default, unit, description, whether it can change while a simulation runs,
-and its group. :func:`resolve_config` is the one path from values to a
+and its group. The simulation's rows (each a field of SimParams, with its check) are
+declared in :mod:`tissue_sim_ros.core.physics.params`, below this module, which the
+physics cannot import; this table adds the scene's, the tool's and the node's. :func:`resolve_config` is the one path from values to a
 simulation's configuration::
 
     shipped config/tissue_sim.yaml  <  parameter file(s)  <  overrides (--set, -p, library)
@@ -44,7 +46,7 @@ import re
 from dataclasses import dataclass, field, fields, make_dataclass
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Callable, Iterable, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 import yaml
@@ -52,38 +54,14 @@ import yaml
 from .contact.tool import TOOL_SHAPES, ToolShape
 from .errors import InputError, input_file
 from .mesh import MAX_PARTICLES, OUTLINE_CORNERS, TissueMesh, load_meshes
-from .physics.model import (
-    AREA_MODES,
-    CONTACT_MODELS,
-    CONTACT_SURFACES,
-    DAMPING_MODES,
-    JACOBI_AVERAGINGS,
-    MATERIAL_DEFAULTS,
-    MATERIAL_METHOD_DEFAULTS,
-    MATERIALS,
-    METHODS,
-    SCHEMES,
-    SETTLE_MODES,
-    SimParams,
-)
+from .physics.model import MATERIAL_DEFAULTS, MATERIAL_METHOD_DEFAULTS, SimParams
+from .physics.params import METHOD_ALIASES, METHODS, SIM_PARAMETERS, Check, ParamSpec
 
 #: The section of a ROS 2 parameter file that holds the node's parameters.
 NODE_NAME = "tissue_sim_node"
 
-#: Method names of the design card, mapped onto the orthogonal options (see the module docstring).
-METHOD_ALIASES: dict[str, dict[str, Any]] = {
-    "pbd": {"method": "pbd", "scheme": "gauss_seidel"},
-    "pbd_jacobi": {"method": "pbd", "scheme": "jacobi"},
-    "xpbd": {"method": "xpbd", "scheme": "gauss_seidel"},
-    "xpbd_jacobi": {"method": "xpbd", "scheme": "jacobi"},
-    "xpbd_substep": {"method": "xpbd", "scheme": "gauss_seidel", "substeps": 30, "iterations": 1},
-}
-
 #: Groups of the configuration, by concern.
 GROUPS = ("scene", "physics", "solver", "contact", "tool", "node")
-
-Check = Callable[[Any], "str | None"]
-"""A check returns None when the value is fine, or what was expected."""
 
 
 def _positive(v: Any) -> str | None:
@@ -238,29 +216,12 @@ class SceneConfig:
         return (self.grade_x, self.grade_y, self.grade_radius, self.grade_spacing)
 
 
-@dataclass(frozen=True)
-class ParamSpec:
-    """One parameter: its declaration, the one place its name, type, unit, range and doc live."""
-
-    name: str
-    kind: type
-    """float, int, str or bool (ints are accepted for floats)."""
-    default: Any
-    """Default when no parameter file sets it (``config/tissue_sim.yaml`` overrides the physics ones)."""
-    unit: str
-    description: str
-    read_only: bool
-    """True: the value defines the scene (a new mesh, dt, masses...): change it by building a new simulation
-    (restart the node). False: tunable while running (:meth:`Simulation.retune`, ``ros2 param set``)."""
-    group: str
-    """scene, physics, solver, contact, tool or node."""
-    check: Check | None = None
-    """Range check of a value whose record does not check it itself (the node's own)."""
-
-
-_SIM = SimParams()
 _SCENE = SceneConfig()
 _TOOL = ToolShape()
+# the simulation's rows (core/physics/params.py), the tool's shape before the grasper's rows as the table has
+# always had them: the order of Config.flat(), of a bag's recorded parameters and of the checks of a set
+_GRASP = next(k for k, p in enumerate(SIM_PARAMETERS) if p.name.startswith("grasp_"))
+_SIM_BEFORE_TOOL, _SIM_AFTER_TOOL = SIM_PARAMETERS[:_GRASP], SIM_PARAMETERS[_GRASP:]
 
 PARAMETERS: tuple[ParamSpec, ...] = (
     # scene: where the mesh comes from (read-only: a new mesh is a new scene)
@@ -277,48 +238,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("grade_y", float, _SCENE.grade_y, "m", "Graded mesh: world y of the fine region's centre.", True, "scene"),
     ParamSpec("grade_radius", float, _SCENE.grade_radius, "m", "Graded mesh: radius of the disc meshed at grade_spacing.", True, "scene"),
     ParamSpec("outline_corners", str, _SCENE.outline_corners, "", f"Meshing an image: {' or '.join(OUTLINE_CORNERS)}; smooth = the outline smoothed and resampled by arc length (the paper's meshes), sharp = corners where two straight runs of the outline meet at 60 degrees or more stay vertices on the pixel corners, so a straight face ends at the same place at every spacing (a slab on a support).", True, "scene"),
-    ParamSpec("boundary_y_top", float, _SIM.boundary_y_top, "m", "Particles at or above this y are pinned (the paper's upper line); NaN = none.", True, "scene"),
-    ParamSpec("boundary_y_bottom", float, _SIM.boundary_y_bottom, "m", "Particles at or below this y are pinned (the paper's lower line); NaN = none.", True, "scene"),
-    ParamSpec("pin_y_top", float, _SIM.pin_y_top, "m", "Particles whose rest y is at or above this are pinned (no wall); NaN = none.", True, "scene"),
-    ParamSpec("pin_y_bottom", float, _SIM.pin_y_bottom, "m", "Particles whose rest y is at or below this are pinned (no wall); NaN = none.", True, "scene"),
-    ParamSpec("wall_y_top", float, _SIM.wall_y_top, "m", "Wall: every particle (pinned too) above this y is put on it after the prediction and after every solver iteration (the authors' 0.9768); NaN = none.", True, "scene"),
-    ParamSpec("wall_y_bottom", float, _SIM.wall_y_bottom, "m", "Wall: every particle below this y is put on it, as wall_y_top (the authors' 0.0232); NaN = none.", True, "scene"),
-    # physics (Table I)
-    ParamSpec("mass", float, _SIM.mass, "kg", "Mass of each particle (Table I: 1e-4).", True, "physics"),
-    ParamSpec("mass_per_area", float, _SIM.mass_per_area, "kg/m^2", "Areal density: > 0 lumps a third of each triangle's area times it on its corners (refined or graded meshes keep the same tissue); 0 = every particle has mass (the paper).", True, "physics"),
-    ParamSpec("material", str, _SIM.material, "", f"Tissue model: {', '.join(MATERIALS)} (constraints = the paper's springs and areas; neo_hookean = a plane-stress membrane from young_modulus, poisson_ratio, thickness, density, which brings method quasi_newton (iterations 50 at most, substeps 1) and contact_model projection unless they are given).", True, "physics"),
-    ParamSpec("young_modulus", float, _SIM.young_modulus, "Pa", "neo_hookean: Young's modulus E (> 0); ignored by constraints.", False, "physics"),
-    ParamSpec("poisson_ratio", float, _SIM.poisson_ratio, "", "neo_hookean: Poisson's ratio nu in [0, 0.5); ignored by constraints.", False, "physics"),
-    ParamSpec("thickness", float, _SIM.thickness, "m", "neo_hookean: membrane thickness (> 0); ignored by constraints.", True, "physics"),
-    ParamSpec("density", float, _SIM.density, "kg/m^3", "neo_hookean: density (> 0); each particle's mass is density x thickness x a third of its triangles' rest area (replaces mass and mass_per_area); ignored by constraints.", True, "physics"),
-    ParamSpec("settle", str, _SIM.settle, "", f"How the simulation starts and every reset puts it: {' or '.join(SETTLE_MODES)}; none = the rest shape, static = the static equilibrium under gravity and the pins, at rest (Newton's method on strain energy + gravity; material neo_hookean only).", True, "scene"),
-    ParamSpec("gravity", float, _SIM.gravity, "m/s^2", "Gravity along world y (Table I: -9.8).", False, "physics"),
-    ParamSpec("dt", float, _SIM.dt, "s", "Time step; the node steps at 1/dt of its clock (Table I: 0.01).", True, "physics"),
-    ParamSpec("damping", float, _SIM.damping, "1/s", "Velocity damping rate c, applied before each prediction (damping_mode); 0 = off (paper; the authors' code: 8).", False, "physics"),
-    ParamSpec("damping_mode", str, _SIM.damping_mode, "", f"Damping per (sub)step h: linear v *= max(0, 1 - c h), or exponential v *= exp(-c h) (the authors'); one of {', '.join(DAMPING_MODES)}.", False, "physics"),
-    # solver
-    ParamSpec("method", str, _SIM.method, "", f"Solver: {', '.join(METHODS)} or an alias ({', '.join(METHOD_ALIASES)}).", False, "solver"),
-    ParamSpec("scheme", str, _SIM.scheme, "", f"Constraint order: {', '.join(SCHEMES)}.", False, "solver"),
-    ParamSpec("iterations", int, _SIM.iterations, "", "Solver iterations per (sub)step (Table I: 30).", False, "solver"),
-    ParamSpec("substeps", int, _SIM.substeps, "", "Substeps per step.", False, "solver"),
-    ParamSpec("solve_tolerance", float, _SIM.solve_tolerance, "", "Material: estimated relative error of a step (its last correction over its motion) at which its solve counts as converged (quasi_newton stops there; the node warns beyond it).", False, "solver"),
-    ParamSpec("relaxation", float, _SIM.relaxation, "", "Jacobi relaxation factor in (0, 1].", False, "solver"),
-    ParamSpec("jacobi_averaging", str, _SIM.jacobi_averaging, "", f"PBD Jacobi: violated (the authors': spring and area corrections each averaged over the particle's violated constraints of that type, then added) or all (divided by all its constraints); one of {', '.join(JACOBI_AVERAGINGS)}.", False, "solver"),
-    ParamSpec("jacobi_spring_tolerance", float, _SIM.jacobi_spring_tolerance, "m", "PBD Jacobi violated: a spring counts when ||x_i - x_j| - d0| >= this (the authors' 1e-4).", False, "solver"),
-    ParamSpec("jacobi_area_tolerance", float, _SIM.jacobi_area_tolerance, "m^2", "PBD Jacobi violated: a triangle counts when its area error exceeds this (the authors' 1e-11).", False, "solver"),
-    ParamSpec("k_spring", float, _SIM.k_spring, "", "PBD distance stiffness coefficient in [0, 1] (Table I: 0.15).", False, "solver"),
-    ParamSpec("k_area", float, _SIM.k_area, "", "PBD area stiffness coefficient in [0, 1] (Table I: 1).", False, "solver"),
-    ParamSpec("stiffness_spring", float, _SIM.stiffness_spring, "N/m", "XPBD distance stiffness (method xpbd).", False, "solver"),
-    ParamSpec("stiffness_area", float, _SIM.stiffness_area, "N/m^3", "XPBD area stiffness (method xpbd).", False, "solver"),
-    ParamSpec("area_mode", str, _SIM.area_mode, "", f"Area constraint: {', '.join(AREA_MODES)} (abs = the paper's |area| form).", False, "solver"),
-    ParamSpec("sleep_speed", float, _SIM.sleep_speed, "m/s", "Sleeping: particles slower than this and far from any contact for 10 steps are skipped by the solver; 0 = off.", False, "solver"),
-    ParamSpec("sleep_wake_radius", float, _SIM.sleep_wake_radius, "m", "Sleeping: particles within this rest distance of a contact particle stay awake.", False, "solver"),
-    # contact
-    ParamSpec("contact_model", str, _SIM.contact_model, "", f"Contact: {', '.join(CONTACT_MODELS)}.", False, "contact"),
-    ParamSpec("contact_radius", float, _SIM.contact_radius, "m", "Paper contact: radius r of the displaced neighbourhood (Table I: 0.25).", False, "contact"),
-    ParamSpec("contact_threshold", float, _SIM.contact_threshold, "m", "Paper contact: distance alpha below which contact starts (Table I: 0.025).", False, "contact"),
-    ParamSpec("contact_margin", float, _SIM.contact_margin, "m", "Projection contact: the tool inflated by this margin.", False, "contact"),
-    ParamSpec("contact_surface", str, _SIM.contact_surface, "", f"Projection contact keeps out of the tool: {', '.join(CONTACT_SURFACES)} (edges = particles and boundary edges; particles = particles only, a thin tool slips between them).", False, "contact"),
+    *_SIM_BEFORE_TOOL,
     # tool shape (read-only: the contact model is built around it)
     ParamSpec("tool_shape", str, _TOOL.kind, "", f"Tool shape: {', '.join(TOOL_SHAPES)}.", True, "tool"),
     ParamSpec("tool_length", float, _TOOL.length, "m", "Tool length along its axis (box, capsule).", True, "tool"),
@@ -326,11 +246,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("tool_radius", float, _TOOL.radius, "m", "Radius of a capsule or sphere tool.", True, "tool"),
     ParamSpec("jaw_length", float, _TOOL.jaw_length, "m", "Grasper: length of each jaw (tool_length is the whole grasper, jaw tips to shaft end).", True, "tool"),
     ParamSpec("shaft_width", float, _TOOL.shaft_width, "m", "Grasper: full width of the shaft; contact sees the grasper as a capsule of this diameter from the jaw tips up.", True, "tool"),
-    # grasping (tunable)
-    ParamSpec("grasp_close_angle", float, _SIM.grasp_close_angle, "rad", "Grasper: a jaw angle (tool/jaw) below this closes the jaw: the free particles within grasp_radius of the tip are held to it.", False, "contact"),
-    ParamSpec("grasp_open_angle", float, _SIM.grasp_open_angle, "rad", "Grasper: a jaw angle above this opens the jaw and releases what it held (> grasp_close_angle: hysteresis).", False, "contact"),
-    ParamSpec("grasp_radius", float, _SIM.grasp_radius, "m", "Grasper: reach of the closing jaw from its tip (the pose); should exceed contact_margin, which keeps the tissue that far from the tool.", False, "contact"),
-    ParamSpec("grasp_compliance", float, _SIM.grasp_compliance, "m/N", "Grasper: compliance of the zero-length springs holding each grasped particle to its place in the jaws (energy |x - target|^2 / (2 compliance)).", False, "contact"),
+    *_SIM_AFTER_TOOL,
     # the node's own
     ParamSpec("frame_id", str, "world", "", "The simulation plane's frame (tissue in its z = 0 plane): every message out is in it. A tool input in another frame is taken through the known transforms (world_frame and plane_*, static_transforms, /tf, /tf_static) and projected onto the plane; with no transform it is dropped.", False, "node", _frame),
     ParamSpec("world_frame", str, "", "", "Frame in which plane_x .. plane_yaw place the plane (frame_id); the node broadcasts world_frame -> frame_id on /tf_static where tf2_msgs is installed. Empty = the plane is not placed.", True, "node", _frame_or_empty),
@@ -397,7 +313,8 @@ def _home(spec: ParamSpec) -> str:
         return "tool"
     if spec.group == "node":
         return "node"
-    raise RuntimeError(f"parameter {spec.name!r} has no home: add it to SimParams, SceneConfig or the node group")
+    raise RuntimeError(f"parameter {spec.name!r} has no home: add it to SimParams (a row of "
+                       "core/physics/params.py), SceneConfig or the node group")
 
 
 HOME: dict[str, str] = {p.name: _home(p) for p in PARAMETERS}
@@ -534,7 +451,9 @@ def _type_name(kind: type) -> str:
 
 
 def coerce(spec: ParamSpec, value: Any) -> Any:
-    """The value as the parameter's type (an int for a float is accepted) and its range check, or InputError."""
+    """The value as the parameter's type (an int for a float is accepted) and, for the node's own parameters, its
+    range check; or InputError. The other values' records check their ranges (:meth:`SimParams.validate` every
+    type before any range, so it names the same parameter whichever path the values took)."""
     kind = spec.kind
     if spec.name == "mesh_file" and isinstance(value, (list, tuple)):
         return mesh_file_value(value)  # several mesh files: one scene
@@ -545,7 +464,7 @@ def coerce(spec: ParamSpec, value: Any) -> Any:
     if not ok:
         raise InputError(f"parameter {spec.name}={value!r}: expected {_type_name(kind)}")
     value = float(value) if kind is float else value
-    if spec.check is not None:
+    if spec.check is not None and HOME[spec.name] == "node":
         if kind is float and not math.isfinite(value):
             raise InputError(f"parameter {spec.name}={value!r}: expected a finite number")
         expected = spec.check(value)

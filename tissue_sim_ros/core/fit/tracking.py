@@ -24,7 +24,7 @@ import numpy as np
 
 from ..contact.tool import ToolPose, interpolate_poses
 from ..errors import InputError
-from ..mesh import TissueMesh
+from ..mesh import TissueMesh, segment_distances
 
 #: Fewest observation frames a fit accepts (the first one only binds the points).
 MIN_FRAMES = 3
@@ -120,16 +120,6 @@ def barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> n
     return np.stack([1.0 - wb - wc, wb, wc], axis=-1)
 
 
-def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance of points p (P, 2) to segments a-b (T, 2): shape (P, T)."""
-    ab = b - a
-    ll = np.maximum((ab * ab).sum(axis=1), 1e-300)
-    d = p[:, None, :] - a[None, :, :]
-    s = np.clip((d * ab[None]).sum(axis=2) / ll[None], 0.0, 1.0)
-    e = d - s[..., None] * ab[None]
-    return np.sqrt((e * e).sum(axis=2))
-
-
 def bind_points(vertices: np.ndarray, triangles: np.ndarray, points: np.ndarray, *, tolerance: float = 0.0,
                 chunk: int = 64) -> PointBinding:
     """Bind points to the triangles holding them in the configuration ``vertices``.
@@ -167,8 +157,8 @@ def bind_points(vertices: np.ndarray, triangles: np.ndarray, points: np.ndarray,
         weights[sl] = w[rows, best]
         if not inside.all():
             idx = np.flatnonzero(~inside)
-            dist = np.minimum(np.minimum(_segment_distance(p[sl][idx], a, b), _segment_distance(p[sl][idx], b, c)),
-                              _segment_distance(p[sl][idx], c, a))  # (k, T)
+            dist = np.minimum(np.minimum(segment_distances(p[sl][idx], a, b), segment_distances(p[sl][idx], b, c)),
+                              segment_distances(p[sl][idx], c, a))  # (k, T)
             near = dist.argmin(axis=1)
             dmin = dist[np.arange(idx.size), near]
             for j, (i, t, dd) in enumerate(zip(idx, near, dmin)):

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .types import (
-    TissueMesh,
-)
+from .geometry import signed_areas
+from .types import TissueMesh
 
 
 def triangle_angles(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -47,9 +46,7 @@ def mesh_quality(mesh: TissueMesh, tissue_pixel_area: float | None = None) -> di
             return {"min_angle": float("nan"), "mean_angle": float("nan"), "frac_min_angle_ge_20": float("nan"),
                     "n_min_angle_lt_10": 0, "area": 0.0, "min_signed_area": float("nan")}
         mins = triangle_angles(v, tris).min(axis=1)
-        p = v[tris]
-        area = 0.5 * ((p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1])
-                      - (p[:, 1, 1] - p[:, 0, 1]) * (p[:, 2, 0] - p[:, 0, 0]))
+        area = signed_areas(v, tris)
         return {"min_angle": float(mins.min()), "mean_angle": float(mins.mean()),
                 "frac_min_angle_ge_20": float(np.mean(mins >= 20.0)), "n_min_angle_lt_10": int(np.sum(mins < 10.0)),
                 "area": float(np.abs(area).sum()), "min_signed_area": float(area.min())}

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from .geometry import segment_distances
 from .image import MAX_PIXELS, tissue_mask
 from .types import (
     MAX_PARTICLES,
@@ -497,14 +498,9 @@ def _inside(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Distance of points (n, 2) to the nearest segment a -> b; (n,) float64."""
-    d = b - a
-    dd = np.maximum(np.sum(d * d, axis=1), 1e-300)
     out = np.full(len(points), np.inf)
     for s in range(0, len(points), 2048):  # chunks bound the (n, M) temporaries
-        p = points[s:s + 2048, None, :]
-        t = np.clip(np.sum((p - a) * d, axis=2) / dd, 0.0, 1.0)
-        q = a + t[:, :, None] * d
-        out[s:s + 2048] = np.sqrt(np.min(np.sum((p - q) ** 2, axis=2), axis=1))
+        out[s:s + 2048] = segment_distances(points[s:s + 2048], a, b).min(axis=1)
     return out
 
 

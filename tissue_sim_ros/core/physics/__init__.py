@@ -1,6 +1,7 @@
 """The tissue's physics: the frozen :class:`~.model.Model` and its :class:`~.model.State`, the
 material, the numba kernels and the solvers that step them, and the energy a step stores.
 
+``params`` declares the simulation's parameters, one row each (``SimParams`` is made from them);
 ``model`` builds the arrays (rest lengths and areas, masses, pins, material tables);
 ``kernels``, ``step_kernels``, ``material``, ``attach`` (a grasper's attachment springs) and
 ``violated_jacobi`` (the paper authors' Jacobi) are the ``@njit`` kernels; ``solvers`` and ``sleeping`` run them as PBD and XPBD

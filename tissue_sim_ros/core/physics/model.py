@@ -8,27 +8,16 @@ and :class:`SimParams` into a Model of plain arrays; ``model.state()`` makes a
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, make_dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from ..errors import InputError
-from ..mesh import TissueMesh
+from ..mesh import TissueMesh, signed_areas
+from .params import SIM_PARAMETERS
+from .params import validate as validate_params
 
-METHODS = ("pbd", "xpbd", "quasi_newton")
-SCHEMES = ("gauss_seidel", "jacobi")
-AREA_MODES = ("signed", "abs")
-CONTACT_MODELS = ("paper", "projection", "none")
-CONTACT_SURFACES = ("edges", "particles")
-DAMPING_MODES = ("linear", "exponential")
-JACOBI_AVERAGINGS = ("violated", "all")
-#: ``constraints``: the paper's springs and areas (per-constraint stiffnesses); ``neo_hookean``: a
-#: plane-stress membrane with Young's modulus, Poisson's ratio, thickness and density (core/physics/material.py).
-MATERIALS = ("constraints", "neo_hookean")
-#: How a simulation starts (and resets): ``none`` at the rest shape, ``static`` at the static equilibrium under
-#: gravity and the pins (core/physics/statics.py; neo_hookean only).
-SETTLE_MODES = ("none", "static")
 #: Parameters only ``material: neo_hookean`` reads (ignored with ``constraints``).
 MATERIAL_PARAMETERS = ("young_modulus", "poisson_ratio", "thickness", "density")
 #: What a material sets when the caller does not: the shipped YAML's values are the paper's (constraints)
@@ -48,8 +37,8 @@ MATERIAL_METHOD_DEFAULTS: dict[str, dict[str, dict[str, Any]]] = {
                     "xpbd": {"substeps": 10, "iterations": 10}},
 }
 
-@dataclass(frozen=True)
-class SimParams:
+
+class SimParamsMethods:
     """Every number and switch that defines a simulation, with the paper's defaults.
 
     ``k_spring`` and ``k_area`` are the paper's PBD per-iteration coefficients
@@ -60,130 +49,11 @@ class SimParams:
     coefficients read as physical stiffnesses let the tissue collapse under its
     own weight (125 mm mean sag of the 0.5 m strip). The energy uses the K of
     the method in use (:attr:`k_spring_effective`).
-    """
 
-    # physics (Table I)
-    mass: float = 1e-4
-    """Mass of each particle [kg]."""
-    mass_per_area: float = 0.0
-    """Areal density [kg/m^2]; > 0: each particle gets a third of its triangles' rest area times it (lumped
-    mass), so refining or grading a mesh keeps the tissue's mass where it is; 0 (paper): every particle has ``mass``."""
-    gravity: float = -9.8
-    """Gravity along world y [m/s^2]."""
-    dt: float = 0.01
-    """Time step [s]."""
-    damping: float = 0.0
-    """Velocity damping rate c [1/s], applied to v before each prediction (see ``damping_mode``); 0 = off (paper)."""
-    damping_mode: str = "linear"
-    """How ``damping`` scales the velocity each (sub)step h: ``linear`` v *= max(0, 1 - c h) (first order);
-    ``exponential`` v *= exp(-c h), the exact decay of dv/dt = -c v (the authors' code: c = 8 1/s)."""
-    # solver
-    method: str = "pbd"
-    """``pbd`` (paper, stiffness scales each projection) or ``xpbd`` (compliance, Lagrange multipliers)."""
-    scheme: str = "gauss_seidel"
-    """``gauss_seidel`` (sequential) or ``jacobi`` (parallel, averaged/relaxed)."""
-    iterations: int = 30
-    """Solver iterations per (sub)step."""
-    substeps: int = 1
-    """Substeps per step (Macklin 2019: many substeps of one iteration)."""
-    solve_tolerance: float = 1e-3
-    """Material: the step's estimated relative error (the last correction over the step's motion) at which a
-    solve counts as converged (method quasi_newton stops there; every method with the material reports it, and the node warns
-    beyond it; core/physics/quasi_newton.py)."""
-    relaxation: float = 0.9
-    """XPBD Jacobi relaxation in (0, 1]: the fraction of the largest step with guaranteed convergence.
-
-    Each constraint c steps omega_c = 2 relaxation / r_c, with r_c a Gershgorin
-    bound of the (scaled) XPBD system at the substep's start (stiff constraints
-    get small omega, soft ones ~1); stable at every stiffness tried (13..1e6
-    N/m). A uniform omega of 1 or 0.5 diverged within 6 and 11 steps on the
-    1 m x 0.5 m strip at the default stiffnesses. PBD Jacobi averages by constraint
-    count instead (``jacobi_averaging``) and ignores this value.
+    The fields, their defaults, units, descriptions and checks are the rows of
+    :data:`~tissue_sim_ros.core.physics.params.SIM_PARAMETERS`; :class:`SimParams` is the frozen dataclass
+    made from them on this base. Build it by keyword (``SimParams(dt=0.02)``).
     """
-    jacobi_averaging: str = "violated"
-    """PBD Jacobi: ``violated`` (the authors' forward()): each particle's spring corrections are averaged over
-    its violated springs and its area corrections over its violated triangles, the two averages added
-    (core/physics/violated_jacobi.py); ``all``: the summed corrections divided by all constraints at the particle."""
-    jacobi_spring_tolerance: float = 1e-4
-    """PBD Jacobi ``violated``: a spring counts (and is corrected) when |C| = ||x_i - x_j| - d0| >= this [m]
-    (the authors' 1e-4 m)."""
-    jacobi_area_tolerance: float = 1e-11
-    """PBD Jacobi ``violated``: a triangle counts (and is corrected) when |C| > this [m^2] (the authors' 1e-11)."""
-    k_spring: float = 0.15
-    """PBD distance-constraint stiffness coefficient in [0, 1] (Table I)."""
-    k_area: float = 1.0
-    """PBD area-constraint stiffness coefficient in [0, 1] (Table I)."""
-    stiffness_spring: float = 13.0
-    """XPBD distance-constraint stiffness [N/m].
-
-    Calibrated (docs/calibration.md): with ``stiffness_area`` = 1e3 x this, the
-    1 m x 0.5 m strip (spacing 0.05 m, m = 1e-4 kg, pinned top and bottom)
-    sags 0.284 mm (mean, after 3 s) under XPBD at 30 iterations, the paper's
-    PBD sag at 30 iterations (0.279 mm); XPBD's sag then stays within 3% from
-    30 to 1000 iterations, where PBD's changes 8x from 30 to 100.
-    """
-    stiffness_area: float = 1.3e4
-    """XPBD area-constraint stiffness [N/m^3] (C in m^2); calibrated with ``stiffness_spring``."""
-    area_mode: str = "signed"
-    """``signed`` area constraint (resists inversion) or the paper's ``abs`` |area| form."""
-    sleep_speed: float = 0.0
-    """Sleeping: particles slower than this [m/s] and farther than ``sleep_wake_radius`` from any contact for
-    10 steps are skipped by the solver (``core/physics/sleeping.py``); 0 = off (every particle is solved every step)."""
-    sleep_wake_radius: float = 0.15
-    """Sleeping: particles within this rest distance [m] of a contact particle stay awake."""
-    # boundary (the paper's horizontal lines; NaN = no line)
-    boundary_y_top: float = math.nan
-    """Particles at or above this world y are held (velocity zero) [m]; NaN = no upper line."""
-    boundary_y_bottom: float = math.nan
-    """Particles at or below this world y are held (velocity zero) [m]; NaN = no lower line."""
-    # pins and walls apart (the authors' code: a pinned band near each line, walls that clamp every particle)
-    pin_y_bottom: float = math.nan
-    """Particles whose rest y is at or below this are pinned (inverse mass 0) [m]; NaN = none."""
-    pin_y_top: float = math.nan
-    """Particles whose rest y is at or above this are pinned [m]; NaN = none."""
-    wall_y_bottom: float = math.nan
-    """Every particle (pinned ones too) with y below this is put on it, after the prediction and after every
-    solver iteration [m] (velocity from the clamped position); NaN = no wall."""
-    wall_y_top: float = math.nan
-    """Every particle with y above this is put on it, as ``wall_y_bottom`` [m]; NaN = no wall."""
-    # contact (the paper's eq. 3 and the projection model)
-    contact_model: str = "paper"
-    """``paper`` (eq. 3), ``projection`` (non-penetration in the solver loop, swept), or ``none``."""
-    contact_radius: float = 0.25
-    """Paper contact: radius r of the displaced neighbourhood [m]."""
-    contact_threshold: float = 0.025
-    """Paper contact: distance alpha below which contact starts [m]."""
-    contact_margin: float = 0.002
-    """Projection contact: the tool's shape inflated by this margin [m]."""
-    contact_surface: str = "edges"
-    """Projection contact: what is kept out of the tool. ``edges`` (default): particles and boundary edges,
-    so a tool thinner than the mesh spacing indents the surface instead of slipping between particles;
-    ``particles``: particles only (such a tool pierces the tissue between them)."""
-    # grasping (issue 30): a grasper's jaw closes on what lies at its tip (core/sim/grasp.py, core/physics/attach.py)
-    grasp_close_angle: float = 0.2
-    """Grasper: the jaw closes (grasps) when its angle falls below this [rad]."""
-    grasp_open_angle: float = 0.4
-    """Grasper: the jaw opens (releases) when its angle rises above this [rad] (> grasp_close_angle: hysteresis)."""
-    grasp_radius: float = 0.004
-    """Grasper: particles within this distance of the tip when the jaw closes are grasped [m]."""
-    grasp_compliance: float = 1e-4
-    """Grasper: compliance of the springs holding grasped particles to the jaws [m/N] (stiffness 1 / it)."""
-    # material (issue 16): constraints (the paper) or a plane-stress neo-Hookean membrane
-    material: str = "constraints"
-    """``constraints`` (the paper's springs and areas; the default, so the paper reproduces) or
-    ``neo_hookean`` (plane-stress membrane in SI units, core/physics/material.py; XPBD, so ``method`` must be xpbd)."""
-    young_modulus: float = 10e3
-    """Neo-Hookean: Young's modulus E [Pa] (ignored by ``constraints``). Soft tissue: 1-100 kPa."""
-    poisson_ratio: float = 0.45
-    """Neo-Hookean: Poisson's ratio nu in [0, 0.5) [-] (ignored by ``constraints``)."""
-    thickness: float = 0.005
-    """Neo-Hookean: membrane thickness [m] (ignored by ``constraints``)."""
-    density: float = 1000.0
-    """Neo-Hookean: density [kg/m^3]; each particle's mass is a third of its triangles' rest area times
-    density x thickness (lumped), replacing ``mass`` and ``mass_per_area`` (ignored by ``constraints``)."""
-    settle: str = "none"
-    """How the simulation starts and resets: ``none`` at the rest shape, ``static`` at the static equilibrium
-    under gravity and the pins, at rest (Newton on the potential energy, core/physics/statics.py; neo_hookean only)."""
 
     def __post_init__(self) -> None:
         self.validate()
@@ -199,112 +69,19 @@ class SimParams:
         return self.k_area if self.method == "pbd" else self.stiffness_area
 
     def validate(self) -> None:
-        """Raise :class:`InputError` naming the first invalid parameter."""
-
-        def bad(name: str, expected: str) -> InputError:
-            return InputError(f"parameter {name}={getattr(self, name)!r}: expected {expected}")
-
-        for name in ("mass", "mass_per_area", "gravity", "dt", "damping", "relaxation", "k_spring", "k_area",
-                     "stiffness_spring", "stiffness_area", "contact_radius", "contact_threshold",
-                     "contact_margin", "sleep_speed", "sleep_wake_radius", "jacobi_spring_tolerance",
-                     "jacobi_area_tolerance", "young_modulus", "poisson_ratio",
-                     "thickness", "density", "grasp_close_angle", "grasp_open_angle", "grasp_radius",
-                     "grasp_compliance"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise bad(name, "a finite number")
-        for name in ("iterations", "substeps"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-                raise bad(name, "an integer")
-        if self.dt <= 0:
-            raise bad("dt", "a time step > 0 s")
-        if self.mass <= 0:
-            raise bad("mass", "a particle mass > 0 kg")
-        if self.mass_per_area < 0:
-            raise bad("mass_per_area", "an areal density >= 0 kg/m^2 (0: the per-particle mass)")
-        if self.iterations < 1:
-            raise bad("iterations", "at least 1 solver iteration")
-        if self.substeps < 1:
-            raise bad("substeps", "at least 1 substep")
-        if self.damping < 0:
-            raise bad("damping", "a damping rate >= 0 1/s")
-        if not 0.0 < self.relaxation <= 1.0:
-            raise bad("relaxation", "a Jacobi relaxation factor in (0, 1]")
-        if self.method not in METHODS:
-            raise bad("method", f"one of {', '.join(METHODS)}")
-        if self.scheme not in SCHEMES:
-            raise bad("scheme", f"one of {', '.join(SCHEMES)}")
-        if self.area_mode not in AREA_MODES:
-            raise bad("area_mode", f"one of {', '.join(AREA_MODES)}")
-        if self.contact_model not in CONTACT_MODELS:
-            raise bad("contact_model", f"one of {', '.join(CONTACT_MODELS)}")
-        if self.damping_mode not in DAMPING_MODES:
-            raise bad("damping_mode", f"one of {', '.join(DAMPING_MODES)}")
-        if self.jacobi_averaging not in JACOBI_AVERAGINGS:
-            raise bad("jacobi_averaging", f"one of {', '.join(JACOBI_AVERAGINGS)}")
-        for name in ("jacobi_spring_tolerance", "jacobi_area_tolerance"):
-            if getattr(self, name) < 0:
-                raise bad(name, "a tolerance >= 0")
-        if self.contact_surface not in CONTACT_SURFACES:
-            raise bad("contact_surface", f"one of {', '.join(CONTACT_SURFACES)}")
-        if self.material not in MATERIALS:
-            raise bad("material", f"one of {', '.join(MATERIALS)}")
-        if self.young_modulus <= 0:
-            raise bad("young_modulus", "a Young's modulus > 0 Pa")
-        if not 0.0 <= self.poisson_ratio < 0.5:
-            raise bad("poisson_ratio", "a Poisson's ratio in [0, 0.5)")
-        if self.thickness <= 0:
-            raise bad("thickness", "a thickness > 0 m")
-        if self.density <= 0:
-            raise bad("density", "a density > 0 kg/m^3")
-        if self.settle not in SETTLE_MODES:
-            raise bad("settle", f"one of {', '.join(SETTLE_MODES)}")
-        if self.settle == "static" and self.material != "neo_hookean":
-            raise bad("settle", "none with material constraints (static settle needs material neo_hookean)")
-        if self.material == "neo_hookean" and self.method == "pbd":
-            raise bad("method", "xpbd or quasi_newton with material neo_hookean (the material is solved with compliance)")
-        if self.method == "quasi_newton" and self.material != "neo_hookean":
-            raise bad("method", "pbd or xpbd with material constraints (quasi_newton minimises the material's energy)")
-        if self.method == "quasi_newton" and self.substeps != 1:
-            raise bad("substeps", "1 with method quasi_newton (it solves the whole step)")
-        if not 0.0 < self.solve_tolerance < 1.0:
-            raise bad("solve_tolerance", "a relative residual in (0, 1)")
-        for name in ("k_spring", "k_area"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise bad(name, "a PBD stiffness coefficient in [0, 1]")
-        for name in ("stiffness_spring", "stiffness_area"):
-            if getattr(self, name) < 0:
-                raise bad(name, "a stiffness >= 0")
-        for name in ("sleep_speed", "sleep_wake_radius"):
-            if getattr(self, name) < 0:
-                raise bad(name, "a value >= 0 (sleep_speed 0 turns sleeping off)")
-        if self.contact_radius <= 0:
-            raise bad("contact_radius", "a radius > 0 m")
-        if self.contact_threshold < 0:
-            raise bad("contact_threshold", "a distance >= 0 m")
-        if self.contact_margin < 0:
-            raise bad("contact_margin", "a margin >= 0 m")
-        if self.grasp_open_angle <= self.grasp_close_angle:
-            raise bad("grasp_open_angle", f"an angle > grasp_close_angle={self.grasp_close_angle!r} rad (hysteresis)")
-        if self.grasp_radius <= 0:
-            raise bad("grasp_radius", "a radius > 0 m")
-        if self.grasp_compliance <= 0:
-            raise bad("grasp_compliance", "a compliance > 0 m/N")
-        for name in ("boundary_y_top", "boundary_y_bottom", "pin_y_top", "pin_y_bottom", "wall_y_top",
-                     "wall_y_bottom"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isinf(value):
-                raise bad(name, "a finite y in metres, or NaN for no line")
-        for top, bottom in (("boundary_y_top", "boundary_y_bottom"), ("pin_y_top", "pin_y_bottom"),
-                            ("wall_y_top", "wall_y_bottom")):
-            t, b = getattr(self, top), getattr(self, bottom)
-            if math.isfinite(t) and math.isfinite(b) and t <= b:
-                raise bad(top, f"a line above {bottom}={b}")
+        """Raise :class:`InputError` naming the first invalid parameter (the rows' checks and rules)."""
+        validate_params(self)
 
     def with_(self, **changes: Any) -> "SimParams":
         """A copy with some fields changed (validated)."""
         return replace(self, **changes)
+
+
+SimParams = make_dataclass(
+    "SimParams", [(p.name, p.kind, field(default=p.default)) for p in SIM_PARAMETERS],
+    bases=(SimParamsMethods,), frozen=True, kw_only=True)
+SimParams.__module__, SimParams.__qualname__ = __name__, "SimParams"  # picklable (worker processes, Ray)
+SimParams.__doc__ = SimParamsMethods.__doc__
 
 
 @dataclass
@@ -429,8 +206,7 @@ class Model:
         tris = np.ascontiguousarray(mesh.triangles, dtype=np.int32)
         d = q0[edges[:, 1]] - q0[edges[:, 0]]
         rest_len = np.sqrt((d * d).sum(axis=1))
-        a, b, c = q0[tris[:, 0]], q0[tris[:, 1]], q0[tris[:, 2]]
-        rest_area = 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+        rest_area = signed_areas(q0, tris)
         mass = np.full(n, params.mass, dtype=np.float64)
         if params.mass_per_area > 0 and len(tris):
             # lumped mass: a third of each triangle's area to each of its corners

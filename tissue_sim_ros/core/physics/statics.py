@@ -24,7 +24,8 @@ import scipy.sparse as sp
 
 from .material import element_hessians, internal_forces, strain_energy
 from .minimize import newton_minimize
-from .model import SETTLE_MODES, Model, State  # noqa: F401  (SETTLE_MODES re-exported)
+from .model import Model, State
+from .params import SETTLE_MODES  # noqa: F401  (re-exported)
 
 
 @dataclass
