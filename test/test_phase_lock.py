@@ -217,7 +217,7 @@ def test_a_loaded_publishers_stream_still_locks() -> None:
 @pytest.mark.parametrize("phase_ms", [0.2, 5.0, 9.9])
 def test_bench_reads_the_ticks_phase_from_late_callbacks(phase_ms: float) -> None:
     """bench node places its publisher from the node's step stamps: callbacks late by 0.1-3 ms (a wrap too)."""
-    from tissue_sim_ros.bench.node import _tick_phase
+    from tissue_sim_ros.bench.node_results import tick_phase as _tick_phase
 
     rng = np.random.default_rng(10)
     stamps = T0 + int(phase_ms * 1e6) + np.arange(200) * P + rng.exponential(400_000, 200).astype(np.int64) + 100_000

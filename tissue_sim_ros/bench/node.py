@@ -1,8 +1,9 @@
 """``tissue-sim bench node``: sustained rate, overruns and pose-to-mesh latency of the ROS node.
 
-One piece past 700 lines: one harness around one node process (its start, warm-up, the measuring
-loop of :func:`bench_scene` and the latency pairing share that process's state); the soak's memory
-readers and report are :mod:`~tissue_sim_ros.bench.node_memory`.
+One harness around one node process: its start, warm-up, the measuring loop of :func:`bench_scene` and the
+latency pairing share that process's state; a scene's result, the report's groups and the chart are
+:mod:`~tissue_sim_ros.bench.node_results`, the soak's memory readers and report
+:mod:`~tissue_sim_ros.bench.node_memory`.
 
 For each scene (the paper's: the default image at spacing 0.05 and Table I;
 and the same image meshed to ~5,000 triangles) the benchmark starts
@@ -69,14 +70,13 @@ import subprocess
 import sys
 import time
 from collections import deque
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from ..core.errors import InputError
-from ..core.timing.stamps import stamp_from_ns, stamp_to_seconds
+from ..core.timing.stamps import stamp_from_ns
 from ..ros.domain import free_domain_id
 from . import node_memory
 from .node_memory import soak_row, write_soak_report
@@ -87,81 +87,9 @@ SCENES: dict[str, dict[str, Any]] = {
 }
 
 
+from .node_results import SceneResult, fill, groups, label, phase_tag, plot, tick_phase  # noqa: E402
+
 MODES = ("timer", "lock_step")
-
-
-@dataclass
-class SceneResult:
-    scene: str
-    mode: str = "timer"
-    phase_lock: bool = False
-    phase_ms: float = math.nan
-    """Where the poses were put, after the node's ticks [ms] (before the lock moved them); NaN = not placed."""
-    phase_shifts: int = 0
-    """Shifts the node's phase lock made during the measurement (its settling before is not counted)."""
-    node_wait_ms: float = math.nan
-    """The node's own median wait from a pose's reception to its next scheduled tick (/diagnostics
-    pose_wait_median_ms, median over the window's reports): the phase part of the latency, whatever the
-    load does to the callbacks."""
-    particles: int = 0
-    triangles: int = 0
-    marker_bytes: int = 0
-    points_bytes: int = 0
-    seconds: float = 0.0
-    steps: int = 0
-    rate_hz: float = 0.0
-    overruns: int = 0
-    missed_ticks: int = 0
-    missed_fraction: float = 0.0
-    step_time_mean_ms: float = 0.0
-    step_time_max_ms: float = 0.0
-    sim_step_ms_mean: float = 0.0
-    poses_sent: int = 0
-    poses_shown: int = 0
-    latency_markers_ms: list[float] = field(default_factory=list)
-    latency_points_ms: list[float] = field(default_factory=list)
-    markers_received: int = 0
-    points_received: int = 0
-    divergences: int = 0
-    markers_skipped: int = 0
-    marker_rate: float = 0.0
-    marker_ms_mean: float = 0.0
-    step_scheduling: str = ""
-    """The node's step thread's scheduling policy, from /diagnostics (``--set step_rt_priority=N``)."""
-    soak: list[dict[str, Any]] = field(default_factory=list)
-    latency_rows: list[list[str]] = field(default_factory=list)
-    """Per pose: its stamp [s], markers and points latency [ms] (written to node_latency_*.csv)."""
-
-    def row(self, dt: float) -> dict[str, Any]:
-        lm = np.array(self.latency_markers_ms) if self.latency_markers_ms else np.array([math.nan])
-        lp = np.array(self.latency_points_ms) if self.latency_points_ms else np.array([math.nan])
-        budget = 1e3 * dt + 2.0
-        return {
-            "scene": self.scene, "mode": self.mode, "phase_lock": self.phase_lock if self.mode == "timer" else "",
-            "phase_ms": "" if math.isnan(self.phase_ms) else round(self.phase_ms, 2), "phase_shifts": self.phase_shifts,
-            "node_wait_ms": round(self.node_wait_ms, 2),
-            "particles": self.particles, "triangles": self.triangles,
-            "marker_kB": round(self.marker_bytes / 1024, 1), "points_kB": round(self.points_bytes / 1024, 1),
-            "seconds": round(self.seconds, 2), "steps": self.steps, "rate_hz": round(self.rate_hz, 2),
-            "target_hz": round(1.0 / dt, 2), "overruns": self.overruns, "missed_ticks": self.missed_ticks,
-            "missed_pct": round(100 * self.missed_fraction, 3),
-            "step_ms_mean": round(self.step_time_mean_ms, 3), "step_ms_max": round(self.step_time_max_ms, 3),
-            "sim_ms_mean": round(self.sim_step_ms_mean, 3),
-            "marker_rate": self.marker_rate,
-            "markers_hz": round(self.markers_received / max(self.seconds, 1e-9), 2),
-            "markers_skipped": self.markers_skipped,
-            "marker_ms_mean": round(self.marker_ms_mean, 3),
-            "lat_markers_ms_median": round(float(np.median(lm)), 3),
-            "lat_markers_ms_p95": round(float(np.percentile(lm, 95)), 3),
-            "lat_markers_ms_max": round(float(np.max(lm)), 3),
-            "lat_points_ms_median": round(float(np.median(lp)), 3),
-            "lat_points_ms_p95": round(float(np.percentile(lp, 95)), 3),
-            "latency_budget_ms": round(budget, 3),
-            "poses_sent": self.poses_sent, "poses_shown": self.poses_shown, "divergences": self.divergences,
-            "rate_ok": self.rate_hz >= 0.99 / dt, "missed_ok": self.missed_fraction < 0.01,
-            "latency_ok": float(np.median(lp)) < budget,
-            "step_scheduling": self.step_scheduling,
-        }
 
 
 def _write_params(path: Path, cfg: Any) -> None:
@@ -396,7 +324,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         def place(offset_ns: int) -> None:
             """Move the pose timer so that it fires offset_ns after the node's ticks (one stretched interval)."""
             spin_until(lambda: len(step_stamps) >= 50, discovery_timeout, "the node's steps")
-            tick = _tick_phase(np.array(step_stamps, dtype=np.int64), period_ns)
+            tick = tick_phase(np.array(step_stamps, dtype=np.int64), period_ns)
             next_call = time.time_ns() + pose_timer.time_until_next_call()
             delay = (tick + offset_ns - next_call) % period_ns
             n = published["n"]
@@ -453,7 +381,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
             d1, t1 = diagnostics[-1], time.monotonic()
             if soak:
                 soak_rows.append(soak_row(t1 - t0, proc.pid, d0, d1))
-            _fill(result, d0, d1, t1 - t0, params, sizes, counts, markers, points, applied, sent, by_x)
+            fill(result, d0, d1, t1 - t0, params, sizes, counts, markers, points, applied, sent, by_x)
             result.soak = soak_rows
 
         if mode != "timer":
@@ -481,7 +409,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
 
     for result in results:
         lock = "" if result.mode != "timer" else "_lock" if result.phase_lock else "_nolock"
-        with open(out / f"node_latency_{tag}{lock}{_phase_tag(result)}.csv", "w", newline="") as f:
+        with open(out / f"node_latency_{tag}{lock}{phase_tag(result)}.csv", "w", newline="") as f:
             writer = csv.writer(f)
             writer.writerow(["pose_stamp_s", "markers_latency_ms", "points_latency_ms"])
             writer.writerows(result.latency_rows)
@@ -492,133 +420,6 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         for result in results:
             result.particles, result.triangles = int(words[0]), int(words[2])
     return results
-
-
-def _phase_tag(result: SceneResult) -> str:
-    return "" if math.isnan(result.phase_ms) else f"_phase{result.phase_ms:.2f}"
-
-
-def _tick_phase(stamps_ns: np.ndarray, period_ns: int) -> int:
-    """The phase of a timer's scheduled ticks [ns in 0..period) from its callbacks' times.
-
-    Callbacks come after their scheduled time by the dispatch delay: the 10th
-    percentile of the phases, unwrapped around their circular mean.
-    """
-    phase = (stamps_ns % period_ns).astype(np.float64)
-    angle = phase * (2.0 * math.pi / period_ns)
-    centre = math.atan2(float(np.sin(angle).mean()), float(np.cos(angle).mean())) * period_ns / (2.0 * math.pi)
-    unwrapped = centre + (phase - centre + period_ns / 2.0) % period_ns - period_ns / 2.0
-    return int(np.percentile(unwrapped, 10.0)) % period_ns
-
-
-def _fill(result: SceneResult, d0: dict[str, str], d1: dict[str, str], seconds: float, params: dict[str, Any],
-          sizes: dict[str, int], counts: dict[str, int], markers: list, points: list, applied: list,
-          sent: list, by_x: dict) -> None:
-    """The measurements of one window: counters from two /diagnostics readings, latencies from the series."""
-    from ..ros import messages  # noqa: PLC0415
-
-    # the steps between the two diagnostics readings (each covers up to its publication)
-    result.seconds = seconds
-    result.steps = int(d1["steps"]) - int(d0["steps"])
-    result.rate_hz = result.steps / result.seconds
-    result.overruns = int(d1["overruns"]) - int(d0["overruns"])
-    result.missed_ticks = int(d1["missed_ticks"]) - int(d0["missed_ticks"])
-    result.missed_fraction = (result.overruns + result.missed_ticks) / max(result.steps + result.missed_ticks, 1)
-    result.divergences = int(d1["divergences"]) - int(d0["divergences"])
-    result.markers_skipped = int(d1.get("markers_skipped", 0)) - int(d0.get("markers_skipped", 0))
-    result.marker_rate = float(params["marker_rate"])
-    result.marker_ms_mean = float(d1.get("marker_encode_ms_mean", "nan"))
-    result.phase_shifts = int(d1.get("phase_shifts", 0)) - int(d0.get("phase_shifts", 0))
-    result.step_time_mean_ms = float(d1["step_time_mean_ms"])
-    result.sim_step_ms_mean = float(d1["sim_step_ms_mean"])
-    result.step_scheduling = d1.get("step_thread_scheduling", "")
-    result.step_time_max_ms = max(float(d["step_time_max_ms"]) for d in (d1,))
-    result.marker_bytes, result.points_bytes = sizes["markers"], sizes["points"]
-    result.markers_received, result.points_received = counts["markers"], counts["points"]
-    result.poses_sent = len(sent)
-    # pose stamp -> first arrival of markers showing it; step stamp -> pose stamp
-    first_markers: dict[tuple[int, int], float] = {}
-    step_to_pose: dict[tuple[int, int], tuple[int, int]] = {}
-    for arrival, tool_stamp, step_stamp, action in markers:
-        if action == messages.ACTION_ADD:
-            first_markers.setdefault(tool_stamp, arrival)
-            step_to_pose[step_stamp] = tool_stamp
-    # the pose each step used, from tool/applied_pose (x carries the pose's sequence number)
-    for step_stamp, x in applied:
-        if x in by_x:
-            step_to_pose[step_stamp] = by_x[x]
-    first_points: dict[tuple[int, int], float] = {}
-    for arrival, step_stamp in points:
-        pose_stamp = step_to_pose.get(step_stamp)
-        if pose_stamp is not None:
-            first_points.setdefault(pose_stamp, arrival)
-    for stamp in sent:
-        s = stamp_to_seconds(stamp)
-        lm = 1e3 * (first_markers[stamp] - s) if stamp in first_markers else math.nan
-        lp = 1e3 * (first_points[stamp] - s) if stamp in first_points else math.nan
-        result.latency_rows.append([f"{s:.9f}", f"{lm:.3f}", f"{lp:.3f}"])
-        if stamp in first_markers:
-            result.latency_markers_ms.append(lm)
-        if stamp in first_points:
-            result.latency_points_ms.append(lp)
-    result.poses_shown = len(result.latency_points_ms)
-
-
-def _groups(results: list[SceneResult]) -> dict[tuple[str, str, bool], list[SceneResult]]:
-    """Results by (scene, mode, phase lock), in run order."""
-    groups: dict[tuple[str, str, bool], list[SceneResult]] = {}
-    for r in results:
-        groups.setdefault((r.scene, r.mode, r.phase_lock), []).append(r)
-    return groups
-
-
-def _label(key: tuple[str, str, bool]) -> str:
-    scene, mode, lock = key
-    return f"{scene} {mode.replace('_', '-')}" + ("" if mode != "timer" else ", lock on" if lock else ", lock off")
-
-
-def _plot(results: list[SceneResult], dt: float, path: Path) -> None:
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    fig, axes = plt.subplots(1, 2, figsize=(13, 4.8))
-    budget = 1e3 * dt + 2.0
-    groups = _groups(results)
-    colours = dict(zip(sorted({k[0] for k in groups}), ("tab:blue", "tab:orange", "tab:green", "tab:red")))
-    for key, rs in groups.items():
-        scene, mode, lock = key
-        colour = colours[scene]
-        med = [float(np.median(r.latency_points_ms)) if r.latency_points_ms else math.nan for r in rs]
-        p95 = [float(np.percentile(r.latency_points_ms, 95)) if r.latency_points_ms else math.nan for r in rs]
-        missed = [100 * r.missed_fraction for r in rs]
-        x = [r.phase_ms for r in rs]
-        if mode != "timer" or any(math.isnan(v) for v in x):
-            for ax, v in ((axes[0], med[0]), (axes[1], missed[0])):
-                ax.axhline(v, color=colour, linestyle=":", label=f"{_label(key)} ({rs[0].triangles} tri): {v:.1f}")
-            continue
-        style = "-o" if lock else "--s"
-        axes[0].plot(x, med, style, color=colour, label=f"{_label(key)} ({rs[0].triangles} tri): median, "
-                                                          f"worst {np.nanmax(med):.1f} ms")
-        axes[0].plot(x, p95, style, color=colour, alpha=0.3, markersize=3)
-        axes[0].plot(x, [r.node_wait_ms for r in rs], ":" + style[-1], color=colour, alpha=0.6, markersize=3)
-        axes[1].plot(x, missed, style, color=colour, label=f"{_label(key)}: worst {max(missed):.2f} %")
-    axes[0].axhline(budget, color="k", linestyle="--", label=f"target: period + 2 ms = {budget:.0f} ms")
-    axes[0].set_xlabel("publisher phase after the node's ticks at the start [ms]")
-    axes[0].set_ylabel("pose -> tissue/points latency [ms]")
-    axes[0].set_title("median latency by publisher phase (faint: p95; dotted: the node's wait to its tick)",
-                      fontsize=9)
-    axes[0].legend(fontsize=7)
-    axes[1].axhline(1.0, color="k", linestyle="--", label="target < 1 %")
-    axes[1].set_xlabel("publisher phase after the node's ticks at the start [ms]")
-    axes[1].set_ylabel("missed deadlines [%]")
-    axes[1].set_title("missed deadlines (overruns + skipped ticks); markers at "
-                      + ", ".join(sorted({f"{r.marker_rate:g}" for r in results})) + " Hz")
-    axes[1].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def run(out: str | Path, *, seconds: float = 10.0, warmup: float = 2.0, scenes: Sequence[str] | None = None,
@@ -692,7 +493,7 @@ def run(out: str | Path, *, seconds: float = 10.0, warmup: float = 2.0, scenes: 
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
-    _plot(results, dt, out / "node.png")
+    plot(results, dt, out / "node.png")
     cols = [("scene", 6), ("mode", 9), ("phase_lock", 10), ("phase_ms", 8), ("phase_shifts", 12), ("node_wait_ms", 12), ("particles", 9), ("triangles", 9), ("marker_kB", 9), ("rate_hz", 7), ("target_hz", 9),
             ("missed_pct", 10), ("step_ms_mean", 12), ("step_ms_max", 11), ("sim_ms_mean", 11), ("markers_hz", 10), ("marker_ms_mean", 14),
             ("lat_points_ms_median", 20), ("lat_points_ms_p95", 17), ("lat_markers_ms_median", 21),
@@ -701,7 +502,7 @@ def run(out: str | Path, *, seconds: float = 10.0, warmup: float = 2.0, scenes: 
     for row in rows:
         print("  ".join(f"{row[c]!s:>{w}}" for c, w in cols))
     print(f"load average (1 min): {load[0]:.2f} at the start, {load[1]:.2f} at the end")
-    for key, rs in _groups(results).items():
+    for key, rs in groups(results).items():
         med = [float(np.median(r.latency_points_ms)) if r.latency_points_ms else math.nan for r in rs]
         p95 = [float(np.percentile(r.latency_points_ms, 95)) if r.latency_points_ms else math.nan for r in rs]
         ticks = sum(r.steps + r.missed_ticks for r in rs)
@@ -719,7 +520,7 @@ def run(out: str | Path, *, seconds: float = 10.0, warmup: float = 2.0, scenes: 
         wait = [r.node_wait_ms for r in rs]
         waits = (f"; the node's own pose-to-tick wait {np.nanmin(wait):.1f}-{np.nanmax(wait):.1f} ms"
                  if not all(map(math.isnan, wait)) else "")
-        print(f"{_label(key)}: {verdict}; {shown}/{sent} poses shown, {sum(r.divergences for r in rs)} divergences, "
+        print(f"{label(key)}: {verdict}; {shown}/{sent} poses shown, {sum(r.divergences for r in rs)} divergences, "
               f"{sum(r.phase_shifts for r in rs)} phase shifts while measuring{waits}"
               + (f"; step thread {rs[-1].step_scheduling}" if rs[-1].step_scheduling else ""))
     print(f"wrote {out / 'node.csv'}, {out / 'node.png'}, node_latency_*.csv")

@@ -469,12 +469,7 @@ def fit(simulator: TrackSimulator, observed: np.ndarray, parameters: Sequence[Fi
         raise InputError(f"{n_fit_frames} fitted frames of {n_total}: expected at least 2")
     held: dict[str, float] = {}
     reasons: dict[str, str] = {}
-    active = params
-    rollouts = 0
-    nfev_total = 0
-    message = ""
-    problem = None
-    z = None
+    active, rollouts, nfev_total, message, problem, z = params, 0, 0, "", None, None
     for _attempt in range(len(params) + 1):
         problem = FitProblem(simulator, observed, active, n_fit_frames, fixed=held, diff_step=diff_step)
         if problem.n_residuals < len(active) + 1:
@@ -522,23 +517,7 @@ def fit(simulator: TrackSimulator, observed: np.ndarray, parameters: Sequence[Fi
         cov, rel_sv, shift = None, np.zeros(0), None
         rollouts += 1
     final = problem.values(z)
-    estimates = []
-    for p in params:
-        if p.name in held:
-            estimates.append(ParameterEstimate(p.name, p.initial, None, None, None, None, False, reasons[p.name]))
-            continue
-        j = [q.name for q in active].index(p.name)
-        zj = float(z[j])
-        sz = math.sqrt(max(0.0, cov[j, j])) if cov is not None else float("nan")
-        value = p.from_z(zj)
-        if p.kind == "log":
-            sigma, lo95, hi95 = value * sz, math.exp(zj - Z95 * sz), math.exp(zj + Z95 * sz)
-        else:
-            sigma, lo95, hi95 = sz * p.scale, value - Z95 * sz * p.scale, value + Z95 * sz * p.scale
-        mesh_shift = None
-        if shift is not None:
-            mesh_shift = value * math.expm1(float(shift[j])) if p.kind == "log" else float(shift[j]) * p.scale
-        estimates.append(ParameterEstimate(p.name, p.initial, value, sigma, lo95, hi95, True, mesh_shift=mesh_shift))
+    estimates = _estimates(params, held, reasons, active, z, cov, shift)
     # the whole recording with the final values: the fitted part and the held-out part
     full = simulator.simulate([final], n_total)[0]
     rollouts += 1
@@ -586,3 +565,28 @@ def cost_slices(problem: FitProblem, z: np.ndarray, cov: np.ndarray | None, n: i
         costs = np.array([0.5 * float(r @ r) for r, _ in out[j * n:(j + 1) * n]])
         slices.append(CostSlice(p.name, np.array([p.from_z(float(v)) for v in g]), costs))
     return slices
+
+
+def _estimates(params: Sequence[FitParameter], held: dict[str, float], reasons: dict[str, str],
+               active: Sequence[FitParameter], z: np.ndarray, cov: np.ndarray | None,
+               shift: np.ndarray | None) -> list[ParameterEstimate]:
+    """Each parameter's estimate from the fit's scaled optimum ``z`` and its covariance (95% bounds, the mesh's
+    shift), or the reason it was held at its start value."""
+    estimates = []
+    for p in params:
+        if p.name in held:
+            estimates.append(ParameterEstimate(p.name, p.initial, None, None, None, None, False, reasons[p.name]))
+            continue
+        j = [q.name for q in active].index(p.name)
+        zj = float(z[j])
+        sz = math.sqrt(max(0.0, cov[j, j])) if cov is not None else float("nan")
+        value = p.from_z(zj)
+        if p.kind == "log":
+            sigma, lo95, hi95 = value * sz, math.exp(zj - Z95 * sz), math.exp(zj + Z95 * sz)
+        else:
+            sigma, lo95, hi95 = sz * p.scale, value - Z95 * sz * p.scale, value + Z95 * sz * p.scale
+        mesh_shift = None
+        if shift is not None:
+            mesh_shift = value * math.expm1(float(shift[j])) if p.kind == "log" else float(shift[j]) * p.scale
+        estimates.append(ParameterEstimate(p.name, p.initial, value, sigma, lo95, hi95, True, mesh_shift=mesh_shift))
+    return estimates

@@ -91,21 +91,7 @@ def newton_minimize(energy: Any, x0: np.ndarray, fixed: np.ndarray, g_scale: flo
                 break
         if step is None:  # the projected Hessian (M + PSD) is positive definite: should not happen
             step = -g / np.repeat(np.asarray(energy.mass), 2)[free_dofs]
-        slope = float(g @ step)
-        t = 1.0
-        accepted = False
-        for _ in range(60):
-            x_try = x.copy()
-            x_try.ravel()[free_dofs] += t * step
-            e_try = energy.value(x_try)
-            if e_try <= e + 1e-4 * t * slope:
-                accepted = True
-            elif abs(e_try - e) <= 1e-13 * max(abs(e), 1e-300):
-                g_try = energy.gradient(x_try).ravel()[free_dofs]
-                accepted = float(np.linalg.norm(g_try)) < gnorm
-            if accepted:
-                break
-            t *= 0.5
+        accepted, x_try, e_try, t = _backtrack(energy, x, e, g, gnorm, step, free_dofs)
         if not accepted:
             if not exact_first:
                 exact_first = True  # at round-off with the projected Hessian: let the exact one finish
@@ -124,3 +110,24 @@ def newton_minimize(energy: Any, x0: np.ndarray, fixed: np.ndarray, g_scale: flo
             exact_first = True
     return x, {"grad_norm": gnorm, "grad_norm0": g0, "iterations": iterations, "projected": projected,
                "converged": bool(gnorm <= target), "energy": e}
+
+
+def _backtrack(energy: Any, x: np.ndarray, e: float, g: np.ndarray, gnorm: float, step: np.ndarray,
+               free_dofs: np.ndarray) -> tuple[bool, np.ndarray, float, float]:
+    """Armijo backtracking along ``step`` from x (energy e, free gradient g): (accepted, x there, its energy, the
+    step's fraction). A step that changes the energy only by round-off is accepted when it lowers the gradient."""
+    slope = float(g @ step)
+    t = 1.0
+    x_try, e_try = x, e
+    for _ in range(60):
+        x_try = x.copy()
+        x_try.ravel()[free_dofs] += t * step
+        e_try = energy.value(x_try)
+        if e_try <= e + 1e-4 * t * slope:
+            return True, x_try, e_try, t
+        if abs(e_try - e) <= 1e-13 * max(abs(e), 1e-300):
+            g_try = energy.gradient(x_try).ravel()[free_dofs]
+            if float(np.linalg.norm(g_try)) < gnorm:
+                return True, x_try, e_try, t
+        t *= 0.5
+    return False, x_try, e_try, t
