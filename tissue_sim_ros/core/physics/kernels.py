@@ -65,6 +65,20 @@ def area_gradients(e1x: float, e1y: float, e2x: float, e2y: float,
     return -gbx - gcx, -gby - gcy, gbx, gby, gcx, gcy
 
 
+@njit(cache=True, inline="always")
+def add_corners(out: np.ndarray, a: int, b: int, c: int, wa: float, wb: float, wc: float, s: float,
+                grads: tuple) -> None:
+    """out_p += w_p s grad_p at the corners a, b, c of a triangle: a projection's correction (``out`` the positions,
+    or a Jacobi sweep's sum); ``grads`` = (ga_x, ga_y, gb_x, gb_y, gc_x, gc_y)."""
+    gax, gay, gbx, gby, gcx, gcy = grads
+    out[a, 0] += wa * s * gax
+    out[a, 1] += wa * s * gay
+    out[b, 0] += wb * s * gbx
+    out[b, 1] += wb * s * gby
+    out[c, 0] += wc * s * gcx
+    out[c, 1] += wc * s * gcy
+
+
 # ----------------------------------------------------------------------------- prediction
 
 

@@ -62,7 +62,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .kernels import tri_edges
+from .kernels import add_corners, tri_edges
 from .sweeps import tool_contact
 
 #: Rest areas [m^2] at or below this (relative to the mean) make a degenerate element (skipped).
@@ -144,6 +144,17 @@ def _deformation_gradient(x: np.ndarray, a: int, b: int, c: int, cbx: float, cby
 
 
 @njit(cache=True, inline="always")
+def _element_rest(elastic: np.ndarray, t: int) -> tuple[float, float, float, float, float, float]:
+    """Element t's rest data as the kernels read it: c_b, c_c (rows of D_m^-1) and c_a = -(c_b + c_c):
+    (cbx, cby, ccx, ccy, cax, cay)."""
+    cbx = elastic[t, 0]
+    cby = elastic[t, 1]
+    ccx = elastic[t, 2]
+    ccy = elastic[t, 3]
+    return cbx, cby, ccx, ccy, -cbx - ccx, -cby - ccy
+
+
+@njit(cache=True, inline="always")
 def neo_hookean_element(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, t: int, scale: float):
     """Element ``t``'s strain energy V0 Psi(F) [J] and ``scale`` times its gradient, shared by the strain energy,
     the elastic forces and the minimisation's potential (inlined into each).
@@ -158,12 +169,7 @@ def neo_hookean_element(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, t:
     c = tris[t, 2]
     ad = elastic[t, 4]
     ah = elastic[t, 5]
-    cbx = elastic[t, 0]
-    cby = elastic[t, 1]
-    ccx = elastic[t, 2]
-    ccy = elastic[t, 3]
-    cax = -cbx - ccx
-    cay = -cby - ccy
+    cbx, cby, ccx, ccy, cax, cay = _element_rest(elastic, t)
     f00, f01, f10, f11 = _deformation_gradient(x, a, b, c, cbx, cby, ccx, ccy)
     g0 = f00 - f11
     g1 = f01 + f10
@@ -181,16 +187,11 @@ def neo_hookean_element(x: np.ndarray, tris: np.ndarray, elastic: np.ndarray, t:
 @njit(cache=True, nogil=True)
 def solve_elements_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elastic: np.ndarray,
                          inv_h2: float, lam: np.ndarray, start: int, stop: int) -> None:
-    """Gauss-Seidel over elements ``start:stop`` in array order: deviatoric pair, then hydrostatic.
+    """Gauss-Seidel over elements ``start:stop`` in array order: deviatoric pair, then hydrostatic; ``x`` (N, 2)
+    [m] updated in place, ``inv_mass`` (N,) [1/kg] (0 = held/pinned), ``tris`` (T, 3) int32 the elements' corners.
 
     Parameters
     ----------
-    x : (N, 2) float64
-        Positions [m], updated in place.
-    inv_mass : (N,) float64
-        Inverse masses [1/kg] (0 = held/pinned).
-    tris : (T, 3) int32
-        Particle indices of each element.
     elastic : (T, 6) float64
         Packed rest data (module docstring): Dm^-1 and the rows' compliances per unit energy [1/J].
     inv_h2 : float
@@ -210,12 +211,7 @@ def solve_elements_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, 
         if wa + wb + wc == 0.0:
             continue
         # c_b, c_c: rows of Dm^-1; c_a = -(c_b + c_c)
-        cbx = elastic[t, 0]
-        cby = elastic[t, 1]
-        ccx = elastic[t, 2]
-        ccy = elastic[t, 3]
-        cax = -cbx - ccx
-        cay = -cby - ccy
+        cbx, cby, ccx, ccy, cax, cay = _element_rest(elastic, t)
         s_dev = wa * (cax * cax + cay * cay) + wb * (cbx * cbx + cby * cby) + wc * (ccx * ccx + ccy * ccy)
         if s_dev <= EPS_DEN:
             continue
@@ -249,12 +245,7 @@ def solve_elements_range(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, 
         den += alpha
         s = (-(f00 * f11 - f01 * f10 - 1.0) - alpha * lam[t, 2]) / den
         lam[t, 2] += s
-        x[a, 0] += wa * s * gax
-        x[a, 1] += wa * s * gay
-        x[b, 0] += wb * s * gbx
-        x[b, 1] += wb * s * gby
-        x[c, 0] += wc * s * gcx
-        x[c, 1] += wc * s * gcy
+        add_corners(x, a, b, c, wa, wb, wc, s, (gax, gay, gbx, gby, gcx, gcy))
 
 
 @njit(cache=True, nogil=True)
@@ -308,12 +299,7 @@ def jacobi_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elast
         wc = inv_mass[c]
         if wa + wb + wc == 0.0:
             continue
-        cbx = elastic[t, 0]
-        cby = elastic[t, 1]
-        ccx = elastic[t, 2]
-        ccy = elastic[t, 3]
-        cax = -cbx - ccx
-        cay = -cby - ccy
+        cbx, cby, ccx, ccy, cax, cay = _element_rest(elastic, t)
         s_dev = wa * (cax * cax + cay * cay) + wb * (cbx * cbx + cby * cby) + wc * (ccx * ccx + ccy * ccy)
         if s_dev <= EPS_DEN:
             continue
@@ -344,12 +330,7 @@ def jacobi_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, elast
         den += alpha
         s = omega[t, 1] * (-(f00 * f11 - f01 * f10 - 1.0) - alpha * lam[t, 2]) / den
         lam[t, 2] += s
-        dx_acc[a, 0] += wa * s * gax
-        dx_acc[a, 1] += wa * s * gay
-        dx_acc[b, 0] += wb * s * gbx
-        dx_acc[b, 1] += wb * s * gby
-        dx_acc[c, 0] += wc * s * gcx
-        dx_acc[c, 1] += wc * s * gcy
+        add_corners(dx_acc, a, b, c, wa, wb, wc, s, (gax, gay, gbx, gby, gcx, gcy))
 
 
 @njit(cache=True, nogil=True)
@@ -373,12 +354,7 @@ def jacobi_relaxation_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.nda
         a = tris[t, 0]
         b = tris[t, 1]
         c = tris[t, 2]
-        cbx = elastic[t, 0]
-        cby = elastic[t, 1]
-        ccx = elastic[t, 2]
-        ccy = elastic[t, 3]
-        cax = -cbx - ccx
-        cay = -cby - ccy
+        cbx, cby, ccx, ccy, cax, cay = _element_rest(elastic, t)
         la = math.sqrt(cax * cax + cay * cay)
         lb = math.sqrt(cbx * cbx + cby * cby)
         lc = math.sqrt(ccx * ccx + ccy * ccy)
@@ -411,12 +387,7 @@ def jacobi_relaxation_elements(x: np.ndarray, inv_mass: np.ndarray, tris: np.nda
         a = tris[t, 0]
         b = tris[t, 1]
         c = tris[t, 2]
-        cbx = elastic[t, 0]
-        cby = elastic[t, 1]
-        ccx = elastic[t, 2]
-        ccy = elastic[t, 3]
-        cax = -cbx - ccx
-        cay = -cby - ccy
+        cbx, cby, ccx, ccy, cax, cay = _element_rest(elastic, t)
         sd = omega[t, 0]
         if sd > 0.0:
             la = math.sqrt(cax * cax + cay * cay)

@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit, prange, uint32
 
 from ..contact.kernels import project_edges, project_tool
-from .kernels import EPS_LEN2, area_gradients, tri_edges
+from .kernels import EPS_LEN2, add_corners, area_gradients, tri_edges
 
 #: Fast-math flags of the distance-projection kernels: only fused multiply-add
 #: contraction (6% fewer cycles per projection at 8k particles). No flag that
@@ -173,6 +173,28 @@ def _area_constraint(x: np.ndarray, a: int, b: int, c: int, a0: float, signed: b
 
 
 @njit(cache=True, inline="always")
+def _area_row(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray, t: int, alpha: float,
+              signed: bool):
+    """Triangle t's area projection, shared by the Gauss-Seidel and Jacobi sweeps (inlined): (skip, a, b, c, w_a,
+    w_b, w_c, C, gradients (six components), sum_p w_p |grad_p|^2 + alpha). ``skip``: no particle can move, the
+    gradient is degenerate, or the denominator is not positive."""
+    a = uint32(tris[t, 0])
+    b = uint32(tris[t, 1])
+    c = uint32(tris[t, 2])
+    wa = inv_mass[a]
+    wb = inv_mass[b]
+    wc = inv_mass[c]
+    if wa + wb + wc == 0.0:
+        return True, a, b, c, wa, wb, wc, 0.0, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0), 0.0
+    C, gax, gay, gbx, gby, gcx, gcy, ga2, gb2, gc2 = _area_constraint(x, a, b, c, area0[t], signed)
+    grads = (gax, gay, gbx, gby, gcx, gcy)
+    if ga2 + gb2 + gc2 <= EPS_LEN2:
+        return True, a, b, c, wa, wb, wc, C, grads, 0.0
+    den = wa * ga2 + wb * gb2 + wc * gc2 + alpha
+    return den <= 0.0, a, b, c, wa, wb, wc, C, grads, den
+
+
+@njit(cache=True, inline="always")
 def _area_sweep(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray, k: float, alpha: float,
                 lam: np.ndarray, signed: bool, start: int, stop: int, multipliers: bool) -> None:
     """The body of every serial area sweep (inlined, so each caller's fast-math flags apply to it).
@@ -181,31 +203,15 @@ def _area_sweep(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np
     multiplier never enters a projection, so the positions are the same bit for bit.
     """
     for t in range(uint32(start), uint32(stop)):
-        a = uint32(tris[t, 0])
-        b = uint32(tris[t, 1])
-        c = uint32(tris[t, 2])
-        wa = inv_mass[a]
-        wb = inv_mass[b]
-        wc = inv_mass[c]
-        if wa + wb + wc == 0.0:
-            continue
-        C, gax, gay, gbx, gby, gcx, gcy, ga2, gb2, gc2 = _area_constraint(x, a, b, c, area0[t], signed)
-        if ga2 + gb2 + gc2 <= EPS_LEN2:
-            continue
-        den = wa * ga2 + wb * gb2 + wc * gc2 + alpha
-        if den <= 0.0:
+        skip, a, b, c, wa, wb, wc, C, grads, den = _area_row(x, inv_mass, tris, area0, t, alpha, signed)
+        if skip:
             continue
         if multipliers:
             s = k * (-C - alpha * lam[t]) / den
             lam[t] += s
         else:
             s = k * -C / den
-        x[a, 0] += wa * s * gax
-        x[a, 1] += wa * s * gay
-        x[b, 0] += wb * s * gbx
-        x[b, 1] += wb * s * gby
-        x[c, 0] += wc * s * gcx
-        x[c, 1] += wc * s * gcy
+        add_corners(x, a, b, c, wa, wb, wc, s, grads)
 
 
 @njit(cache=True, fastmath=FMA, nogil=True)
@@ -439,28 +445,12 @@ def jacobi_areas(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: n
                  dx_acc: np.ndarray) -> None:
     """Jacobi pass over area constraints (see :func:`jacobi_edges` and :func:`solve_areas`)."""
     for t in range(uint32(tris.shape[0])):
-        a = uint32(tris[t, 0])
-        b = uint32(tris[t, 1])
-        c = uint32(tris[t, 2])
-        wa = inv_mass[a]
-        wb = inv_mass[b]
-        wc = inv_mass[c]
-        if wa + wb + wc == 0.0:
-            continue
-        C, gax, gay, gbx, gby, gcx, gcy, ga2, gb2, gc2 = _area_constraint(x, a, b, c, area0[t], signed)
-        if ga2 + gb2 + gc2 <= EPS_LEN2:
-            continue
-        den = wa * ga2 + wb * gb2 + wc * gc2 + alpha
-        if den <= 0.0:
+        skip, a, b, c, wa, wb, wc, C, grads, den = _area_row(x, inv_mass, tris, area0, t, alpha, signed)
+        if skip:
             continue
         s = omega[t] * k * (-C - alpha * lam[t]) / den
         lam[t] += s
-        dx_acc[a, 0] += wa * s * gax
-        dx_acc[a, 1] += wa * s * gay
-        dx_acc[b, 0] += wb * s * gbx
-        dx_acc[b, 1] += wb * s * gby
-        dx_acc[c, 0] += wc * s * gcx
-        dx_acc[c, 1] += wc * s * gcy
+        add_corners(dx_acc, a, b, c, wa, wb, wc, s, grads)
 
 
 @njit(cache=True, nogil=True)
@@ -472,6 +462,32 @@ def jacobi_apply(x: np.ndarray, dx_acc: np.ndarray, particle_scale: np.ndarray) 
         x[i, 1] += s * dx_acc[i, 1]
         dx_acc[i, 0] = 0.0
         dx_acc[i, 1] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _edge_gradient_length(x: np.ndarray, edges: np.ndarray, e: int) -> tuple[int, int, float]:
+    """(i, j, |grad C_e| at either end): 1, or 0 for a degenerate edge (its direction undefined)."""
+    i = edges[e, 0]
+    j = edges[e, 1]
+    dx = x[i, 0] - x[j, 0]
+    dy = x[i, 1] - x[j, 1]
+    return i, j, 1.0 if dx * dx + dy * dy > EPS_LEN2 else 0.0
+
+
+@njit(cache=True, inline="always")
+def _area_gradient_lengths(x: np.ndarray, tris: np.ndarray, t: int, signed: bool):
+    """(a, b, c, |grad_a C_t|, |grad_b C_t|, |grad_c C_t|): half the opposite edges' lengths (|grad_a| = |x_c -
+    x_b| / 2), zero for the paper's |area| of a triangle of zero area (no gradient there)."""
+    a = tris[t, 0]
+    b = tris[t, 1]
+    c = tris[t, 2]
+    e1x, e1y, e2x, e2y = tri_edges(x, a, b, c)
+    gb = 0.5 * math.sqrt(e2x * e2x + e2y * e2y)
+    gc = 0.5 * math.sqrt(e1x * e1x + e1y * e1y)
+    ga = 0.5 * math.sqrt((e2x - e1x) ** 2 + (e2y - e1y) ** 2)
+    if not signed and e1x * e2y - e1y * e2x == 0.0:
+        return a, b, c, 0.0, 0.0, 0.0
+    return a, b, c, ga, gb, gc
 
 
 @njit(cache=True, nogil=True)
@@ -500,11 +516,7 @@ def jacobi_relaxation(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, al
         node_sum[i] = 0.0
     # pass 1: sqrt(D_c) into omega, G_p into node_sum
     for e in range(edges.shape[0]):
-        i = edges[e, 0]
-        j = edges[e, 1]
-        dx = x[i, 0] - x[j, 0]
-        dy = x[i, 1] - x[j, 1]
-        g = 1.0 if dx * dx + dy * dy > EPS_LEN2 else 0.0
+        i, j, g = _edge_gradient_length(x, edges, e)
         d = (inv_mass[i] + inv_mass[j]) * g + alpha_e
         if d <= 0.0:
             omega_e[e] = 0.0
@@ -514,22 +526,7 @@ def jacobi_relaxation(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, al
         node_sum[i] += g / sd
         node_sum[j] += g / sd
     for t in range(tris.shape[0]):
-        a = tris[t, 0]
-        b = tris[t, 1]
-        c = tris[t, 2]
-        e1x = x[b, 0] - x[a, 0]
-        e1y = x[b, 1] - x[a, 1]
-        e2x = x[c, 0] - x[a, 0]
-        e2y = x[c, 1] - x[a, 1]
-        gb = 0.5 * math.sqrt(e2x * e2x + e2y * e2y)
-        gc = 0.5 * math.sqrt(e1x * e1x + e1y * e1y)
-        ga = 0.5 * math.sqrt((e2x - e1x) ** 2 + (e2y - e1y) ** 2)  # |grad_a| = |x_c - x_b| / 2
-        if not signed:
-            area2 = e1x * e2y - e1y * e2x
-            if area2 == 0.0:
-                ga = 0.0
-                gb = 0.0
-                gc = 0.0
+        a, b, c, ga, gb, gc = _area_gradient_lengths(x, tris, t, signed)
         d = inv_mass[a] * ga * ga + inv_mass[b] * gb * gb + inv_mass[c] * gc * gc + alpha_t
         if d <= 0.0:
             omega_t[t] = 0.0
@@ -544,33 +541,14 @@ def jacobi_relaxation(x: np.ndarray, inv_mass: np.ndarray, edges: np.ndarray, al
         sd = omega_e[e]
         if sd == 0.0:
             continue
-        i = edges[e, 0]
-        j = edges[e, 1]
-        dx = x[i, 0] - x[j, 0]
-        dy = x[i, 1] - x[j, 1]
-        g = 1.0 if dx * dx + dy * dy > EPS_LEN2 else 0.0
+        i, j, g = _edge_gradient_length(x, edges, e)
         r = alpha_e / (sd * sd) + g * (inv_mass[i] * node_sum[i] + inv_mass[j] * node_sum[j]) / sd
         omega_e[e] = scale / r if r > 0.0 else scale
     for t in range(tris.shape[0]):
         sd = omega_t[t]
         if sd == 0.0:
             continue
-        a = tris[t, 0]
-        b = tris[t, 1]
-        c = tris[t, 2]
-        e1x = x[b, 0] - x[a, 0]
-        e1y = x[b, 1] - x[a, 1]
-        e2x = x[c, 0] - x[a, 0]
-        e2y = x[c, 1] - x[a, 1]
-        gb = 0.5 * math.sqrt(e2x * e2x + e2y * e2y)
-        gc = 0.5 * math.sqrt(e1x * e1x + e1y * e1y)
-        ga = 0.5 * math.sqrt((e2x - e1x) ** 2 + (e2y - e1y) ** 2)
-        if not signed:
-            area2 = e1x * e2y - e1y * e2x
-            if area2 == 0.0:
-                ga = 0.0
-                gb = 0.0
-                gc = 0.0
+        a, b, c, ga, gb, gc = _area_gradient_lengths(x, tris, t, signed)
         r = alpha_t / (sd * sd) + (inv_mass[a] * ga * node_sum[a] + inv_mass[b] * gb * node_sum[b]
                                    + inv_mass[c] * gc * node_sum[c]) / sd
         omega_t[t] = scale / r if r > 0.0 else scale

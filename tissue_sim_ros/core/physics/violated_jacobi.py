@@ -39,7 +39,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .kernels import area_gradients, tri_edges
+from .kernels import add_corners, area_gradients, tri_edges
 from .sweeps import tool_contact
 from .walls import apply_walls
 
@@ -124,12 +124,7 @@ def violated_jacobi_pass(x: np.ndarray, w: np.ndarray, w_move: np.ndarray, const
         if den <= 0.0:
             continue
         s = -k_t * C / den
-        dxa[a, 0] += w[a] * s * gax
-        dxa[a, 1] += w[a] * s * gay
-        dxa[b, 0] += w[b] * s * gbx
-        dxa[b, 1] += w[b] * s * gby
-        dxa[c, 0] += w[c] * s * gcx
-        dxa[c, 1] += w[c] * s * gcy
+        add_corners(dxa, a, b, c, w[a], w[b], w[c], s, (gax, gay, gbx, gby, gcx, gcy))
     for i in range(n):
         if w_move[i] > 0.0:
             if ns[i] > 0.0:

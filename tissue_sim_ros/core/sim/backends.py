@@ -40,8 +40,8 @@ from .batch import (
     CandidateResult,
     RolloutPool,
     ToolPath,
-    _paths,
     finish,
+    pool_paths,
     rollout_baseline,
     rollout_candidate,
 )
@@ -183,10 +183,8 @@ class RayRolloutPool:
         ray = self._ray
         if not self._actors:
             raise RuntimeError("the Ray rollout pool is closed")
-        if snap.scene != self.scene_key:
-            raise InputError(f"snapshot of scene {snap.scene[:8]}: expected one of the pool's scene {self.scene_key[:8]}")
         t0 = time.perf_counter()
-        paths = _paths(candidates, self.scene.model.params.dt)
+        paths = pool_paths(self.scene, self.scene_key, snap, candidates)
         snap_ref = ray.put(snap)  # once per batch, shared by every actor
         self._batch += 1
         batch = self._batch

@@ -498,6 +498,14 @@ def _paths(candidates: Iterable[ToolPath | Trajectory | np.ndarray], dt: float) 
     return paths
 
 
+def pool_paths(scene: BatchScene, scene_key: str, snap: SimSnapshot,
+               candidates: Sequence[ToolPath | Trajectory | np.ndarray]) -> list[ToolPath]:
+    """A pool's batch: the snapshot checked against the pool's scene, the candidates as paths."""
+    if snap.scene != scene_key:
+        raise InputError(f"snapshot of scene {snap.scene[:8]}: expected one of the pool's scene {scene_key[:8]}")
+    return _paths(candidates, scene.model.params.dt)
+
+
 def _snapshot_of(source: Simulation | SimSnapshot) -> SimSnapshot:
     return source.snapshot() if isinstance(source, Simulation) else source
 

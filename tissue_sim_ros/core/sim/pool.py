@@ -26,8 +26,8 @@ from .batch import (
     BatchScene,
     CandidateResult,
     ToolPath,
-    _paths,
     finish,
+    pool_paths,
     rollout_baseline,
     rollout_candidate,
 )
@@ -160,10 +160,8 @@ class RolloutPool:
         """Roll every candidate out from ``snap`` on the workers (see :func:`rollout_batch`)."""
         if not self.alive:
             raise RuntimeError("the rollout pool is closed or a worker died")
-        if snap.scene != self.scene_key:
-            raise InputError(f"snapshot of scene {snap.scene[:8]}: expected one of the pool's scene {self.scene_key[:8]}")
         t0 = time.perf_counter()
-        paths = _paths(candidates, self.scene.model.params.dt)
+        paths = pool_paths(self.scene, self.scene_key, snap, candidates)
         self._batch += 1
         batch = self._batch
         for c in self._conns:

@@ -123,6 +123,9 @@ class SolverBase:
         self._exponential = p.damping_mode == "exponential"
         self._no_index = np.zeros(0, dtype=np.int32)
         self._no_edges = np.zeros((0, 2), dtype=np.int32)
+        self._shapes = np.zeros((0, 7))
+        self._shape0 = np.zeros(7)
+        self._shape1 = np.zeros(7)
 
     def step(self, state_in: State, state_out: State, contacts: Contacts, dt: float) -> SolveInfo:
         """Advance ``state_in`` by ``dt`` into ``state_out`` (which must not alias ``state_in``).
@@ -191,6 +194,30 @@ class SolverBase:
         if self.lam_a.shape[0] != idx.shape[0]:
             self.lam_a = np.zeros((idx.shape[0], 2))
         return idx, target, compliance
+
+    def sweep_bundles(self, state_in: State, state_out: State, contacts: Contacts, dt: float,
+                      x_start: np.ndarray) -> tuple[StepInput, float, tuple, tuple, tuple, tuple]:
+        """What a substepping solver's compiled step takes besides its own bundles: (the checked step, h = dt /
+        substeps, state, pred, tool, attach), the tool's shape per substep made here (:func:`substep_shapes`) and
+        the contact corrections cleared when the projection runs."""
+        n_sub = self.params.substeps
+        h = dt / n_sub
+        step = self.check_step(state_in, state_out, contacts, dt)
+        if step.projection:
+            self.contact_dx.fill(0.0)
+            self._shapes = shapes = substep_shapes(contacts, n_sub, self._shapes)
+        else:
+            shapes = np.zeros((0, 7))
+        a_idx, a_target, a_compliance = self.attachments(contacts)
+        state = (state_in.particle_q, state_in.particle_qd, state_out.particle_q, state_out.particle_qd)
+        pred = (self.model.particle_inv_mass, self.inv_mass_eff, self.x_pred, x_start, step.held_idx, step.held_dx)
+        tool = (step.candidates, step.surface_edges, float(contacts.edge_side_tol), shapes, self._shape0,
+                self._shape1, self.contact_dx)
+        return step, h, state, pred, tool, (a_idx, a_target, a_compliance / (h * h), self.lam_a)
+
+    def timing(self, dt: float, h: float) -> tuple:
+        """(dt, substeps, gravity, the damping over dt, over h): the compiled steps' ``timing``."""
+        return (dt, self.params.substeps, self.params.gravity, self.damp_factor(dt), self.damp_factor(h))
 
     def finish(self, contacts: Contacts, step: StepInput, residual: float) -> SolveInfo:
         """The step's :class:`SolveInfo`; ``contacts.touched``: the particles the projection moved, or the paper

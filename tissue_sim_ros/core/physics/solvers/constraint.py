@@ -43,7 +43,7 @@ import numpy as np
 from ...errors import InputError
 from ..model import Model, State
 from ..step_kernels import SWEEP_JACOBI, SWEEP_VIOLATED, constraint_step
-from .base import SolveInfo, SolverBase, substep_shapes
+from .base import SolveInfo, SolverBase
 from .ordering import JACOBI_RELAXATIONS, ORDERS, PARALLEL_MODES, SolveOrder, solve_order
 
 #: The constraint solver's options (the registry passes these from ``Solver(model, **options)``).
@@ -205,10 +205,6 @@ class ConstraintSolver(SolverBase):
         """The compiled step's ``sets``: the active constraints in solve order, all of them (the residual), signed."""
         self.x_start = np.zeros((model.n_particles, 2))
         """Positions at the start of the current substep [m], (N, 2)."""
-        self._shapes = np.zeros((0, 7))
-        self._no_shapes = np.zeros((0, 7))
-        self._shape0 = np.zeros(7)
-        self._shape1 = np.zeros(7)
 
     @property
     def n_projections_per_step(self) -> int:
@@ -229,23 +225,9 @@ class ConstraintSolver(SolverBase):
 
     def step(self, state_in: State, state_out: State, contacts, dt: float) -> SolveInfo:
         """Advance ``state_in`` by ``dt`` into ``state_out`` in one compiled call (module docstring)."""
-        p = self.params
-        step = self.check_step(state_in, state_out, contacts, dt)
-        n_sub = p.substeps
-        h = dt / n_sub
-        if step.projection:
-            self.contact_dx.fill(0.0)
-            self._shapes = shapes = substep_shapes(contacts, n_sub, self._shapes)
-        else:
-            shapes = self._no_shapes
-        a_idx, a_target, a_compliance = self.attachments(contacts)
+        step, h, state, pred, tool, attach = self.sweep_bundles(state_in, state_out, contacts, dt, self.x_start)
         sw = self.sweep
-        residual = constraint_step(
-            (state_in.particle_q, state_in.particle_qd, state_out.particle_q, state_out.particle_qd),
-            (self.model.particle_inv_mass, self.inv_mass_eff, self.x_pred, self.x_start, step.held_idx, step.held_dx),
-            (dt, n_sub, p.gravity, self.damp_factor(dt), self.damp_factor(h)), self.bounds, self._sets,
-            (sw.mode, p.iterations, self.coefficients(h), sw.mults, sw.jac, sw.violated),
-            (step.candidates, step.surface_edges, float(contacts.edge_side_tol), shapes, self._shape0, self._shape1,
-             self.contact_dx),
-            (a_idx, a_target, a_compliance / (h * h), self.lam_a))
+        residual = constraint_step(state, pred, self.timing(dt, h), self.bounds, self._sets,
+                                   (sw.mode, self.params.iterations, self.coefficients(h), sw.mults, sw.jac,
+                                    sw.violated), tool, attach)
         return self.finish(contacts, step, residual)

@@ -15,7 +15,7 @@ import numpy as np
 from .. import sweeps
 from ..model import Model, State
 from ..step_kernels import material_xpbd_step
-from .base import SolveInfo, SolverBase, substep_shapes
+from .base import SolveInfo, SolverBase
 from .constraint import check_order_options
 from .ordering import solve_order
 from .quasi_newton import MaterialSolve
@@ -61,10 +61,6 @@ class MaterialXPBDSolver(SolverBase):
         """The compiled step's ``sweep``."""
         self.x_start = np.zeros((n, 2))
         self.material_solve = MaterialSolve(model, self.tris, self.elastic)
-        self._shapes = np.zeros((0, 7))
-        self._no_shapes = np.zeros((0, 7))
-        self._shape0 = np.zeros(7)
-        self._shape1 = np.zeros(7)
 
     @property
     def n_projections_per_step(self) -> int:
@@ -75,24 +71,10 @@ class MaterialXPBDSolver(SolverBase):
         """Advance ``state_in`` by ``dt`` into ``state_out`` in one compiled call, then measure the last substep's
         error against its exact step."""
         p = self.params
-        step = self.check_step(state_in, state_out, contacts, dt)
-        n_sub = p.substeps
-        h = dt / n_sub
-        if step.projection:
-            self.contact_dx.fill(0.0)
-            self._shapes = shapes = substep_shapes(contacts, n_sub, self._shapes)
-        else:
-            shapes = self._no_shapes
-        a_idx, a_target, a_compliance = self.attachments(contacts)
+        step, h, state, pred, tool, attach = self.sweep_bundles(state_in, state_out, contacts, dt, self.x_start)
         ms = self.material_solve
-        residual = material_xpbd_step(
-            (state_in.particle_q, state_in.particle_qd, state_out.particle_q, state_out.particle_qd),
-            (self.model.particle_inv_mass, self.inv_mass_eff, self.x_pred, self.x_start, step.held_idx, step.held_dx),
-            (dt, n_sub, p.gravity, self.damp_factor(dt), self.damp_factor(h)), self.bounds, self._elements,
-            self._sweep,
-            (step.candidates, step.surface_edges, float(contacts.edge_side_tol), shapes, self._shape0, self._shape1,
-             self.contact_dx),
-            (a_idx, a_target, a_compliance / (h * h), self.lam_a), ms.x_pred_h)
+        residual = material_xpbd_step(state, pred, self.timing(dt, h), self.bounds, self._elements, self._sweep,
+                                      tool, attach, ms.x_pred_h)
         info = self.finish(contacts, step, residual)
         info.solve_iterations = p.iterations
         info.solve_residual = ms.sweep_residual(state_out.particle_q, self.x_start, self.inv_mass_eff, h,

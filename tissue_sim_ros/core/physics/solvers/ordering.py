@@ -37,14 +37,8 @@ WAVEFRONT_BLOCK = 4096
 
 
 def colour_constraints(indices: np.ndarray, n_particles: int) -> tuple[np.ndarray, np.ndarray]:
-    """Greedy colouring of constraints, as a stable permutation sorted by colour.
-
-    Parameters
-    ----------
-    indices : (M, K) int32
-        Particles of each constraint.
-    n_particles : int
-        Number of particles.
+    """Greedy colouring of the constraints ``indices`` ((M, K) int32, the particles of each, of ``n_particles``;
+    :func:`~tissue_sim_ros.core.physics.kernels.greedy_colour`), as a stable permutation sorted by colour.
 
     Returns
     -------

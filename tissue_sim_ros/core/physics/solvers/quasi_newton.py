@@ -181,8 +181,6 @@ class QuasiNewtonSolver(SolverBase):
         self.solve_options = (float(p.solve_tolerance), int(p.iterations), float(self.material_solve.floor_rms))
         """The compiled step's ``solve``: (tolerance, iterations at most, the motion floor [m])."""
         self._residual_set = (self.edges, self.rest, self.tris, self.area0)
-        self._shape0 = np.zeros(7)
-        self._shape1 = np.zeros(7)
 
     @property
     def n_projections_per_step(self) -> int:
