@@ -53,7 +53,7 @@ import functools
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Sequence
+from typing import TYPE_CHECKING, Any, Iterable, Sequence
 
 import numpy as np
 
@@ -74,6 +74,9 @@ from ..physics.solvers import Solver
 from .fused import FusedWorkspace, fused_applies, penetration_and_displacement, rollout_fused, warm_fused
 from .simulation import Simulation
 from .snapshot import SimSnapshot, scene_key
+
+if TYPE_CHECKING:
+    from .pool import RolloutPool
 
 TRACK_BYTES = 256 * 2**20
 """Baseline states a :class:`BaselineTrack` keeps at most [bytes]: ~1,500 steps of a 5k-triangle scene, ~25,000 of
@@ -551,5 +554,11 @@ def rollout_batch(source: Simulation | SimSnapshot, candidates: Sequence[ToolPat
     return BatchResult(results, np.zeros(0) if energy is None else energy, time.perf_counter() - t0, 0)
 
 
-# the pool (core/sim/pool.py) runs the same rollout_candidate, finish and BaselineTrack on worker processes
-from .pool import RolloutPool, _worker_main  # noqa: E402, F401
+def __getattr__(name: str) -> Any:
+    """``RolloutPool`` where it has always been imported from: the pool (:mod:`.pool`) runs this module's
+    rollout_candidate, finish and BaselineTrack on worker processes, so it imports this module, not the reverse."""
+    if name == "RolloutPool":
+        from .pool import RolloutPool  # noqa: PLC0415
+
+        return RolloutPool
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
