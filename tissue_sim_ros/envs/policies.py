@@ -195,3 +195,16 @@ def evaluate(env: Any, policy: Callable[[Any], np.ndarray], seeds: Sequence[int]
         if progress is not None:
             progress(i + 1, len(seeds))
     return out
+
+
+def summarise(results: Sequence[EpisodeResult]) -> dict[str, Any]:
+    """A policy's row of the baselines' table: success rate (at the last step, and at any step), median return,
+    final distance, peak force and steps."""
+    n = len(results)
+    return {"episodes": n,
+            "success": sum(r.success for r in results) / n if n else math.nan,
+            "success_any_step": sum(r.ever for r in results) / n if n else math.nan,
+            "median_return": float(np.median([r.ret for r in results])) if n else math.nan,
+            "median_final_distance_mm": 1e3 * float(np.median([r.final_distance for r in results])) if n else math.nan,
+            "median_peak_force_N": float(np.median([r.peak_force for r in results])) if n else math.nan,
+            "median_steps": float(np.median([r.steps for r in results])) if n else math.nan}
