@@ -324,7 +324,7 @@ class TissueEnv(gym.Env):
         self.steps = 0
         self.episode += 1
         obs = self._observation()
-        info = self._info(None, obs["achieved_goal"])
+        info = self._info(None, obs["achieved_goal"], obs["desired_goal"])
         if self.render_mode == "human":
             self.render()
         return obs, info
@@ -357,14 +357,12 @@ class TissueEnv(gym.Env):
         self.report = report
         self.steps += 1
         obs = self._observation()
-        info = self._info(report, obs["achieved_goal"])
-        reward = self.reward(obs["achieved_goal"], info)
+        info = self._info(report, obs["achieved_goal"], obs["desired_goal"])
+        # from the observation's float32 goals, as a replay buffer relabelling them recomputes it, bit for bit
+        reward = float(self.compute_reward(obs["achieved_goal"], obs["desired_goal"], info))
         if self.render_mode == "human":
             self.render()
         return obs, reward, bool(report.diverged), False, info
-
-    def reward(self, achieved_goal: np.ndarray, info: dict[str, Any]) -> float:
-        return float(self.compute_reward(achieved_goal, self.goal, info))
 
     # ------------------------------------------------------------------------------------------ what is seen
     def points(self) -> np.ndarray:
@@ -387,10 +385,10 @@ class TissueEnv(gym.Env):
         return {"observation": vec, "achieved_goal": achieved.astype(np.float32),
                 "desired_goal": self.goal.astype(np.float32)}
 
-    def _info(self, r: StepReport | None, achieved_goal: np.ndarray) -> dict[str, Any]:
+    def _info(self, r: StepReport | None, achieved_goal: np.ndarray, desired_goal: np.ndarray) -> dict[str, Any]:
         """What a step did beyond the reward: success, distance, energy terms, penetration, convergence. The same
         keys and types every step (the reset's are zeros), so vector envs and Minari stack them."""
-        d = float(self.distance(np.asarray(achieved_goal, dtype=np.float64), self.goal))
+        d = float(self.distance(achieved_goal, desired_goal))
         info = {"is_success": bool(d <= self.tolerance), "distance": d}
         if r is None:
             info.update(energy=0.0, energy_inertial=0.0, energy_strain=0.0, energy_attach=0.0, force=0.0,

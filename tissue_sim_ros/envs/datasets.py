@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import warnings
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
@@ -115,7 +116,9 @@ def collect(env_id: str, episodes: int, out: str | Path, *, seed: int = 0, env_k
     kind = type(env.unwrapped).__name__
     algorithm = ("model-predictive grasp controller (core/plan/control.py)" if kind != "ProbeEnv"
                  else "energy-ranked insertion planner (core/plan/insertion.py)")
-    with datasets_root(out):
+    with datasets_root(out), warnings.catch_warnings():
+        # minari asks for a permalink and an e-mail address, which a local dataset of a run has not
+        warnings.filterwarnings("ignore", message=r"`(code_permalink|author_email)` is set to None")
         minari.create_dataset_from_buffers(
             dataset_id=did, buffer=buffers, env=env, eval_env=env.spec, algorithm_name=algorithm, author="tissue_sim_ros",
             description=f"{episodes} expert episodes of {env_id} (seeds {seed}..{seed + episodes - 1}), written by "

@@ -99,8 +99,8 @@ class ProbeEnv(TissueEnv):
             self.sim.restore(snap)
         self.baseline = self._baselines[key]
 
-    def _info(self, r, achieved_goal: np.ndarray) -> dict[str, Any]:
-        info = super()._info(r, achieved_goal)
+    def _info(self, r, achieved_goal: np.ndarray, desired_goal: np.ndarray) -> dict[str, Any]:
+        info = super()._info(r, achieved_goal, desired_goal)
         base = self.baseline[min(self.steps, len(self.baseline)) - 1] if r is not None else 0.0
         info["energy_added"] = max(0.0, info["energy"] - float(base)) if r is not None else 0.0
         return info
