@@ -22,7 +22,7 @@ import numpy as np
 from ..core.errors import InputError
 from ..core.plan.observe import RETRACT_X, embed, flap_surface
 from ..core.timing.trajectories import RETRACT_JAW_OPEN
-from .base import TissueEnv, as_points, range_of
+from .base import TissueEnv, as_points, embedding_matrix, range_of
 
 #: (dx, dy) ranges [m] of the goal from the tracked point's rest position
 RETRACT_GOALS = ((-0.01, 0.01), (0.005, 0.02))
@@ -55,7 +55,7 @@ class RetractEnv(TissueEnv):
         top = flap_surface(self.q0, self.point_x)
         self.start_point = np.array([self.point_x, top])
         """The tracked point's rest position [m]."""
-        self.goal_tri, self.goal_w = embed(self.start_point[None], self.q0, self.tris)
+        self.goal_matrix = embedding_matrix(*embed(self.start_point[None], self.q0, self.tris), self.q0.shape[0])
 
     def check_goal_region(self, region: Any) -> Any:
         return check_offsets(region, RETRACT_GOALS)
@@ -69,9 +69,6 @@ class RetractEnv(TissueEnv):
     def start_pose(self) -> tuple[np.ndarray, float, float]:
         return self.start_point + np.array([-0.01, 0.015]), 0.0, self.jaw_open
 
-    def achieved(self) -> np.ndarray:
-        x = self.sim.state.particle_q
-        return (self.goal_w[0, :, None] * x[self.goal_tri[0]]).sum(axis=0)
 
     def goal_pairs(self) -> tuple[np.ndarray, np.ndarray]:
         """The (start, goal) points [m] of the episode, (P, 2) each: what a controller is asked to do."""

@@ -24,7 +24,7 @@ from ..core.contact.tool import ToolPose
 from ..core.errors import InputError
 from ..core.plan.observe import embed, flap_surface
 from ..core.timing.trajectories import RETRACT_JAW_OPEN
-from .base import TissueEnv, as_points, range_of
+from .base import TissueEnv, as_points, embedding_matrix, range_of
 from .retract import RETRACT_GOALS
 
 #: where the grasp that makes the target takes the flap: x range [m]
@@ -47,8 +47,6 @@ class ShapeEnv(TissueEnv):
     def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
         super().__init__(render_mode, **kwargs)
         self.starts = np.zeros((len(SHAPE_OFFSETS), 2))
-        self.goal_tris = np.zeros((len(SHAPE_OFFSETS), 3), dtype=np.int64)
-        self.goal_ws = np.zeros((len(SHAPE_OFFSETS), 3))
 
     def check_goal_region(self, region: Any) -> Any:
         if region is None:
@@ -67,7 +65,7 @@ class ShapeEnv(TissueEnv):
         site = float(rng.uniform(x0, x1))
         pull = np.array([rng.uniform(dx0, dx1), rng.uniform(dy0, dy1)])
         self.starts = np.array([(site + o, flap_surface(self.q0, site + o)) for o in SHAPE_OFFSETS])
-        self.goal_tris, self.goal_ws = embed(self.starts, self.q0, self.tris)
+        self.goal_matrix = embedding_matrix(*embed(self.starts, self.q0, self.tris), self.q0.shape[0])
         if "goal" in options:
             return as_points(options["goal"]).reshape(-1)
         return self._pulled(site, pull)
@@ -91,10 +89,6 @@ class ShapeEnv(TissueEnv):
 
     def start_pose(self) -> tuple[np.ndarray, float, float]:
         return self.starts[1] + np.array([-0.01, 0.015]), 0.0, self.jaw_open
-
-    def achieved(self) -> np.ndarray:
-        x = self.sim.state.particle_q
-        return (self.goal_ws[:, :, None] * x[self.goal_tris]).sum(axis=1).reshape(-1)
 
     def goal_pairs(self) -> tuple[np.ndarray, np.ndarray]:
         """The (start, goal) points [m] of the episode, (3, 2) each."""
