@@ -243,3 +243,15 @@ def test_evaluate_writes_the_table(tmp_path, capsys):
     assert "TissueSim/Probe-v0" in capsys.readouterr().out
     rows = (tmp_path / "baselines.csv").read_text().splitlines()
     assert rows[0].startswith("env,policy,episodes,success") and len(rows) == 2
+
+
+def test_bench_envs_writes_its_table_and_chart(tmp_path, capsys):
+    """The benchmark's plumbing on one task, one repeat (its numbers are docs/envs.md's, from the full run)."""
+    from tissue_sim_ros.bench import envs as bench
+
+    rows = bench.run(tmp_path, envs=["TissueSim/Probe-v0"], vector=(1, 2), vector_steps=5, repeats=1, progress=False)
+    assert [(r["mode"], r["envs"]) for r in rows] == [("env", 1), ("sync", 1), ("sync", 2), ("async", 1),
+                                                      ("async", 2)]
+    assert rows[0]["steps_per_s"] > 0 and rows[0]["sim_steps_per_s"] > 0
+    assert (tmp_path / "envs_bench.csv").exists() and (tmp_path / "envs_bench.png").stat().st_size > 10_000
+    assert "overhead" in capsys.readouterr().out
