@@ -25,6 +25,10 @@ ROS_WHEELS = [
     "ros-jazzy-nav-msgs",
 ]
 
+#: Gymnasium for the learning environments, Minari (with its HDF5 storage) for their datasets; minari 0.5 is the
+#: version whose dataset format tissue-sim envs collect writes and docs/envs.md describes
+ENVS = ["gymnasium>=1.0", "minari[hdf5]>=0.5,<0.6"]
+
 setup(
     name=package_name,
     version="0.1.0",
@@ -58,7 +62,10 @@ setup(
     extras_require={
         "ros": ROS_WHEELS,
         "test": ["pytest>=7", "ruff>=0.6", "mcap>=1.1", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5", "scikit-fem>=10", "cma>=3.3",
-                 "ray>=2.40"],  # the --backend ray tests on a local cluster (measured: +254 MB, ~10 s to install)
+                 "ray>=2.40",  # the --backend ray tests on a local cluster (measured: +254 MB, ~10 s to install)
+                 *ENVS],
+        # the learning environments (tissue_sim_ros.envs) and their Minari datasets (tissue-sim envs collect)
+        "envs": ENVS,
         # the independent static plane-stress FEM reference (bench/fem_reference.py)
         "fem": ["scikit-fem>=10"],
         "ray": ["ray>=2.40"],  # --backend ray: plan, bench stability on a Ray cluster

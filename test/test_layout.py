@@ -2,7 +2,7 @@
 
 Arrows point down only::
 
-    cli -> experiments / bench -> ros -> render -> core
+    cli -> experiments / bench -> ros -> envs -> render -> core
 
 and inside the core, from the bottom up::
 
@@ -28,7 +28,7 @@ ROS_MODULES = ("rclpy", "std_msgs", "geometry_msgs", "sensor_msgs", "visualizati
                "std_srvs", "nav_msgs", "rosgraph_msgs", "builtin_interfaces", "tf2_msgs", "rcl_interfaces")
 
 #: the package's layers, bottom (0) to top; a module imports only its own layer or lower ones
-LAYERS = {"core": 0, "render": 1, "ros": 2, "experiments": 3, "bench": 4, "cli": 5}
+LAYERS = {"core": 0, "render": 1, "envs": 2, "ros": 3, "experiments": 4, "bench": 5, "cli": 6}
 #: the core's packages, bottom (0) to top
 CORE_RANKS = {"errors": 0, "resources": 0, "mesh": 1, "contact": 2, "timing": 3, "physics": 4, "config": 5, "sim": 6,
               "plan": 7, "fit": 7}
@@ -124,6 +124,21 @@ def test_experiments_import_no_bench():
     offenders = [f"{p.relative_to(PACKAGE)}:{line}" for p in (PACKAGE / "experiments").rglob("*.py")
                  for line, target in _runtime_imports(p) if target.startswith("tissue_sim_ros.bench")]
     assert not offenders, f"experiments importing benchmarks: {offenders}"
+
+
+def test_envs_import_only_the_core():
+    """The learning environments run where a learner installs them: the core's numpy, numba and python-fcl, and
+    gymnasium; never ROS, nor Matplotlib (render/ selects its backend when imported)."""
+    offenders = [f"{p.relative_to(PACKAGE)}:{line} imports {target}" for p in (PACKAGE / "envs").rglob("*.py")
+                 for line, target in _runtime_imports(p)
+                 if not target.startswith(("tissue_sim_ros.core", "tissue_sim_ros.envs"))]
+    assert not offenders, offenders
+    code = ("import sys, gymnasium as gym\n"
+            "env = gym.make('tissue_sim_ros.envs:TissueSim/Retract-v0', render_mode='rgb_array')\n"
+            "env.reset(seed=0); env.render()\n"
+            f"print(sorted(m for m in sys.modules if m.split('.')[0] in {ROS_MODULES + ('matplotlib',)!r}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout
 
 
 def test_no_code_imports_a_moved_path():

@@ -27,7 +27,7 @@ from typing import Sequence
 
 from ..core.errors import InputError
 
-#: subcommand -> (module, one-line help). Nested groups ("bench") hold their own table.
+#: subcommand -> (module, one-line help). Nested groups ("bench", "envs") hold their own table (and GROUPS their text).
 COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
     "config": ("tissue_sim_ros.cli.config", "print the resolved configuration (shipped YAML + --params + --set) as a parameter YAML"),
     "mesh": ("tissue_sim_ros.cli.mesh", "mesh a tissue image (or load a mesh file), report quality, write .npz and a picture"),
@@ -53,7 +53,19 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
         "plan": ("tissue_sim_ros.cli.bench.plan", "batch rollouts per second (serial, 1 and 2 workers); the planner service's latency and node rate"),
         "fit": ("tissue_sim_ros.cli.bench.fit", "fit known parameters back from simulated recordings on another mesh: error, coverage, time"),
         "peers": ("tissue_sim_ros.cli.bench.peers", "time per step against Taichi, MuJoCo flex and the NumPy baseline (optional extras)"),
+        "envs": ("tissue_sim_ros.cli.bench.envs", "learning environments: steps per second, single and vectorised, beside the plain Simulation.step"),
     },
+    "envs": {
+        "collect": ("tissue_sim_ros.cli.envs.collect", "record a task's expert episodes as a Minari dataset (offline RL)"),
+        "evaluate": ("tissue_sim_ros.cli.envs.evaluate", "success rates of the expert and random policies over seeded episodes"),
+    },
+}
+
+#: a group's (word in the listing, metavar, description): "tissue-sim bench --help", "tissue-sim envs --help"
+GROUPS = {
+    "bench": ("benchmarks", "BENCHMARK", "Benchmarks; each prints a table and writes a CSV and a chart."),
+    "envs": ("learning environments", "COMMAND", "The tissue tasks as Gymnasium environments (tissue_sim_ros.envs, "
+                                      "docs/envs.md): datasets of expert episodes and baseline success rates."),
 }
 
 
@@ -109,9 +121,9 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     wanted = [a for a in (argv or []) if not a.startswith("-")][:2]
     for name, entry in COMMANDS.items():
         if isinstance(entry, dict):
-            group = sub.add_parser(name, help=f"benchmarks: {', '.join(entry)}",
-                                   description="Benchmarks; each prints a table and writes a CSV and a chart.")
-            group_sub = group.add_subparsers(title="benchmarks", metavar="BENCHMARK")
+            word, metavar, description = GROUPS[name]
+            group = sub.add_parser(name, help=f"{word}: {', '.join(entry)}", description=description)
+            group_sub = group.add_subparsers(title=word, metavar=metavar)
             for sub_name, (module, help_text) in entry.items():
                 if wanted[:2] == [name, sub_name]:
                     _add_command(group_sub, sub_name, module, help_text)

@@ -14,20 +14,11 @@ from tqdm import tqdm
 from ..core.config import Config
 from ..core.contact.tool import ToolPose
 from ..core.errors import InputError
+from ..core.plan.observe import RETRACT_X, flap_surface  # also imported from here by experiments.control
 from ..core.sim.rollout import rollout
 from ..core.sim.scene import build_simulation
 from ..core.timing import trajectories as tr
 from .paper import ExperimentResult
-
-#: Where the grasper takes the flap: x [m] (the flap spans 10-70 mm).
-RETRACT_X = 0.040
-
-
-def flap_surface(q: np.ndarray, x: float) -> float:
-    """Height [m] of the tissue's top surface at ``x``: the highest particle within a spacing of it."""
-    near = np.abs(q[:, 0] - x)
-    band = near <= max(float(np.sort(near)[min(3, len(near) - 1)]), 1e-9) + 1e-12
-    return float(q[band, 1].max())
 
 
 def grasp_and_lift(sim: Any, lift_steps: int, x: float = RETRACT_X, rise: float = 0.0005) -> ToolPose:

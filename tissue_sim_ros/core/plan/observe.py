@@ -5,6 +5,8 @@
   points the tracker sees; :func:`particle_points`: the model's own particles in the same form.
 * :class:`SyncEnergy`: the sync's energy, the material's potential plus a spring from each embedded point to its
   observation and the jaw's hold, minimised by Newton's method.
+* :func:`flap_surface`: where the retraction flap's top surface is at an x (the controller's experiment and the
+  learning environments place their goals on it).
 """
 from __future__ import annotations
 
@@ -82,3 +84,14 @@ def particle_points(idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     w = np.zeros((len(idx), 3))
     w[:, 0] = 1.0
     return tris, w
+
+
+#: Where the grasper takes the retraction flap (config/scenes/retract.yaml): x [m] (the flap spans 10-70 mm).
+RETRACT_X = 0.040
+
+
+def flap_surface(q: np.ndarray, x: float) -> float:
+    """Height [m] of the tissue's top surface at ``x``: the highest particle within a spacing of it."""
+    near = np.abs(q[:, 0] - x)
+    band = near <= max(float(np.sort(near)[min(3, len(near) - 1)]), 1e-9) + 1e-12
+    return float(q[band, 1].max())
