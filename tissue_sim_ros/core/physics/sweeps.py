@@ -173,28 +173,6 @@ def _area_constraint(x: np.ndarray, a: int, b: int, c: int, a0: float, signed: b
 
 
 @njit(cache=True, inline="always")
-def _area_row(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray, t: int, alpha: float,
-              signed: bool):
-    """Triangle t's area projection, shared by the Gauss-Seidel and Jacobi sweeps (inlined): (skip, a, b, c, w_a,
-    w_b, w_c, C, gradients (six components), sum_p w_p |grad_p|^2 + alpha). ``skip``: no particle can move, the
-    gradient is degenerate, or the denominator is not positive."""
-    a = uint32(tris[t, 0])
-    b = uint32(tris[t, 1])
-    c = uint32(tris[t, 2])
-    wa = inv_mass[a]
-    wb = inv_mass[b]
-    wc = inv_mass[c]
-    if wa + wb + wc == 0.0:
-        return True, a, b, c, wa, wb, wc, 0.0, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0), 0.0
-    C, gax, gay, gbx, gby, gcx, gcy, ga2, gb2, gc2 = _area_constraint(x, a, b, c, area0[t], signed)
-    grads = (gax, gay, gbx, gby, gcx, gcy)
-    if ga2 + gb2 + gc2 <= EPS_LEN2:
-        return True, a, b, c, wa, wb, wc, C, grads, 0.0
-    den = wa * ga2 + wb * gb2 + wc * gc2 + alpha
-    return den <= 0.0, a, b, c, wa, wb, wc, C, grads, den
-
-
-@njit(cache=True, inline="always")
 def _area_sweep(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np.ndarray, k: float, alpha: float,
                 lam: np.ndarray, signed: bool, start: int, stop: int, multipliers: bool) -> None:
     """The body of every serial area sweep (inlined, so each caller's fast-math flags apply to it).
@@ -203,15 +181,26 @@ def _area_sweep(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: np
     multiplier never enters a projection, so the positions are the same bit for bit.
     """
     for t in range(uint32(start), uint32(stop)):
-        skip, a, b, c, wa, wb, wc, C, grads, den = _area_row(x, inv_mass, tris, area0, t, alpha, signed)
-        if skip:
+        a = uint32(tris[t, 0])
+        b = uint32(tris[t, 1])
+        c = uint32(tris[t, 2])
+        wa = inv_mass[a]
+        wb = inv_mass[b]
+        wc = inv_mass[c]
+        if wa + wb + wc == 0.0:
+            continue
+        C, gax, gay, gbx, gby, gcx, gcy, ga2, gb2, gc2 = _area_constraint(x, a, b, c, area0[t], signed)
+        if ga2 + gb2 + gc2 <= EPS_LEN2:
+            continue
+        den = wa * ga2 + wb * gb2 + wc * gc2 + alpha
+        if den <= 0.0:
             continue
         if multipliers:
             s = k * (-C - alpha * lam[t]) / den
             lam[t] += s
         else:
             s = k * -C / den
-        add_corners(x, a, b, c, wa, wb, wc, s, grads)
+        add_corners(x, a, b, c, wa, wb, wc, s, (gax, gay, gbx, gby, gcx, gcy))
 
 
 @njit(cache=True, fastmath=FMA, nogil=True)
@@ -445,12 +434,23 @@ def jacobi_areas(x: np.ndarray, inv_mass: np.ndarray, tris: np.ndarray, area0: n
                  dx_acc: np.ndarray) -> None:
     """Jacobi pass over area constraints (see :func:`jacobi_edges` and :func:`solve_areas`)."""
     for t in range(uint32(tris.shape[0])):
-        skip, a, b, c, wa, wb, wc, C, grads, den = _area_row(x, inv_mass, tris, area0, t, alpha, signed)
-        if skip:
+        a = uint32(tris[t, 0])
+        b = uint32(tris[t, 1])
+        c = uint32(tris[t, 2])
+        wa = inv_mass[a]
+        wb = inv_mass[b]
+        wc = inv_mass[c]
+        if wa + wb + wc == 0.0:
+            continue
+        C, gax, gay, gbx, gby, gcx, gcy, ga2, gb2, gc2 = _area_constraint(x, a, b, c, area0[t], signed)
+        if ga2 + gb2 + gc2 <= EPS_LEN2:
+            continue
+        den = wa * ga2 + wb * gb2 + wc * gc2 + alpha
+        if den <= 0.0:
             continue
         s = omega[t] * k * (-C - alpha * lam[t]) / den
         lam[t] += s
-        add_corners(dx_acc, a, b, c, wa, wb, wc, s, grads)
+        add_corners(dx_acc, a, b, c, wa, wb, wc, s, (gax, gay, gbx, gby, gcx, gcy))
 
 
 @njit(cache=True, nogil=True)
