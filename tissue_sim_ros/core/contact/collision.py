@@ -81,6 +81,7 @@ from .tool import ToolPose, ToolShape, ToolTwist, tool_shape_array
 
 if TYPE_CHECKING:  # the physics imports this package's kernels: its types are only named here
     from ..physics.model import Model, State
+    from .collider import ToolCollider
 
 
 @dataclass
@@ -117,6 +118,12 @@ class Contacts:
     """Where each held particle is held at the end of the step [m], shape (K, 2), float64."""
     attach_compliance: float = 0.0
     """Compliance of the attachment springs [m/N] (energy |x - target|^2 / (2 compliance))."""
+    attach_local: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    """Where each held particle sits in the tool's frame [m], shape (K, 2): the barrier contact's solve moves the
+    targets with the tool as it goes."""
+    tool_collider: "ToolCollider | None" = None
+    """Barrier contact: the tool of this step, built once (``core/contact/collider.py``): its core, where it starts
+    and where it is commanded; the solve, the reaction and the checks all take it. None: no tool this step."""
 
     @property
     def attach_stiffness(self) -> float:
@@ -328,8 +335,8 @@ class ContactModel:
             res = self.body_distance(b, x, reach)
             self.last_bvh_triangles += res.n_tris
             contacts.d_star[b] = res.d_star
-            if self.kind == "projection":
-                # known only after the solve: the Simulation marks the bodies whose particles were pushed
+            if self.kind in ("projection", "barrier"):
+                # known only after the solve: the Simulation marks the bodies the tool pushed
                 continue
             if not res.d_star < p.contact_threshold:
                 continue

@@ -47,19 +47,24 @@ class EnergyTerms:
     """dt^2 * E_attach per body: the grasper's springs, sum |x - target|^2 / (2 grasp_compliance) over the held
     particles (``core/physics/attach.py``; zeros when nothing is held; None counts as zeros). In the total, not in
     ``potential`` (the tissue's own)."""
+    contact: np.ndarray | None = None
+    """dt^2 * kappa sum b per body: the barrier contact's energy (``contact_model: barrier``; zeros otherwise; None
+    counts as zeros). In the total, not in ``potential``."""
 
     def __post_init__(self) -> None:
         if self.strain is None:
             self.strain = np.zeros_like(self.inertial)
         if self.attach is None:
             self.attach = np.zeros_like(self.inertial)
+        if self.contact is None:
+            self.contact = np.zeros_like(self.inertial)
         if self.potential is None:
             self.potential = np.zeros_like(self.inertial)
 
     @property
     def total(self) -> np.ndarray:
         """Total energy per body, shape (B,)."""
-        return self.inertial + self.spring + self.area + self.strain + self.attach
+        return self.inertial + self.spring + self.area + self.strain + self.attach + self.contact
 
     @property
     def scene_potential(self) -> float:
@@ -73,7 +78,7 @@ class EnergyTerms:
 
     @classmethod
     def zeros(cls, n_bodies: int) -> "EnergyTerms":
-        return cls(*(np.zeros(n_bodies) for _ in range(6)))
+        return cls(*(np.zeros(n_bodies) for _ in range(7)))
 
     @property
     def arrays(self) -> tuple:

@@ -26,15 +26,16 @@ MATERIAL_PARAMETERS = ("young_modulus", "poisson_ratio", "thickness", "density")
 #: the projection model (the paper's eq. 3 stays selectable with ``contact_model: paper``).
 MATERIAL_DEFAULTS: dict[str, dict[str, Any]] = {
     "constraints": {},
-    # the step as the minimisation it is (core/physics/quasi_newton.py): converged to solve_tolerance at any mesh
-    # in 3-6 iterations; ``iterations`` is its cap
-    "neo_hookean": {"method": "quasi_newton", "contact_model": "projection"},
+    # the step as the minimisation it is, contact in the potential (core/physics/ipc.py)
+    "neo_hookean": {"method": "ipc"},
 }
-#: The material's solver settings per method (applied after the method is known): xpbd keeps the former
-#: default of 10 substeps x 10 Gauss-Seidel iterations (converged at dt 2 ms; it stops short at dt 10 ms).
+#: The material's solver settings per method (applied after the method is known): ipc and quasi_newton solve the
+#: whole step (``iterations`` is their cap), ipc with its barrier contact and quasi_newton with the projection;
+#: xpbd keeps 10 substeps x 10 Gauss-Seidel iterations (converged at dt 2 ms; it stops short at dt 10 ms).
 MATERIAL_METHOD_DEFAULTS: dict[str, dict[str, dict[str, Any]]] = {
-    "neo_hookean": {"quasi_newton": {"substeps": 1, "iterations": 50},
-                    "xpbd": {"substeps": 10, "iterations": 10}},
+    "neo_hookean": {"ipc": {"substeps": 1, "iterations": 50, "contact_model": "barrier"},
+                    "quasi_newton": {"substeps": 1, "iterations": 50, "contact_model": "projection"},
+                    "xpbd": {"substeps": 10, "iterations": 10, "contact_model": "projection"}},
 }
 
 

@@ -21,10 +21,10 @@ import numpy as np
 
 from ..errors import InputError
 
-METHODS = ("pbd", "xpbd", "quasi_newton")
+METHODS = ("pbd", "xpbd", "quasi_newton", "ipc")
 SCHEMES = ("gauss_seidel", "jacobi")
 AREA_MODES = ("signed", "abs")
-CONTACT_MODELS = ("paper", "projection", "none")
+CONTACT_MODELS = ("paper", "projection", "barrier", "none")
 CONTACT_SURFACES = ("edges", "particles")
 DAMPING_MODES = ("linear", "exponential")
 JACOBI_AVERAGINGS = ("violated", "all")
@@ -159,7 +159,7 @@ SIM_PARAMETERS: tuple[ParamSpec, ...] = (
               positive("a particle mass > 0 kg")),
     ParamSpec("mass_per_area", float, 0.0, "kg/m^2", "Areal density: > 0 lumps a third of each triangle's area times it on its corners (refined or graded meshes keep the same tissue); 0 = every particle has mass (the paper).", True, "physics",
               non_negative("an areal density >= 0 kg/m^2 (0: the per-particle mass)")),
-    ParamSpec("material", str, "constraints", "", f"Tissue model: {', '.join(MATERIALS)} (constraints = the paper's springs and areas; neo_hookean = a plane-stress membrane from young_modulus, poisson_ratio, thickness, density, which brings method quasi_newton (iterations 50 at most, substeps 1) and contact_model projection unless they are given).", True, "physics",
+    ParamSpec("material", str, "constraints", "", f"Tissue model: {', '.join(MATERIALS)} (constraints = the paper's springs and areas; neo_hookean = a plane-stress membrane from young_modulus, poisson_ratio, thickness, density, which brings method ipc (iterations 50 at most, substeps 1) with contact_model barrier unless they are given (quasi_newton and xpbd bring projection)).", True, "physics",
               one_of(MATERIALS)),
     ParamSpec("young_modulus", float, 10e3, "Pa", "neo_hookean: Young's modulus E (> 0); ignored by constraints.", False, "physics",
               positive("a Young's modulus > 0 Pa")),
@@ -185,7 +185,7 @@ SIM_PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("iterations", int, 30, "", "Solver iterations per (sub)step (Table I: 30).", False, "solver",
               integer(lambda v: v >= 1, "at least 1 solver iteration")),
     ParamSpec("substeps", int, 1, "", "Substeps per step.", False, "solver", integer(lambda v: v >= 1, "at least 1 substep")),
-    ParamSpec("solve_tolerance", float, 1e-3, "", "Material: estimated relative error of a step (its last correction over its motion) at which its solve counts as converged (quasi_newton stops there; the node warns beyond it).", False, "solver",
+    ParamSpec("solve_tolerance", float, 1e-3, "", "Material: estimated relative error of a step (its last correction over its motion) at which its solve counts as converged (ipc and quasi_newton stop there; the node warns beyond it).", False, "solver",
               ValueCheck(None, lambda v: 0.0 < v < 1.0, "a relative residual in (0, 1)")),
     # a per-constraint omega = 2 relaxation / r_c (r_c: a Gershgorin bound): one omega for all diverged
     # (docs/calibration.md)
@@ -222,6 +222,19 @@ SIM_PARAMETERS: tuple[ParamSpec, ...] = (
               non_negative("a margin >= 0 m")),
     ParamSpec("contact_surface", str, "edges", "", f"Projection contact keeps out of the tool: {', '.join(CONTACT_SURFACES)} (edges = particles and boundary edges; particles = particles only, a thin tool slips between them).", False, "contact",
               one_of(CONTACT_SURFACES)),
+    ParamSpec("contact_dhat", float, 0.0, "m", "Barrier contact (method ipc): the activation distance dhat; a boundary vertex and an edge (of the tissue or the tool's core) closer than this repel, and never touch; 0 = a tenth of the mesh's short boundary edges (their 10th percentile).", False, "contact",
+              non_negative("a distance >= 0 m (0: from the mesh)")),
+    ParamSpec("contact_stiffness", float, 0.0, "N/m", "Barrier contact: the barrier's stiffness kappa; 0 = young_modulus x thickness (the membrane's own stiffness scale).", False, "contact",
+              non_negative("a stiffness >= 0 N/m (0: from the material)")),
+    ParamSpec("tool_stiffness", float, 0.0, "N/m", "Barrier contact: the spring that moves the tool to its commanded pose (the tool stops short of a command the tissue cannot make room for, by force / tool_stiffness); 0 = 1000 x the barrier's stiffness.", False, "contact",
+              non_negative("a stiffness >= 0 N/m (0: from the barrier's)")),
+    ParamSpec("contact_bodies", bool, True, "", "Barrier contact: bodies repel each other and themselves (a fold, a flap on its base); false = the tool only.", False, "contact"),
+    ParamSpec("friction", float, 0.0, "", "Barrier contact: Coulomb friction coefficient between the tool and the tissue (lagged, smoothed: IPC's friction); 0 = frictionless.", False, "contact",
+              non_negative("a friction coefficient >= 0")),
+    ParamSpec("friction_tissue", float, 0.0, "", "Barrier contact: Coulomb friction coefficient between bodies and within one; 0 = frictionless.", False, "contact",
+              non_negative("a friction coefficient >= 0")),
+    ParamSpec("friction_velocity", float, 1e-3, "m/s", "Barrier contact: the slip speed below which friction sticks (the smoothing of Coulomb's law, IPC's epsilon_v).", False, "contact",
+              positive("a speed > 0 m/s")),
     # grasping (tunable)
     ParamSpec("grasp_close_angle", float, 0.2, "rad", "Grasper: a jaw angle (tool/jaw) below this closes the jaw: the free particles within grasp_radius of the tip are held to it.", False, "contact", number()),
     ParamSpec("grasp_open_angle", float, 0.4, "rad", "Grasper: a jaw angle above this opens the jaw and releases what it held (> grasp_close_angle: hysteresis).", False, "contact", number()),
@@ -252,11 +265,18 @@ CHECK_ORDER: tuple[str | Rule, ...] = (
     Rule("settle", lambda p: p.settle == "static" and p.material != "neo_hookean",
          "none with material constraints (static settle needs material neo_hookean)"),
     Rule("method", lambda p: p.material == "neo_hookean" and p.method == "pbd",
-         "xpbd or quasi_newton with material neo_hookean (the material is solved with compliance)"),
+         "xpbd, quasi_newton or ipc with material neo_hookean (the material is solved with compliance)"),
     Rule("method", lambda p: p.method == "quasi_newton" and p.material != "neo_hookean",
          "pbd or xpbd with material constraints (quasi_newton minimises the material's energy)"),
+    Rule("method", lambda p: p.method == "ipc" and p.material != "neo_hookean",
+         "pbd or xpbd with material constraints (ipc minimises the material's energy)"),
     Rule("substeps", lambda p: p.method == "quasi_newton" and p.substeps != 1,
          "1 with method quasi_newton (it solves the whole step)"),
+    Rule("substeps", lambda p: p.method == "ipc" and p.substeps != 1, "1 with method ipc (it solves the whole step)"),
+    Rule("contact_model", lambda p: p.method == "ipc" and p.contact_model not in ("barrier", "none"),
+         "barrier or none with method ipc (its contact is in the potential it minimises)"),
+    Rule("contact_model", lambda p: p.contact_model == "barrier" and p.method != "ipc",
+         "paper, projection or none with method {method} (barrier contact is method ipc's)"),
     "solve_tolerance", "k_spring", "k_area", "stiffness_spring", "stiffness_area", "sleep_speed", "sleep_wake_radius",
     "contact_radius", "contact_threshold", "contact_margin",
     Rule("grasp_open_angle", lambda p: p.grasp_open_angle <= p.grasp_close_angle,

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from ..config import BY_NAME, Config
+from ..contact.collider import ToolCollider, tool_geometry
 from ..contact.collision import ContactModel, Contacts
 from ..contact.tool import ToolPose, ToolShape, ToolTwist, tool_shape_array, twist_from_poses
 from ..contact.tool_checks import INSIDE_TOL, tool_checks
@@ -43,6 +44,9 @@ from .snapshot import SimSnapshot, carry_state, restore_carry, scene_key
 
 if TYPE_CHECKING:
     from ..mesh import TissueMesh
+
+#: The jaw angle a grasper is open at until a jaw is given [rad] (barrier contact: its jaws are solid).
+OPEN_JAW = 0.8
 
 SolverFactory = Callable[[Model], Any]
 """Makes the solver of a Model (a :class:`~tissue_sim_ros.core.physics.solvers.Solver` or one with its step())."""
@@ -149,6 +153,13 @@ class StepReport:
     softer tissue than the material, or a stiffer one); the node warns and counts it."""
     detail: StepDetail | None = None
     """The step's start State, Contacts and solver info when asked (``Simulation.step(..., detail=True)``), else None."""
+    tool_applied: ToolPose | None = None
+    """Where the tool is at the end of the step: the commanded pose, or with barrier contact where the tissue let
+    it go (``tool_lag`` short of the command); the next step starts there. None: no tool this step."""
+    tool_lag: float = 0.0
+    """Barrier contact: how far the tool stopped short of its commanded position [m] (0: it got there)."""
+    tool_lag_angle: float = 0.0
+    """Barrier contact: how far its yaw stopped short of the command [rad]."""
 
 
 class Simulation:
@@ -195,6 +206,13 @@ class Simulation:
         of a paper-scene step); batch rollouts' scratch simulations turn it off (they measure what they report)."""
         self.grasp = Grasp()
         """The grasper's jaw: its angle, closed or open, the particles it holds (``core/sim/grasp.py``)."""
+        self.tool_jaw: float | None = None
+        """Barrier contact: the jaw angle the tool was left at [rad] (the tissue may stop a closing jaw); None
+        before the first step."""
+        self.tool_command: ToolPose | None = None
+        """Barrier contact: the last commanded pose (the tool may have stopped short of it, at ``tool_pose``)."""
+        self.jaw_command: float | None = None
+        """Barrier contact: the last commanded jaw angle [rad]."""
         self.settle_info = None
         """:class:`~tissue_sim_ros.core.physics.statics.SettleInfo` of the last :meth:`settle` (None before)."""
         if self.params.settle == "static":
@@ -214,7 +232,8 @@ class Simulation:
                 scene=self.scene_key, particle_q=self.state.particle_q.copy(), particle_qd=self.state.particle_qd.copy(),
                 last_good_q=self._last_good.particle_q.copy(), last_good_qd=self._last_good.particle_qd.copy(),
                 step_count=self.step_count, time=self.time, tool_pose=self.tool_pose,
-                solver=carry_state(self.solver), contact=carry_state(self.contact), grasp=self.grasp.carry_state())
+                solver=carry_state(self.solver), contact=carry_state(self.contact), grasp=self.grasp.carry_state(),
+                tool_jaw=self.tool_jaw, tool_command=self.tool_command, jaw_command=self.jaw_command)
 
     def restore(self, snap: SimSnapshot) -> None:
         """Continue from ``snap`` (copied): the next step is bit for bit the one that followed the snapshot.
@@ -237,6 +256,9 @@ class Simulation:
             restore_carry(self.solver, snap.solver)
             restore_carry(self.contact, snap.contact)
             self.grasp.restore_carry(snap.grasp)
+            self.tool_jaw = snap.tool_jaw
+            self.tool_command = snap.tool_command
+            self.jaw_command = snap.jaw_command
 
     @classmethod
     def from_config(cls, cfg: Config, mesh: "TissueMesh | None" = None,
@@ -281,6 +303,7 @@ class Simulation:
         reaction's per-particle torques), made again when the model changes."""
         n = self.model.n_particles
         self._energy_model = energy_model(self.model)
+        self._geometry = tool_geometry(self.tool) if self.tool is not None else None
         self._touched = np.empty(n, dtype=np.int64)
         self._torque_each = np.empty(n)
 
@@ -330,6 +353,9 @@ class Simulation:
             self.time = 0.0
             self.tool_pose = None
             self.grasp.reset()
+            self.tool_jaw = None
+            self.tool_command = None
+            self.jaw_command = None
 
     def set_state(self, state: State) -> None:
         """Replace the current state (copied)."""
@@ -344,6 +370,7 @@ class Simulation:
         """
         with self.lock:
             self.tool_pose = pose
+            self.tool_command = pose
 
     def tool_overlaps_tissue(self, pose: ToolPose) -> bool:
         """True when the tool at ``pose`` (its own shape, no margin) holds a particle or lies inside a triangle of
@@ -439,7 +466,14 @@ class Simulation:
         if self.grasp.n_held and tool_pose is not None:
             contacts.attach_idx = self.grasp.idx.copy()
             contacts.attach_target = self.grasp.targets(tool_pose)
+            contacts.attach_local = self.grasp.local.copy()
             contacts.attach_compliance = float(p.grasp_compliance)
+        if p.contact_model == "barrier" and self.tool is not None and tool_pose is not None:
+            # the tool's jaw: the command (open until one is given), from where it was left
+            jaw1 = (self.grasp.jaw if self.grasp.jaw is not None else OPEN_JAW) if self.tool.kind == "grasper" else 0.0
+            jaw0 = self.tool_jaw if self.tool_jaw is not None else jaw1
+            contacts.tool_collider = ToolCollider.make(self.tool, self._geometry, self.tool_pose or tool_pose,
+                                                       tool_pose, jaw0, jaw1, self.tool_command, self.jaw_command)
         return contacts
 
     def _step(self, tool_pose: ToolPose | None, tool_twist: ToolTwist | None, keep: bool = False,
@@ -459,6 +493,13 @@ class Simulation:
             # projection contact: a body is in contact when the solve pushed one of its particles
             contacts.in_contact[:] = False
             contacts.in_contact[model.particle_body[contacts.touched]] = True
+        end_pose = tool_pose
+        if getattr(info, "in_contact", None) is not None:
+            contacts.in_contact[:] = info.in_contact
+        if getattr(info, "tool_q", None) is not None and contacts.tool_collider is not None:
+            # the barrier contact's tool ends where the tissue let it: the next step starts there
+            end_pose = contacts.tool_collider.pose(info.tool_q)
+            self.tool_jaw = float(info.tool_q[3])
         detail = StepDetail(state_in, contacts, _detached(info), (self.tool_pose or tool_pose) if tool_pose else None,
                             tool_pose, p.dt) if keep else None
         out = self._state_out
@@ -477,8 +518,10 @@ class Simulation:
             energy = EnergyTerms.zeros(model.n_bodies)
             self.grasp.release()  # what diverged tore loose: the jaw holds nothing until it opens and closes again
         elif tool_pose is not None:
-            force, torque, attach_force = self._reaction(info.contact_dx, tool_pose, p.dt, contacts, out.particle_q)
-        checks = (self._tool_checks(self.state.particle_q, out.particle_q, self.tool_pose or tool_pose, tool_pose)
+            force, torque, attach_force = self._reaction(info, end_pose, p.dt, contacts, out.particle_q)
+            if getattr(info, "contact_energy", None) is not None:
+                energy.contact = info.contact_energy
+        checks = (self._tool_checks(self.state.particle_q, out.particle_q, self.tool_pose or tool_pose, end_pose)
                   if self.report_tool_checks else (0, 0.0, -1, 0, False))
         t_energy = time.perf_counter()
 
@@ -489,7 +532,11 @@ class Simulation:
         self.step_count += 1
         self.time = self.step_count * p.dt
         if tool_pose is not None:
-            self.tool_pose = tool_pose
+            self.tool_pose = end_pose
+            self.tool_command = tool_pose
+            if contacts.tool_collider is not None:
+                self.jaw_command = float(contacts.tool_collider.q1[3])
+        lag = getattr(info, "tool_lag", None) or (0.0, 0.0)
         return StepReport(
             step=self.step_count, time=self.time, energy=energy, residual=float(info.residual),
             in_contact=contacts.in_contact.copy(), d_star=contacts.d_star.copy(),
@@ -505,6 +552,8 @@ class Simulation:
             solve_residual=float(getattr(info, "solve_residual", math.nan)),
             solve_converged=bool(getattr(info, "solve_converged", True)), detail=detail,
             grasped=np.asarray(contacts.attach_idx, dtype=np.int64).copy(), attach_force=attach_force,
+            tool_applied=end_pose if tool_pose is not None else None, tool_lag=float(lag[0]),
+            tool_lag_angle=float(lag[1]),
         )
 
     def _tool_checks(self, x0: np.ndarray, x1: np.ndarray, pose0: ToolPose | None,
@@ -517,22 +566,27 @@ class Simulation:
             self.model.tri_indices, INSIDE_TOL)
         return int(n_in), float(depth), int(arg), int(n_tunnel), bool(buried)
 
-    def _reaction(self, contact_dx: np.ndarray | None, tool_pose: ToolPose, dt: float, contacts: Contacts,
+    def _reaction(self, info: Any, tool_pose: ToolPose, dt: float, contacts: Contacts,
                   x: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
         """The tissue's reaction on the tool: (force [N] (2,), torque about the tool's centre [N m], the grasp's
         part of the force (2,)) (``core/physics/reaction.py``).
 
-        ``contact_dx`` (N, 2) are the projection model's corrections summed over the step's n = ``substeps``
-        substeps of h = dt / n: a correction dx in a substep is a force m dx / h^2 acting for h, so the step's
-        mean force is m sum(dx) / (n h^2) = m sum(dx) / (dt h). Without them the paper model's held
-        displacements (``contacts.held_dx``, prescribed over the whole step) give m dx / dt^2. The held
-        particles pull the tool (x - target) / c. The particles are at ``x`` (their positions after the step).
+        The barrier contact's solve gives it (``info.tool_force``: minus the barrier's gradient to the tool's
+        pose). Otherwise ``info.contact_dx`` (N, 2) are the projection model's corrections summed over the step's
+        n = ``substeps`` substeps of h = dt / n: a correction dx in a substep is a force m dx / h^2 acting for h,
+        so the step's mean force is m sum(dx) / (n h^2) = m sum(dx) / (dt h). Without them the paper model's held
+        displacements (``contacts.held_dx``, prescribed over the whole step) give m dx / dt^2. The held particles
+        pull the tool (x - target) / c. The particles are at ``x`` (their positions after the step).
         """
+        contact_dx = info.contact_dx
         m = self.model.particle_mass
         centre = (float(tool_pose.x), float(tool_pose.y))
         each = self._torque_each
         force, torque = np.zeros(2), 0.0
-        if contact_dx is not None:
+        tool_force = getattr(info, "tool_force", None)
+        if tool_force is not None:
+            force, torque = np.array([tool_force[0], tool_force[1]]), float(tool_force[2])
+        elif contact_dx is not None:
             k = touched_particles(contact_dx, self._touched)
             fx, fy = push_reaction(self._touched[:k], contact_dx, True, m, dt * (dt / self.params.substeps), x,
                                    centre, each)

@@ -71,6 +71,12 @@ class SimSnapshot:
     """The contact model's ``carry_state()`` (empty when nothing carries over)."""
     grasp: dict[str, Any] = field(default_factory=dict)
     """The grasper jaw's ``carry_state()`` (:class:`~.grasp.Grasp`: jaw angle, closed, held particles); empty: open."""
+    tool_jaw: float | None = None
+    """Barrier contact: the jaw angle the tool was left at [rad] (None: not yet)."""
+    tool_command: ToolPose | None = None
+    """Barrier contact: the last commanded pose (``tool_pose`` is where the tool got to)."""
+    jaw_command: float | None = None
+    """Barrier contact: the last commanded jaw angle [rad]."""
 
     @property
     def n_particles(self) -> int:

@@ -6,7 +6,10 @@ material, method           class                         what a step is
 constraints, pbd / xpbd    :class:`ConstraintSolver`     the paper's PBD or XPBD sweeps (Gauss-Seidel,
                                                          Jacobi, the authors' violated-constraint Jacobi)
 neo_hookean, xpbd          :class:`MaterialXPBDSolver`   XPBD sweeps over the neo-Hookean elements
-neo_hookean, quasi_newton  :class:`QuasiNewtonSolver`    the minimiser of the incremental potential
+neo_hookean, quasi_newton  :class:`QuasiNewtonSolver`    the minimiser of the incremental potential, the
+                                                         tool's contacts an active set
+neo_hookean, ipc           :class:`IPCSolver`            the minimiser of the incremental potential with
+                                                         contact barriers (the material's default)
 =========================  ============================  =================================================
 
 ``sleep_speed > 0`` wraps the class in :class:`SleepingSolver`. Every class follows
@@ -22,6 +25,7 @@ from ...errors import InputError
 from ..model import Model
 from .base import SolveInfo, SolverBase
 from .constraint import ConstraintSolver, GaussSeidel, Jacobi, ViolatedJacobi
+from .ipc import IPCSolver
 from .material_xpbd import MaterialXPBDSolver
 from .ordering import (
     PARALLEL_MIN_PARTICLES,
@@ -38,6 +42,7 @@ SOLVERS: dict[tuple[str, str], type[SolverBase]] = {
     ("constraints", "xpbd"): ConstraintSolver,
     ("neo_hookean", "xpbd"): MaterialXPBDSolver,
     ("neo_hookean", "quasi_newton"): QuasiNewtonSolver,
+    ("neo_hookean", "ipc"): IPCSolver,
 }
 
 #: Every option name some solver takes (``Solver(model, **options)`` refuses others).
@@ -78,7 +83,7 @@ def default_solver(model: Model) -> Any:
 
 from .sleeping import SleepingSolver  # noqa: E402  (it makes its inner solver with Solver)
 
-__all__ = ["ALL_OPTIONS", "SOLVERS", "ConstraintSolver", "GaussSeidel", "Jacobi", "MaterialSolve",
+__all__ = ["ALL_OPTIONS", "SOLVERS", "ConstraintSolver", "GaussSeidel", "IPCSolver", "Jacobi", "MaterialSolve",
            "MaterialXPBDSolver", "PARALLEL_MIN_PARTICLES", "QuasiNewtonSolver", "SleepingSolver", "SolveInfo",
            "Solver", "SolverBase", "ViolatedJacobi", "colour_constraints", "default_solver", "partition_constraints",
            "partition_particles", "solver_class", "wavefront_order"]

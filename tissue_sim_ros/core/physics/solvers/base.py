@@ -45,6 +45,21 @@ class SolveInfo:
     last substep); NaN for the constraint model."""
     solve_converged: bool = True
     """Material: ``solve_residual <= params.solve_tolerance``."""
+    tool_q: np.ndarray | None = None
+    """Barrier contact: where the tool ended, (x, y, yaw, jaw) (4,); None: no tool, or it is where commanded."""
+    tool_force: np.ndarray | None = None
+    """Barrier contact: the tissue's force and torque on the tool (F_x, F_y [N], torque about the pose [N m], on
+    the jaw [N m]) (4,); None: the Simulation computes the reaction from ``contact_dx``."""
+    tool_lag: tuple[float, float] | None = None
+    """Barrier contact: how far the tool stopped short of its command (distance [m], angle [rad])."""
+    contact_energy: np.ndarray | None = None
+    """Barrier contact: dt^2 kappa sum b per body [kg m^2] (the ``contact`` energy term)."""
+    contact_gap: np.ndarray | None = None
+    """Barrier contact: the smallest gap between the tool and each body [m] (inf: none within reach)."""
+    in_contact: np.ndarray | None = None
+    """Barrier contact: per body, True when the tool touches it (a pair closer than dhat)."""
+    refactored: bool = False
+    """Barrier contact: the step refreshed its Hessian's factor."""
 
 
 @dataclass
