@@ -11,7 +11,16 @@ from .files import MESH_SUFFIXES, load_mesh, load_meshes, mesh_name, write_gmsh,
 from .geometry import segment_distances, signed_areas
 from .image import MAX_PIXELS, MIN_REGION_PX, read_image, tissue_mask
 from .quality import mesh_quality, triangle_angles
-from .triangulate import CORNER_RUN_PX, CORNER_TURN_DEG, OUTLINE_CORNERS, Grading, mesh_from_image, mesh_from_mask
+from .triangulate import (
+    CORNER_RUN_PX,
+    CORNER_TURN_DEG,
+    OUTLINE_CORNERS,
+    Grading,
+    Progress,
+    mesh_from_image,
+    mesh_from_mask,
+    spacing_warning,
+)
 from .types import (
     MAX_PARTICLES,
     TissueMesh,
@@ -28,8 +37,8 @@ from .types import (
 
 __all__ = [
     "CORNER_RUN_PX", "CORNER_TURN_DEG", "Grading", "MAX_PARTICLES", "MAX_PIXELS", "MESH_SUFFIXES", "MIN_REGION_PX",
-    "OUTLINE_CORNERS", "TissueMesh", "boundary_vertices", "check_mesh_size", "combine_meshes", "connected_bodies",
+    "OUTLINE_CORNERS", "Progress", "TissueMesh", "boundary_vertices", "check_mesh_size", "combine_meshes", "connected_bodies",
     "edges_from_triangles", "estimate_vertices", "load_mesh", "load_meshes", "mesh_from_arrays", "mesh_from_image",
     "mesh_from_mask", "mesh_name", "mesh_quality", "mesh_rectangle", "read_image", "region_names", "segment_distances",
-    "signed_areas", "tissue_mask", "triangle_angles", "write_gmsh", "write_triangle",
+    "signed_areas", "spacing_warning", "tissue_mask", "triangle_angles", "write_gmsh", "write_triangle",
 ]
