@@ -1,6 +1,6 @@
 """The tissue's mesh: the :class:`TissueMesh` type, meshing an image, mesh files and mesh quality.
 
-``types`` (the mesh type, meshes from arrays, structured rectangles, the size guard),
+``types`` (the mesh type, meshes from arrays, structured rectangles, the size guard and the pixel warning),
 ``geometry`` (triangles' signed areas, points' distances to segments, vectorised),
 ``image`` (reading a tissue image and its mask), ``triangulate`` (image -> mesh: outlines,
 lattice, constrained Delaunay, smoothing), ``files`` (.npz, Triangle, Gmsh) and
@@ -11,18 +11,10 @@ from .files import MESH_SUFFIXES, load_mesh, load_meshes, mesh_name, write_gmsh,
 from .geometry import segment_distances, signed_areas
 from .image import MAX_PIXELS, MIN_REGION_PX, read_image, tissue_mask
 from .quality import mesh_quality, triangle_angles
-from .triangulate import (
-    CORNER_RUN_PX,
-    CORNER_TURN_DEG,
-    OUTLINE_CORNERS,
-    Grading,
-    Progress,
-    mesh_from_image,
-    mesh_from_mask,
-    spacing_warning,
-)
+from .triangulate import CORNER_RUN_PX, CORNER_TURN_DEG, OUTLINE_CORNERS, Grading, mesh_from_image, mesh_from_mask
 from .types import (
     MAX_PARTICLES,
+    Progress,
     TissueMesh,
     boundary_vertices,
     check_mesh_size,
@@ -33,6 +25,7 @@ from .types import (
     mesh_from_arrays,
     mesh_rectangle,
     region_names,
+    spacing_warning,
 )
 
 __all__ = [

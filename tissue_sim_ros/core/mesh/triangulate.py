@@ -14,6 +14,7 @@ from .geometry import segment_distances
 from .image import MAX_PIXELS, tissue_mask
 from .types import (
     MAX_PARTICLES,
+    Progress,
     TissueMesh,
     _max_particles,
     _positive,
@@ -46,25 +47,6 @@ class Grading:
     """Radius of the disc meshed at ``fine_spacing`` [m]."""
     fine_spacing: float
     """Target edge length inside the disc [m]."""
-
-
-#: Reports meshing progress: (fraction done in [0, 1], what it is doing). Meshing an image takes minutes at fine
-#: spacings, with nothing to show for it otherwise.
-Progress = Callable[[float, str], None]
-
-
-def spacing_warning(spacing: float, scale: float, spacing_name: str = "--spacing",
-                    scale_name: str = "--scale") -> str | None:
-    """A line saying that ``spacing`` [m] is below the image's pixel ``scale`` [m/px], or None when it is not.
-
-    The outline comes from the pixels, so a finer mesh only adds vertices (and minutes of meshing) inside
-    detail the image does not have.
-    """
-    if spacing < scale:
-        return (f"{spacing_name} {spacing:g} m is {spacing / scale:.2g} of the image's pixel ({scale_name} {scale:g} "
-                f"m/px): the image holds no detail finer than a pixel, so the mesh only grows (expected a spacing "
-                f"of at least {scale:g} m)")
-    return None
 
 
 def _as_grading(grading: Grading | tuple | None, spacing: float) -> Grading | None:
