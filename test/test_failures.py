@@ -131,3 +131,33 @@ def test_monitor_first_failure_of_each_kind() -> None:
     # later failures do not replace the first
     mon.observe(2, x, x, v, 0.02, diverged=True)
     assert mon.first.kind == "tunnelling"
+
+
+def test_a_collapsed_or_overstrained_tissue_is_a_failure_at_once() -> None:
+    """A 10 s step folds the tissue onto itself: most triangles flip, back and forth from step to step, so the
+    consecutive-steps test never fires; a share of triangles inverted at one step does (``collapsed``). A tissue
+    stretched to twice its size everywhere is past any tissue's tearing strain (``overstrained``)."""
+    from tissue_sim_ros.core.health import COLLAPSE_FRACTION, STRAIN_LIMIT, RunHealth
+
+    model = _model()
+    x = model.particle_q0.copy()
+    v = np.zeros_like(x)
+    mirrored = x * [-1.0, 1.0]  # every triangle clockwise: inverted
+    assert FailureMonitor(model).observe(1, x, mirrored, v, 0.01) is None  # off unless asked for (the benches)
+    failure = FailureMonitor(model, collapse_fraction=COLLAPSE_FRACTION).observe(1, x, mirrored, v, 0.01)
+    assert failure.kind == "collapsed" and f"{len(model.tri_indices)} of {len(model.tri_indices)}" in failure.detail
+
+    centre = x.mean(axis=0)
+    stretched = centre + 2.0 * (x - centre)
+    failure = FailureMonitor(model, strain_limit=STRAIN_LIMIT).observe(1, x, stretched, v, 0.01)
+    assert failure.kind == "overstrained"
+    # a few edges stretched far (a tool's or a grasp's neighbourhood) are not the tissue overstrained
+    local = x.copy()
+    local[model.tri_indices[0]] += 0.1
+    assert FailureMonitor(model, strain_limit=STRAIN_LIMIT).observe(1, x, local, v, 0.01) is None
+
+    health = RunHealth(model, 0.01)
+    health.observe(1, x)
+    assert health.failure is None and health.verdict() == "yes"
+    health.observe(2, mirrored, v)
+    assert health.verdict().startswith("no: collapsed at step 2 (")
