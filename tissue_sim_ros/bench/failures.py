@@ -1,8 +1,8 @@
 """Failure checks for a simulation run: the ways a method or contact model breaks.
 
-The checks on a run's arrays and their step-by-step :class:`FailureMonitor` live in the core
-(:mod:`tissue_sim_ros.core.health`), where the experiments' and the demo's summaries use them too; they are
-re-exported here. This module adds the benchmarks' own: ``no_convergence``, the constraint residual not
+The checks on a run's arrays and their step-by-step ``FailureMonitor`` live in the core
+(:mod:`tissue_sim_ros.core.health`), where the experiments' and the demo's summaries use them too. This module
+adds the benchmarks' own: ``no_convergence``, the constraint residual not
 falling as the iteration count grows (measured on one step by :func:`iteration_residuals`, judged by
 :func:`residual_falls`; the stability bench fails a residual that rises by more than 10% from 1 to 64
 iterations or turns non-finite).
@@ -14,16 +14,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from ..core.health import (  # noqa: F401  (re-exported: the benchmarks' and tests' names)
-    Failure,
-    FailureMonitor,
-    has_nonfinite,
-    inverted_triangles,
-    kinetic_energy,
-    penetration_depth,
-    plausible_kinetic_energy,
-    tunnelled_particles,
-)
+from ..core.health import has_nonfinite
 
 if TYPE_CHECKING:
     from ..core.sim.simulation import Simulation, StepDetail
