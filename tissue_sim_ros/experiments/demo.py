@@ -6,8 +6,12 @@ pose is one step), the recorder (``tissue-sim record``, rosbag2 MCAP) and the
 tool driver (``tool_driver`` playing experiment a). When the driver is done
 and the recorder has everything, both are stopped with SIGINT, and the
 figures of experiment a (like the paper's Fig. 2) are drawn from the bag alone:
-snapshots from ``tissue/points``, energy and its terms per tissue from
-``tissue/energy/bodies``, contact from ``tissue/markers``.
+snapshots from ``tissue/points``, energy and every one of its terms per tissue
+from ``tissue/energy/bodies`` (its total, and the terms its layout names) with
+the strain and attach topics, contact from ``tissue/contact`` and, for a
+grasper, ``tool/grasped``; ``demo_energy.csv`` holds the series the energy plot
+draws. The summary says whether the run held (:class:`~tissue_sim_ros.core.health.RunHealth`
+over the recorded points): a collapsed run exits 1.
 """
 from __future__ import annotations
 
