@@ -353,3 +353,14 @@ def test_a_trajectory_shorter_than_one_step_is_refused_everywhere(tmp_path, caps
         err = capsys.readouterr().err
         assert f"trajectory {str(one)!r} lasts 0.0 s: shorter than one step of dt=0.01 s" in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["one.csv"]
+
+
+def test_experiment_retract_reports_the_flaps_height_and_that_it_held(tmp_path):
+    """``experiment retract`` printed "surface at x [m]" for the flap's top, a height."""
+    from tissue_sim_ros.experiments.retract import experiment_retract
+
+    res = experiment_retract(tmp_path, progress=False)
+    assert "surface at x [m]" not in res.summary
+    key = next(k for k in res.summary if "height" in k)
+    assert "x = 0.04 m" in key and "y [m]" in key and 0.0 < res.summary[key] < 0.03
+    assert res.summary["run held"] == "yes"
