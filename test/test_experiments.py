@@ -357,9 +357,11 @@ def test_a_trajectory_shorter_than_one_step_is_refused_everywhere(tmp_path, caps
 
 def test_experiment_retract_reports_the_flaps_height_and_that_it_held(tmp_path):
     """``experiment retract`` printed "surface at x [m]" for the flap's top, a height."""
+    from tissue_sim_ros.core.config import resolve_config
+    from tissue_sim_ros.core.resources import scene_params_file
     from tissue_sim_ros.experiments.retract import experiment_retract
 
-    res = experiment_retract(tmp_path, progress=False)
+    res = experiment_retract(tmp_path, params=resolve_config(params_file=scene_params_file("retract")), progress=False)
     assert "surface at x [m]" not in res.summary
     key = next(k for k in res.summary if "height" in k)
     assert "x = 0.04 m" in key and "y [m]" in key and 0.0 < res.summary[key] < 0.03
