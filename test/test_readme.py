@@ -50,6 +50,7 @@ def test_readme_front_page_tells_a_newcomer_what_holds() -> None:
     chart was gone; and a test count of an older commit went stale with every commit."""
     text = README.read_text()
     assert "source .venv/bin/activate" in text and ".venv/bin/tissue-sim" in text
+    assert "source $(VENV)/bin/activate" in (README.parent / "Makefile").read_text()  # make demo says it too
     assert "<this repository>" not in text
     node_rows = [line for line in text.splitlines() if line.startswith("| `tissue_sim_node")]
     assert node_rows and all("-p contact_model:=projection" in row.split("|")[1] for row in node_rows), node_rows
