@@ -28,6 +28,8 @@ venv: $(STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/tissue-sim demo --out $(OUT)
+	@# the commands live in the venv, not on the shell's PATH: say how to reach them
+	@echo "tissue-sim, tissue_sim_node and tool_driver are in $(VENV)/bin: 'source $(VENV)/bin/activate' puts them on PATH"
 
 test: $(STAMP)
 	$(VENV)/bin/ruff check .

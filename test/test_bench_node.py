@@ -90,3 +90,23 @@ def test_a_benchmarks_child_ends_when_the_benchmark_is_killed(preexec: str) -> N
         parent.stdout.close()
         if _running(child):
             os.kill(child, 9)
+
+
+def test_the_node_benchmark_says_how_many_measurements_and_how_long_before_it_starts(capsys) -> None:
+    """``bench node --seconds 3`` took minutes where its help said "measured time per scene": a default run
+    measures every phase with the lock off and on, per scene and mode. The plan counts what the run does."""
+    from tissue_sim_ros.bench.node import MODES, SCENES, MeasurementPlan
+    from tissue_sim_ros.cli import main
+
+    plan = MeasurementPlan(list(SCENES), list(MODES), phases=8, locks=(False, True), seconds=3.0, settle=2.0,
+                           warmup=2.0)
+    assert plan.windows == len(SCENES) * (8 * 2 + 1)
+    assert plan.estimate > plan.windows * 3.0 + 8 * 2 * 2.0 * len(SCENES)
+    assert plan.text.startswith(f"bench node: {plan.windows} measurements of 3 s") and "about" in plan.text
+    plan.announce("paper timer, phase 1 of 8, phase_lock off")
+    out = capsys.readouterr().out
+    assert f"measurement 1 of {plan.windows}: paper timer" in out and "left" in out
+    with pytest.raises(SystemExit):
+        main(["bench", "node", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "length of one measurement" in help_text and "per scene [s]" not in help_text

@@ -156,3 +156,49 @@ def test_output_names_are_checked_before_anything_is_written(tmp_path: Path, dis
     assert f"created directory {str(out.parent)!r} for --out" in said and out.exists()
     assert main(["mesh", str(disc_png), "--spacing", "0.1", "--out", str(out)]) == 0  # it exists now: nothing said
     assert "created directory" not in capsys.readouterr().out
+
+
+def test_a_spacing_below_the_pixel_is_warned_about(tmp_path: Path, capsys):
+    """``mesh --spacing 0.0005`` (a quarter of the default 2 mm pixel) ran for minutes without a word about it."""
+    img = np.full((30, 30, 3), 255, dtype=np.uint8)
+    cv2.circle(img, (15, 15), 10, (150, 135, 225), -1)
+    path = tmp_path / "small.png"
+    cv2.imwrite(str(path), img)
+    rc, out, err = run(capsys, path, "--scale", "0.002", "--spacing", "0.001")
+    assert rc == 0, err
+    warning = [line for line in err.splitlines() if "warning" in line]
+    assert len(warning) == 1 and "--spacing 0.001 m" in warning[0] and "pixel" in warning[0] and "0.002" in warning[0]
+    rc, out, err = run(capsys, path, "--scale", "0.002", "--spacing", "0.004")
+    assert rc == 0 and "warning" not in err
+
+
+def test_meshing_reports_its_progress(disc_png: Path):
+    """Long meshing shows progress: the meshing reports each stage of each body, in order, up to done."""
+    seen: list[tuple[float, str]] = []
+    mesh_from_image(disc_png, spacing=0.01, progress=lambda done, stage: seen.append((done, stage)))
+    fractions = [f for f, _ in seen]
+    assert fractions == sorted(fractions) and fractions[0] < 0.1 and fractions[-1] == 1.0
+    stages = " ".join(stage for _, stage in seen)
+    for stage in ("interior points", "boundary recovery", "smoothing", "triangles"):
+        assert stage in stages
+
+
+def test_the_mesh_pictures_legend_shows_the_bodies_as_drawn(tmp_path: Path, monkeypatch):
+    """The legend's body swatches had another alpha than the triangles they stand for."""
+    import matplotlib.figure
+    from matplotlib.collections import PolyCollection
+
+    from tissue_sim_ros.cli.mesh import draw_mesh
+
+    figures = []
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", lambda fig, *a, **k: figures.append(fig))
+    mesh = mesh_from_image(Path(__file__).parents[1] / "config" / "tissue.png", spacing=0.05)
+    draw_mesh(mesh, tmp_path / "m.png")
+    ax = figures[0].axes[0]
+    filled = [c for c in ax.collections if isinstance(c, PolyCollection) and len(c.get_facecolors())
+              and c.get_facecolors()[:, 3].max() > 0]
+    drawn = {tuple(np.round(fc, 3)) for c in filled for fc in c.get_facecolors()}
+    swatches = [h for h, label in zip(*ax.get_legend_handles_labels()) if label.startswith("body")]
+    assert len(swatches) == len(mesh.names)
+    for h in swatches:
+        assert tuple(np.round(h.get_facecolor(), 3)) in drawn, (h.get_facecolor(), drawn)

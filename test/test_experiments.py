@@ -28,6 +28,25 @@ def exp_a(tmp_path_factory):
     return out, paper.experiment_a(out, steps=220, snapshot_steps=(0, 150, 220), progress=False)
 
 
+def test_a_run_that_held_says_so(exp_a):
+    assert exp_a[1].summary["run held"] == "yes"
+
+
+def test_a_collapsed_run_says_so_and_fails_and_a_nonsense_dt_is_warned_about(tmp_path, capsys):
+    """``experiment a --set dt=10`` exited 0 with "diverged steps: 0, energy finite: True" while its snapshots
+    showed the mesh smeared from top to bottom."""
+    from tissue_sim_ros.cli import main
+
+    code = main(["experiment", "a", "--out", str(tmp_path), "--set", "dt=10", "--contact", "projection",
+                 "--steps", "20", "--no-progress"])
+    out, err = capsys.readouterr()
+    assert code == 1
+    assert "run held: no: collapsed at step" in out
+    warning = [line for line in err.splitlines() if "warning" in line]
+    assert len(warning) == 1 and "dt=10.0 s" in warning[0] and "0.1 s" in warning[0], err
+    assert any("did not hold" in line and "collapsed" in line for line in err.splitlines()), err
+
+
 def test_experiment_a_writes_figures_and_finite_energy(exp_a):
     out, res = exp_a
     for name in ("experiment_a_snapshots.png", "experiment_a_energy.png", "experiment_a_energy.csv"):
@@ -165,16 +184,92 @@ def _cdr_float64(data: bytes) -> float:
     return struct.unpack_from("<d", data, 4)[0]
 
 
-def test_demo_runs_through_ros_and_its_bag_decodes_with_mcap(tmp_path):
-    out = tmp_path / "out"
+def _run_demo(out: Path, *args: str) -> subprocess.CompletedProcess:
+    """``tissue-sim demo`` as a newcomer runs it, on a ROS domain of its own (localhost only); it ends its own
+    node, recorder and driver (the demo stops every process it started, also on an error)."""
     env = isolated_env(pick_domain_id())
     proc = subprocess.run([str(Path(sys.executable).parent / "tissue-sim"), "demo", "--out", str(out),
-                           "--domain-id", env["ROS_DOMAIN_ID"], "--timeout", "120"],
+                           "--domain-id", env["ROS_DOMAIN_ID"], "--timeout", "120", *args],
                           env=env, capture_output=True, text=True, timeout=400)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return proc
+
+
+def _uint32(data: bytes) -> int:
+    assert data[:2] == b"\x00\x01"
+    return struct.unpack_from("<I", data, 4)[0]
+
+
+def _summary_agrees_with_the_bag(out: Path, stdout: str) -> dict:
+    """The demo's summary, its energy CSV (the series its plot draws) and its bag, read with the independent
+    `mcap` reader, agree on the energy (peak per body, its step, the total of every term) and on contact."""
+    import re
+
+    from tissue_sim_ros.ros.messages import CONTACT_FIELDS, decode_float64_multiarray
+
+    msgs = _mcap_messages(out / "demo_bag")
+    energy = np.array([_cdr_float64(m) for m in msgs["/tissue/energy"]])
+    tables = [decode_float64_multiarray(m) for m in msgs["/tissue/energy/bodies"]]
+    names = tables[0][1][0].split(":", 1)[1].split(",")
+    terms = tables[0][1][1].split(":", 1)[1].split(",")
+    bodies = np.array([t[0] for t in tables]).reshape(len(tables), len(names), len(terms))
+    total = bodies[:, :, terms.index("total")]
+    np.testing.assert_allclose(total.sum(axis=1), energy, rtol=1e-12, atol=0)
+    # the summary: each body's peak and its step, as the bag has them
+    line = re.search(r"Peak implicit Euler energy \(every term: ([^)]*)\) (.*) at steps ([\d, ]+);", stdout)
+    assert line, stdout[-2000:]
+    for name, peak, step in zip(names, total.max(axis=0), total.argmax(axis=0) + 1):
+        assert re.search(rf"{re.escape(name)} {peak:.4g}\b", line.group(2)), (name, peak, line.group(0))
+    assert [int(s) for s in line.group(3).split(",")] == list(total.argmax(axis=0) + 1), line.group(0)
+    # the CSV the plot is drawn from: the bag's total per body, and every term adding up to it
+    header = (out / "demo_energy.csv").read_text().splitlines()[0].split(",")
+    csv = np.loadtxt(out / "demo_energy.csv", delimiter=",", skiprows=1)
+    for b, name in enumerate(names):
+        cols = [i for i, h in enumerate(header) if h.startswith(f"{name}:")]
+        col_total = header.index(f"{name}:total")
+        np.testing.assert_allclose(csv[:, col_total], total[:, b], rtol=1e-12, atol=0)
+        parts = [i for i in cols if i != col_total]
+        np.testing.assert_allclose(csv[:, parts].sum(axis=1), total[:, b], rtol=1e-9, atol=1e-15 + 1e-9 * total.max())
+    # contact: a step touches when any body is in contact or a grasper holds tissue
+    contact = np.array([decode_float64_multiarray(m)[0][:, CONTACT_FIELDS.index("in_contact")] > 0.5
+                        for m in msgs["/tissue/contact"]]).any(axis=1)
+    held = np.array([_uint32(m) for m in msgs.get("/tool/grasped", [])], dtype=np.int64)
+    touched_bag = contact.copy()
+    touched_bag[: len(held)] |= held > 0
+    touched = re.search(r"touched the tissue in (\d+) steps \(first at step (\d+|-)\)", stdout)
+    assert touched and int(touched.group(1)) == int(touched_bag.sum()), (touched.group(0), int(touched_bag.sum()))
+    first = int(np.argmax(touched_bag)) + 1 if touched_bag.any() else None
+    assert touched.group(2) == (str(first) if first else "-")
+    np.testing.assert_array_equal(csv[:, header.index("touched")], touched_bag)
+    assert "Run held: yes" in stdout
+    return {"energy": energy, "total": total, "touched": touched_bag, "held": held, "msgs": msgs,
+            "terms": line.group(1).split(", ")}
+
+
+@pytest.mark.parametrize("scene", ["liver_probe", "retract"])
+def test_demo_of_a_material_scene_reports_the_energy_and_contact_its_bag_holds(tmp_path, scene):
+    """``demo --scene liver_probe`` printed the inertial term as its energy (6.68e-09 at step 3 where the bag
+    peaks at 3.11e-08 at step 400); ``--scene retract`` printed 0 contact steps while the grasper held the flap
+    for 257, and its snapshots cut the lifted flap off without drawing the grasper."""
+    out = tmp_path / "out"
+    proc = _run_demo(out, "--scene", scene)
+    got = _summary_agrees_with_the_bag(out, proc.stdout)
+    assert "strain" in got["terms"]  # the material's term is counted
+    if scene == "liver_probe":
+        assert int(np.argmax(got["energy"])) + 1 > 300  # the probe presses deepest at the end
+    else:
+        assert "attach" in got["terms"] and (got["held"] > 0).sum() > 100
+        assert f"holding it in {(got['held'] > 0).sum()} of them" in proc.stdout
+    assert (out / "demo_snapshots.png").stat().st_size > 1000 and (out / "demo_energy.png").stat().st_size > 1000
+
+
+def test_demo_runs_through_ros_and_its_bag_decodes_with_mcap(tmp_path):
+    out = tmp_path / "out"
+    proc = _run_demo(out)
     assert "real-time factor" in proc.stdout
     import re
 
+    _summary_agrees_with_the_bag(out, proc.stdout)
     touched = re.search(r"touched the tissue in (\d+) steps \(first at step (\d+)\)", proc.stdout)
     assert touched and int(touched.group(1)) > 0 and 100 < int(touched.group(2)) < 300, proc.stdout[-2000:]
     for name in ("demo_snapshots.png", "demo_energy.png"):
@@ -258,3 +353,16 @@ def test_a_trajectory_shorter_than_one_step_is_refused_everywhere(tmp_path, caps
         err = capsys.readouterr().err
         assert f"trajectory {str(one)!r} lasts 0.0 s: shorter than one step of dt=0.01 s" in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["one.csv"]
+
+
+def test_experiment_retract_reports_the_flaps_height_and_that_it_held(tmp_path):
+    """``experiment retract`` printed "surface at x [m]" for the flap's top, a height."""
+    from tissue_sim_ros.core.config import resolve_config
+    from tissue_sim_ros.core.resources import scene_params_file
+    from tissue_sim_ros.experiments.retract import experiment_retract
+
+    res = experiment_retract(tmp_path, params=resolve_config(params_file=scene_params_file("retract")), progress=False)
+    assert "surface at x [m]" not in res.summary
+    key = next(k for k in res.summary if "height" in k)
+    assert "x = 0.04 m" in key and "y [m]" in key and 0.0 < res.summary[key] < 0.03
+    assert res.summary["run held"] == "yes"

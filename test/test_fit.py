@@ -446,3 +446,11 @@ def test_bench_fit_quick(tmp_path, capsys):
     rows = (tmp_path / "fit.csv").read_text().splitlines()
     assert len(rows) == 2 and rows[0].startswith("points,seed,steps")
     assert (tmp_path / "fit.png").stat().st_size > 0
+
+
+def test_bench_fit_prints_no_nan_for_an_estimate_it_did_not_return():
+    """``bench fit --quick`` printed "nu err +nan" when nu was not identifiable: the error of no estimate is "-"."""
+    from tissue_sim_ros.bench.fit import _num
+
+    assert _num(float("nan"), "+7.4f") == "      -" and _num(float("nan"), "+.4f") == "-"
+    assert _num(None, "6.2f") == "     -" and _num(0.0123, "+7.4f") == "+0.0123"

@@ -6,7 +6,7 @@ Arrows point down only::
 
 and inside the core, from the bottom up::
 
-    errors, resources -> mesh -> contact -> timing -> physics -> config -> sim -> plan, fit
+    errors, resources, series -> mesh -> contact -> timing -> physics -> config, health -> sim -> plan, fit
 
 A module may import its own package and anything below it, never above. Every import
 counts, including those inside functions (a lazy import is still an arrow); only imports
@@ -30,8 +30,8 @@ ROS_MODULES = ("rclpy", "std_msgs", "geometry_msgs", "sensor_msgs", "visualizati
 #: the package's layers, bottom (0) to top; a module imports only its own layer or lower ones
 LAYERS = {"core": 0, "render": 1, "envs": 2, "ros": 3, "experiments": 4, "bench": 5, "cli": 6}
 #: the core's packages, bottom (0) to top
-CORE_RANKS = {"errors": 0, "resources": 0, "mesh": 1, "contact": 2, "timing": 3, "physics": 4, "config": 5, "sim": 6,
-              "plan": 7, "fit": 7}
+CORE_RANKS = {"errors": 0, "resources": 0, "series": 0, "mesh": 1, "contact": 2, "timing": 3, "physics": 4,
+              "config": 5, "health": 5, "sim": 6, "plan": 7, "fit": 7}
 #: modules outside any layer: the package's own __init__ and the aliases of moved modules (they import anything)
 UNLAYERED = {"tissue_sim_ros", "tissue_sim_ros._moved"}
 

@@ -170,3 +170,16 @@ def test_a_bad_jobs_count_is_one_line(capsys):
 
     assert main(["tune", "--tolerance", "0.1", "--budget-ms", "1", "--jobs", "0"]) == 2
     assert "--jobs 0: expected at least 1 worker" in capsys.readouterr().err
+
+
+def test_the_cluster_keeps_its_files_in_the_suites_own_directory(cluster):
+    """``make test`` left a ``/tmp/ray/session_*`` behind on every run: the suite's clusters write under its own
+    temporary directory (test/conftest.py), which the session removes at its end."""
+    import os
+    from pathlib import Path
+
+    from ray._private import worker
+
+    session = Path(worker._global_node.get_session_dir_path()).resolve()
+    root = Path(os.environ["RAY_TMPDIR"]).resolve()
+    assert root != Path("/tmp") and root in session.parents, (session, root)

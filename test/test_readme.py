@@ -42,3 +42,20 @@ def test_readme_python_block_runs(index: int, tmp_path: Path) -> None:
                           cwd=tmp_path, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert proc.returncode == 0, (f"README.md python block {index + 1} failed (exit {proc.returncode}):\n"
                                   f"{BLOCKS[index]}\n--- stdout\n{proc.stdout[-3000:]}\n--- stderr\n{proc.stderr[-3000:]}")
+
+
+def test_readme_front_page_tells_a_newcomer_what_holds() -> None:
+    """After ``make demo`` ``tissue-sim`` was not found from a plain shell and the README never said why; its
+    clone line held a literal placeholder; the node's command was the one that gives no force; the speed-accuracy
+    chart was gone; and a test count of an older commit went stale with every commit."""
+    text = README.read_text()
+    assert "source .venv/bin/activate" in text and ".venv/bin/tissue-sim" in text
+    assert "source $(VENV)/bin/activate" in (README.parent / "Makefile").read_text()  # make demo says it too
+    assert "<this repository>" not in text
+    node_rows = [line for line in text.splitlines() if line.startswith("| `tissue_sim_node")]
+    assert node_rows and all("-p contact_model:=projection" in row.split("|")[1] for row in node_rows), node_rows
+    assert "](docs/img/accuracy.png)" in text
+    assert not re.search(r"\d+ passed", text) and "b267033" not in text
+    msg_docs = (README.parent / "msg_docs" / "README.md").read_text()
+    running = msg_docs.split("## Running", 1)[1].split("```")[1]
+    assert "tissue_sim_node --ros-args --params-file config/tissue_sim.yaml -p contact_model:=projection" in running

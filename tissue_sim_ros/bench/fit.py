@@ -18,6 +18,7 @@ in at most 60 s on 2 cores. Writes fit.csv and fit.png to --out.
 from __future__ import annotations
 
 import csv
+import math
 import os
 import tempfile
 import time
@@ -115,8 +116,8 @@ def run(out: str | Path, *, points: Sequence[int] = POINTS, seeds: int = 2, reco
                 row = measure(n, seed, record_spacing=rec_sp, fit_spacing=fit_sp, jobs=jobs, work=Path(tmp),
                               duration=duration, backend=backend, address=address)
                 rows.append(row)
-                print(f"  {n} points, seed {seed}: E {_num(row['E'], '.1f')} Pa ({row['E_err_pct']:+.2f}%), "
-                      f"nu {_num(row['nu'], '.4f')} ({row['nu_err']:+.4f}), {row['fit_wall_s']:.1f} s"
+                print(f"  {n} points, seed {seed}: E {_num(row['E'], '.1f')} Pa ({_num(row['E_err_pct'], '+.2f')}%), "
+                      f"nu {_num(row['nu'], '.4f')} ({_num(row['nu_err'], '+.4f')}), {row['fit_wall_s']:.1f} s"
                       + "".join(f"; {k[:-7]} not identifiable: {row[k]}" for k in ("E_reason", "nu_reason") if row[k]),
                       flush=True)
     with open("/proc/loadavg") if os.path.exists("/proc/loadavg") else open(os.devnull) as fh:
@@ -128,8 +129,8 @@ def run(out: str | Path, *, points: Sequence[int] = POINTS, seeds: int = 2, reco
     print(head)
     for r in rows:
         print(f"{r['points']:>6} {r['seed']:>4} {r['steps']:>5} {_num(r['E'], '8.1f')} {_num(r['E_sigma'], '6.1f')} "
-              f"{r['E_err_pct']:>6.2f}% {'yes' if r['E_covered'] else 'NO':>4} {_num(r['nu'], '7.4f')} "
-              f"{_num(r['nu_sigma'], '6.4f')} {r['nu_err']:>+7.4f} "
+              f"{_num(r['E_err_pct'], '6.2f')}% {'yes' if r['E_covered'] else 'NO':>4} {_num(r['nu'], '7.4f')} "
+              f"{_num(r['nu_sigma'], '6.4f')} {_num(r['nu_err'], '+7.4f')} "
               f"{'yes' if r['nu_covered'] else 'NO':>4} {r['rms_fit_mm']:>8.3f} {r['rms_holdout_mm']:>8.3f} "
               f"{r['evaluations']:>5} {r['fit_wall_s']:>6.1f}")
     walls = np.array([r["fit_wall_s"] for r in rows])
@@ -150,8 +151,9 @@ def run(out: str | Path, *, points: Sequence[int] = POINTS, seeds: int = 2, reco
 
 def _num(v: float | None, fmt: str) -> str:
     """A number, or '-' right-aligned for one the fit did not return (not identifiable)."""
-    width = int(fmt.split(".")[0] or 0)
-    return format(v, fmt) if v is not None else "-".rjust(width)
+    width = int(fmt.lstrip("+").split(".")[0] or 0)
+    # an error of an estimate the fit did not return is NaN: no number to print either
+    return format(v, fmt) if v is not None and not (isinstance(v, float) and math.isnan(v)) else "-".rjust(width)
 
 
 def _plot(path: Path, rows: list[dict], truth: dict) -> None:

@@ -22,10 +22,10 @@ from typing import Any
 import numpy as np
 
 from ..core.contact.tool import ToolPose
+from ..core.health import FailureMonitor
 from ..core.resources import scene_params_file
 from ..core.sim.scene import build_simulation, load_params_file
 from .accuracy import format_table, write_csv
-from .failures import FailureMonitor
 
 #: material name -> parameter changes over the scene's file
 MATERIALS = {

@@ -34,8 +34,8 @@ import numpy as np
 
 from ..core.config import resolve_config
 from ..core.contact.tool import ToolPose, ToolShape
+from ..core.health import FailureMonitor
 from ..core.sim.simulation import Simulation
-from .failures import FailureMonitor
 from .stability import sliver_mesh
 
 WIDTH, HEIGHT, SPACING = 0.06, 0.02, 0.0025

@@ -41,7 +41,7 @@ each phase with the node's ``phase_lock`` off, then on (set at run time: one
 node process, the two side by side under the same load). With the lock on the
 phase is where the publisher started: the node then moves its ticks.
 
-Targets (issues 5, 13): 100 Hz held, < 1 % missed deadlines, pose -> points
+Targets: 100 Hz held, < 1 % missed deadlines, pose -> points
 latency (median; the 95th percentile is reported too) < one period + 2 ms. Writes ``node.csv`` (one row per
 scene), ``node_latency_<scene>.csv`` (every pose), ``node.png`` and prints a table.
 
@@ -177,10 +177,53 @@ SEQ_STEP = 1e-9
 """x offset per pose sequence number [m]: identifies the pose in tool/applied_pose."""
 
 
+#: What starting one node and meeting it in the graph takes, about [s] (meshing, discovery): the plan's estimate
+STARTUP_S = 6.0
+
+
+class MeasurementPlan:
+    """The measurement windows a run will take and about how long, said before it starts and counted as it goes:
+    ``--seconds`` is the length of one window, and a default run measures many (every phase, both phase-lock
+    settings, each scene and mode)."""
+
+    def __init__(self, scenes: Sequence[str], modes: Sequence[str], *, phases: int, locks: Sequence[bool],
+                 seconds: float, settle: float, warmup: float) -> None:
+        timer = max(phases, 1) * len(locks)
+        self.windows = sum(timer if mode == "timer" else 1 for _ in scenes for mode in modes)
+        self.nodes = len(scenes) * len(modes)
+        settling = sum(timer * settle if mode == "timer" and phases else 0.0 for _ in scenes for mode in modes)
+        self.estimate = self.windows * seconds + settling + self.nodes * (warmup + STARTUP_S)
+        self.seconds = seconds
+        self.done = 0
+        self._start = time.monotonic()
+        per = [f"timer {max(phases, 1)} phase{'s' if max(phases, 1) > 1 else ''} x {len(locks)} phase_lock "
+               f"setting{'s' if len(locks) > 1 else ''}" if m == "timer" else "lock_step 1" for m in modes]
+        self.text = (f"bench node: {_count(self.windows, 'measurement')} of {seconds:g} s "
+                     f"({_count(len(scenes), 'scene')} x [{', '.join(per)}]) plus settling and "
+                     f"{_count(self.nodes, 'node start-up')}: about {_duration(self.estimate)} in all")
+
+    def announce(self, what: str) -> None:
+        """Say which measurement starts now, and about how long the run has left."""
+        self.done += 1
+        elapsed = time.monotonic() - self._start
+        left = max(0.0, self.estimate - elapsed) if self.done == 1 else elapsed / (self.done - 1) * (
+            self.windows - self.done + 1)
+        print(f"bench node: measurement {self.done} of {self.windows}: {what} ({self.seconds:g} s; about "
+              f"{_duration(left)} left)", flush=True)
+
+
+def _count(n: int, word: str) -> str:
+    return f"{n} {word}{'' if n == 1 else 's'}"
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
+
+
 def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: float, out: Path,
                 domain_id: int, mode: str = "timer", discovery_timeout: float = 30.0,
                 marker_rate: float | None = None, soak: bool = False, phase_locks: tuple[bool, ...] = (True,),
-                phases: int = 0, settle: float = 2.0) -> list[SceneResult]:
+                phases: int = 0, settle: float = 2.0, plan: MeasurementPlan | None = None) -> list[SceneResult]:
     """Run one scene: node process + driving client; return the measurements (one per phase).
 
     ``soak``: sample the node's RSS and counters every SOAK_SAMPLE_PERIOD s into ``node_soak.csv``.
@@ -386,6 +429,8 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
 
         if mode != "timer":
             results.append(SceneResult(name, mode))
+            if plan is not None:
+                plan.announce(f"{name} {mode}")
             measure(results[-1])
         lock_now = phase_locks[0]
         for k in range(max(phases, 1) if mode == "timer" else 0):
@@ -400,6 +445,9 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
                     if j == 0:  # the other settings start from the same phase (the lock moves the ticks)
                         place(int(result.phase_ms * 1e6))
                     settle_for(settle)
+                if plan is not None:
+                    plan.announce(f"{name} {mode}" + (f", phase {k + 1} of {phases}" if phases else "")
+                                  + f", phase_lock {'on' if lock else 'off'}")
                 measure(result)
     finally:
         executor.shutdown()
@@ -482,11 +530,14 @@ def run(out: str | Path, *, seconds: float = 10.0, warmup: float = 2.0, scenes: 
     locks = {"both": (False, True), "on": (True,), "off": (False,)}[phase_lock]
     load = [os.getloadavg()[0]]
     results: list[SceneResult] = []
-    for name in scenes or list(SCENES):
-        for mode in modes or list(MODES):
+    scenes, modes = list(scenes or SCENES), list(modes or MODES)
+    plan = MeasurementPlan(scenes, modes, phases=phases, locks=locks, seconds=seconds, settle=settle, warmup=warmup)
+    print(plan.text, flush=True)
+    for name in scenes:
+        for mode in modes:
             results += bench_scene(name, {**SCENES[name], **node_params}, seconds, warmup, out, domain_id, mode,
                                    marker_rate=marker_rate, phase_locks=locks,
-                                   phases=phases if mode == "timer" else 0, settle=settle)
+                                   phases=phases if mode == "timer" else 0, settle=settle, plan=plan)
     load.append(os.getloadavg()[0])
     rows = [r.row(dt) for r in results]
     with open(out / "node.csv", "w", newline="") as f:

@@ -36,11 +36,12 @@ import numpy as np
 from ..core.config import BY_NAME, Config, method_options, resolve_config
 from ..core.contact.tool import ToolPose, ToolShape
 from ..core.errors import InputError
+from ..core.health import Failure, FailureMonitor
 from ..core.mesh import TissueMesh, mesh_from_arrays, mesh_rectangle
 from ..core.physics.solvers import Solver
 from ..core.sim.simulation import Simulation, StepDetail
 from .accuracy import format_table, push_poses, write_csv
-from .failures import FAILURE_KINDS, Failure, FailureMonitor, iteration_residuals, residual_falls
+from .failures import FAILURE_KINDS, iteration_residuals, residual_falls
 
 #: method name -> (its method by core/config.py's alias rule, further parameter changes, Solver options)
 METHODS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {

@@ -11,6 +11,10 @@ Modules are imported only when their subcommand runs, so ``--help`` is fast and
 ROS is imported only by the commands that need it. Bad input
 (:class:`~tissue_sim_ros.core.errors.InputError`) prints one line and exits 2.
 
+Every output path a command takes (the options of :data:`OUTPUT_OPTIONS`, or the module's own ``OUTPUTS``
+tuple of option strings) is checked for writing here, before the command's ``run`` does any work: an unwritable
+``--out`` is one line and exit code 2, not a traceback after minutes of meshing.
+
 This package is the only place argparse lives: a command's ``run`` turns its
 arguments into a :class:`~tissue_sim_ros.core.config.Config` and plain keyword
 arguments and calls the library (core, ros, experiments, bench), which takes
@@ -25,7 +29,7 @@ import re
 import sys
 from typing import Sequence
 
-from ..core.errors import InputError
+from ..core.errors import InputError, writable_path
 
 #: subcommand -> (module, one-line help). Nested groups ("bench", "envs") hold their own table (and GROUPS their text).
 COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
@@ -69,6 +73,25 @@ GROUPS = {
 }
 
 
+#: The options that name a file or directory a command writes. A command module may name its own in ``OUTPUTS``.
+OUTPUT_OPTIONS = ("--out", "--output", "--png", "--csv", "--bag")
+
+
+def _output_dests(parser: argparse.ArgumentParser, options: Sequence[str]) -> list[tuple[str, str]]:
+    """(option string, dest) of each of ``parser``'s options among ``options``."""
+    return [(next(o for o in action.option_strings if o in options), action.dest) for action in parser._actions
+            if any(o in options for o in action.option_strings)]
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """InputError when an output path of the parsed command (``args._outputs``) cannot be written; unset ones
+    (None, empty: the command writes nothing there) are not checked."""
+    for option, dest in getattr(args, "_outputs", ()):
+        value = getattr(args, dest, None)
+        if value not in (None, ""):
+            writable_path(value, option)
+
+
 #: ``:role:`target` `` or ``:role:`title <target>` `` (Sphinx cross-references), ``~`` to show the last part only
 _ROLE = re.compile(r":(?:py:)?(\w+):`(~?)([^`<]*?)\s*(?:<([^>`]+)>)?`")
 
@@ -107,7 +130,7 @@ def _add_command(sub: argparse._SubParsersAction, name: str, module: str, help_t
     parser = sub.add_parser(name, help=help_line, description=plain_text(getattr(mod, "DESCRIPTION", help_line)),
                             formatter_class=argparse.RawDescriptionHelpFormatter)
     mod.add_arguments(parser)
-    parser.set_defaults(_run=mod.run)
+    parser.set_defaults(_run=mod.run, _outputs=_output_dests(parser, getattr(mod, "OUTPUTS", OUTPUT_OPTIONS)))
 
 
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
@@ -145,6 +168,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        check_outputs(args)
         return int(run(args) or 0)
     except InputError as exc:
         print(f"tissue-sim: error: {exc}", file=sys.stderr)

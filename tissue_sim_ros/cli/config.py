@@ -12,9 +12,10 @@ load it identically.
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any, Mapping
 
-from ..core.config import Config, parse_assignments, resolve_config
+from ..core.config import Config, implausible_values, parse_assignments, resolve_config
 from ..core.errors import make_parent, output_file
 
 HELP = "print the resolved configuration (shipped YAML + --params + --set) as a parameter YAML"
@@ -43,8 +44,16 @@ def config_from_args(args: argparse.Namespace, defaults: Mapping[str, Any] | Non
     """
     overrides = parse_assignments(getattr(args, "set", None) or [])
     overrides.update(extra)
-    return resolve_config(overrides=overrides, params_file=getattr(args, "params", None), defaults=defaults,
-                          source="--set")
+    return warn_implausible(resolve_config(overrides=overrides, params_file=getattr(args, "params", None),
+                                           defaults=defaults, source="--set"))
+
+
+def warn_implausible(cfg: Config) -> Config:
+    """``cfg``, after a warning on stderr for each value no tissue step can mean (a 10 s dt): such a run goes ahead,
+    but its numbers are no tissue's (:func:`~tissue_sim_ros.core.config.implausible_values`)."""
+    for line in implausible_values(cfg):
+        print(f"tissue-sim: warning: {line}", file=sys.stderr)
+    return cfg
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -11,7 +11,12 @@ from ..core.plan.control import ControlSettings, default_model
 from ..core.resources import scene_params_file
 from ..core.sim.backends import check_backend, check_jobs
 from ..experiments import control
+from .config import warn_implausible
 from .options import add_backend_arguments, positive_floats
+
+#: --timing's grids of pull motions; each replan also rolls out holding still, so it weighs one candidate more
+TIMING_COUNTS = (4, 8, 16, 32, 64)
+TIMING_CANDIDATES = tuple(n + 1 for n in TIMING_COUNTS)
 
 HELP = "drive a point of the tissue to a target with the model-predictive grasp controller, offline"
 DESCRIPTION = control.__doc__
@@ -46,8 +51,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           jobs_help="worker processes for the candidates' rollouts (default 1: serially in this "
                                     "process)")
     parser.add_argument("--timing", action="store_true",
-                        help="also time one replan against the number of candidates (4 to 64, 50 steps each; the "
-                             "world's mesh and the model's, serially and on max(2, --jobs) workers) and chart it")
+                        help=f"also time one replan against the number of candidates ({TIMING_CANDIDATES[0]} to "
+                             f"{TIMING_CANDIDATES[-1]}: grids of {TIMING_COUNTS[0]} to {TIMING_COUNTS[-1]} pull motions "
+                             "and holding still, 50 steps each; the world's mesh and the model's, serially and on "
+                             "max(2, --jobs) workers) and chart it")
     parser.add_argument("--sweep", action="store_true",
                         help="also run the world E factors 0.5 0.7 1 1.3 1.5 at noise 0, 0.5, 1 mm and chart success "
                              "and final error with the replan times (implies --timing)")
@@ -55,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     files = [scene_params_file("retract")] + ([args.params] if args.params else [])
-    cfg = resolve_config(overrides=parse_assignments(args.set), params_file=files, source="--set")
+    cfg = warn_implausible(resolve_config(overrides=parse_assignments(args.set), params_file=files, source="--set"))
     check_jobs(args.jobs)
     check_backend(args.backend)
     if args.model_spacing is None:
@@ -84,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
         if args.timing or args.sweep:
             print("replan time against candidates (sync + candidates x 50 steps + choice; median of 5):")
             timing = control.timing_table(cfg, spacings=(0.0, args.model_spacing) if args.model_spacing else (0.0,),
-                                          workers=(0, max(2, args.jobs)), backend=args.backend,
+                                          workers=(0, max(2, args.jobs)), counts=TIMING_COUNTS, backend=args.backend,
                                           address=args.address)
             for row in timing:
                 print("  " + ", ".join(f"{k} {v:.1f}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()))

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from ..core.config import parse_assignments, resolve_config
 from ..core.contact.tool import ToolShape
@@ -9,7 +10,7 @@ from ..core.errors import InputError, output_dir
 from ..core.resources import scene_names, scene_params_file
 from ..core.timing import trajectories as tr
 from ..experiments import paper, retract
-from .config import add_config_arguments
+from .config import add_config_arguments, warn_implausible
 
 HELP = "run the paper's experiment a or b offline and write its figures"
 DESCRIPTION = """Run one of the paper's experiments offline, on the paper's scene (Table I parameters) or
@@ -70,8 +71,8 @@ def run(args: argparse.Namespace) -> int:
     tool = scene.b_tool
     defaults = ({"tool_shape": tool.kind, "tool_length": tool.length, "tool_width": tool.width}
                 if args.which == "b" and tool is not None else None)
-    cfg = resolve_config(overrides=parse_assignments(args.set), params_file=files or None, defaults=defaults,
-                         source="--set")
+    cfg = warn_implausible(resolve_config(overrides=parse_assignments(args.set), params_file=files or None,
+                                          defaults=defaults, source="--set"))
     output_dir(args.out, "--out")
     if args.which == "a" and args.steps is not None and args.steps < 1:
         raise InputError(f"--steps {args.steps}: expected at least 1 step")
@@ -82,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     for spec in args.trajectory or []:  # a bad name or file fails before anything runs
         tr.resolve_trajectory(spec, ToolShape(), 0.01, args.scene)
     models = args.contact or (["paper", "projection"] if args.which == "a" and args.scene == "paper" else [None])
-    finite = True
+    held = True
     for model in models:
         values = cfg.replace(contact_model=model) if model else cfg
         tag = f"_{model}" if model else ""
@@ -100,13 +101,24 @@ def run(args: argparse.Namespace) -> int:
         print("wrote:")
         for f in result.files:
             print(f"  {f}")
-        finite &= bool(result.summary.get("energy finite", True))
-    return 0 if finite else 1
+        held &= _say_if_broken(f"experiment {args.which}" + (f" ({model} contact)" if model else ""), result)
+    return 0 if held else 1
+
+
+def _say_if_broken(what: str, result: paper.ExperimentResult) -> bool:
+    """Whether the run held; when it did not, one line on stderr saying so (the exit code is then 1)."""
+    if paper.run_held(result.summary):
+        return True
+    why = result.summary.get("run held", "yes")
+    why = "non-finite energy" if why == "yes" else why.removeprefix("no: ")
+    print(f"tissue-sim: experiment failed: {what} did not hold: {why}; its figures show a broken simulation, "
+          "not tissue", file=sys.stderr)
+    return False
 
 
 def _retract(args: argparse.Namespace) -> int:
     files = [scene_params_file("retract")] + ([args.params] if args.params else [])
-    cfg = resolve_config(overrides=parse_assignments(args.set), params_file=files, source="--set")
+    cfg = warn_implausible(resolve_config(overrides=parse_assignments(args.set), params_file=files, source="--set"))
     output_dir(args.out, "--out")
     result = retract.experiment_retract(args.out, params=cfg, progress=not args.no_progress)
     print("experiment retract:")
@@ -114,4 +126,4 @@ def _retract(args: argparse.Namespace) -> int:
     print("wrote:")
     for f in result.files:
         print(f"  {f}")
-    return 0 if result.summary.get("energy finite", True) else 1
+    return 0 if _say_if_broken("experiment retract", result) else 1

@@ -2,10 +2,12 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from ..core.errors import InputError, make_parent, output_file
 from ..core.mesh import (
@@ -17,6 +19,7 @@ from ..core.mesh import (
     mesh_from_mask,
     mesh_quality,
     read_image,
+    spacing_warning,
     tissue_mask,
 )
 
@@ -117,8 +120,20 @@ def run(args: argparse.Namespace) -> int:
         name = f"image {str(source)!r}"
         mask = tissue_mask(image, threshold=args.threshold, tissue_color=color, color_tolerance=args.tolerance,
                            name=name)
-        mesh = mesh_from_mask(mask, spacing=args.spacing, scale=args.scale, origin=tuple(args.origin),
-                              grading=grading, name=name, max_particles=args.max_particles)
+        warnings = [w for w in (spacing_warning(fine, args.scale, option) for fine, option in
+                                ((args.spacing, "--spacing"),
+                                 *(((grading.fine_spacing, "--grade FINE"),) if grading else ()))) if w]
+        # a bar only once meshing has taken a few seconds: a fine spacing takes minutes with nothing shown
+        with tqdm(total=100, desc="meshing", unit="%", delay=2.0, leave=False,
+                  bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed} elapsed, {remaining} left{postfix}") as bar:
+            def progress(done: float, stage: str) -> None:
+                while warnings:  # said once the mesh's size is accepted: a refused one gets its one error line
+                    print(f"tissue-sim: warning: {warnings.pop(0)}", file=sys.stderr)
+                bar.update(round(100 * done) - bar.n)
+                bar.set_postfix_str(stage, refresh=False)
+
+            mesh = mesh_from_mask(mask, spacing=args.spacing, scale=args.scale, origin=tuple(args.origin),
+                                  grading=grading, name=name, max_particles=args.max_particles, progress=progress)
         pixel_area = float(mask.sum()) * args.scale ** 2
         what = (f"image {source} ({image.shape[1]} x {image.shape[0]} px at {args.scale:g} m/px, "
                 f"spacing {args.spacing:g} m{', graded' if grading else ''})")
@@ -163,6 +178,10 @@ def format_quality(q: dict) -> str:
     return "\n".join(rows)
 
 
+#: How opaque a body's triangles are over the image (faint: the image shows through)
+BODY_ALPHA = 0.18
+
+
 def draw_mesh(mesh: TissueMesh, path: Path, *, image: np.ndarray | None = None, scale: float = 0.002,
               origin: tuple[float, float] = (0.0, 0.0), grading: Grading | None = None, title: str = "") -> None:
     """PNG of the mesh (triangles coloured by body, boundary vertices marked) over the image, world axes [m]."""
@@ -181,9 +200,9 @@ def draw_mesh(mesh: TissueMesh, path: Path, *, image: np.ndarray | None = None, 
                   extent=(origin[0], origin[0] + w * scale, origin[1], origin[1] + h * scale))
     tb = mesh.tri_body
     face = [colours[b % len(colours)] for b in tb]
-    ax.add_collection(PolyCollection(mesh.vertices[mesh.triangles], facecolors=face, alpha=0.18, zorder=1))
-    for b, name in enumerate(mesh.names):
-        ax.fill([], [], color=colours[b % len(colours)], alpha=0.35, label=f"body {b}: {name}")
+    ax.add_collection(PolyCollection(mesh.vertices[mesh.triangles], facecolors=face, alpha=BODY_ALPHA, zorder=1))
+    for b, name in enumerate(mesh.names):  # the legend's swatch as the triangles are filled, alpha and all
+        ax.fill([], [], color=colours[b % len(colours)], alpha=BODY_ALPHA, label=f"body {b}: {name}")
     ax.add_collection(PolyCollection(mesh.vertices[mesh.triangles], facecolors="none", edgecolors="#263238",
                                      linewidths=0.45, zorder=1))
     bv = mesh.vertices[mesh.boundary]

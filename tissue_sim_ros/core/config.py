@@ -618,6 +618,36 @@ def _build(values: Mapping[str, Any]) -> Config:
                   tool=ToolShape(**by_home["tool"]), node=NodeConfig(**by_home["node"]))
 
 
+#: Values that pass the parameter checks but no tissue step can mean: name -> (low, high, what it is). A value
+#: outside gets a warning naming it (not a refusal: a study may want an extreme on purpose). The material's rows
+#: apply only to ``material: neo_hookean``, which reads them.
+PLAUSIBLE_RANGES: dict[str, tuple[float, float, str]] = {
+    "dt": (1e-5, 0.1, "a soft-tissue step (Table I: 0.01 s)"),
+    "gravity": (-100.0, 100.0, "gravity along y (Earth: -9.8 m/s^2)"),
+    "young_modulus": (1.0, 1e9, "a tissue's Young's modulus (soft tissue: about 0.1-100 kPa)"),
+    "density": (100.0, 1e4, "a tissue's density (about 1000 kg/m^3)"),
+    "thickness": (1e-5, 0.5, "a tissue membrane's thickness"),
+}
+_MATERIAL_ONLY = ("young_modulus", "density", "thickness")
+
+
+def implausible_values(cfg: Config) -> list[str]:
+    """One line per value of ``cfg`` far outside what it can mean for tissue (:data:`PLAUSIBLE_RANGES`); empty
+    when none is. For a command to print as warnings. (A spacing below the image's pixel is ``tissue-sim
+    mesh``'s warning, said once the mesh's size is accepted: a scene refused for its size gets one line.)"""
+    flat = cfg.flat()
+    lines = []
+    for name, (low, high, what) in PLAUSIBLE_RANGES.items():
+        if name in _MATERIAL_ONLY and flat.get("material") != "neo_hookean":
+            continue
+        value = flat[name]
+        if not low <= value <= high:
+            unit = BY_NAME[name].unit
+            lines.append(f"{name}={value!r} {unit} is far outside {what}: expected {low:g} to {high:g} {unit}; "
+                         "the run may collapse or blow up")
+    return lines
+
+
 def markdown_table() -> str:
     """The parameter reference as a markdown table (for msg_docs/parameters.md)."""
     shipped = default_params()

@@ -8,6 +8,7 @@ everything else is a bug and keeps its traceback.
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 
 
@@ -73,3 +74,34 @@ def make_parent(path: Path, option: str) -> None:
         raise InputError(f"{option} {str(path)!r}: cannot create its directory: {exc.strerror or exc}") from None
     if missing is not None:
         print(f"created directory {str(parent)!r} for {option}")
+
+
+def writable_path(path: str | os.PathLike[str], option: str) -> Path:
+    """``path``, a file or directory a command is to write, checked for writing before the command works:
+    InputError naming ``option`` when the path or, where it does not exist yet, the nearest directory above it
+    that does cannot be written (a read-only mount, a directory without write permission).
+
+    Checked by creating (and at once removing) a nameless file there, since permission bits do not tell: root
+    passes them, and a read-only mount refuses everyone. Nothing is created at ``path`` itself.
+    """
+    p = Path(path)
+    existing = next((q for q in [p, *p.parents] if q.exists()), Path("."))
+    if existing.is_dir():
+        try:
+            with tempfile.TemporaryFile(dir=existing):
+                pass
+        except OSError as exc:
+            where = "" if existing == p else f": its directory {str(existing)!r}"
+            raise InputError(f"{option} {str(p)!r}{where} is not writable ({exc.strerror or exc}): expected a path "
+                             "you can write") from None
+    elif not os.access(existing, os.W_OK) or _read_only_mount(existing):
+        where = "" if existing == p else f": {str(existing)!r} is a file"
+        raise InputError(f"{option} {str(p)!r}{where} is not writable: expected a path you can write")
+    return p
+
+
+def _read_only_mount(path: Path) -> bool:
+    try:
+        return bool(os.statvfs(path).f_flag & os.ST_RDONLY)
+    except OSError:
+        return False

@@ -6,11 +6,16 @@ pose is one step), the recorder (``tissue-sim record``, rosbag2 MCAP) and the
 tool driver (``tool_driver`` playing experiment a). When the driver is done
 and the recorder has everything, both are stopped with SIGINT, and the
 figures of experiment a (like the paper's Fig. 2) are drawn from the bag alone:
-snapshots from ``tissue/points``, energy and its terms per tissue from
-``tissue/energy/bodies``, contact from ``tissue/markers``.
+snapshots from ``tissue/points``, energy and every one of its terms per tissue
+from ``tissue/energy/bodies`` (its total, and the terms its layout names) with
+the strain and attach topics, contact from ``tissue/contact`` and, for a
+grasper, ``tool/grasped``; ``demo_energy.csv`` holds the series the energy plot
+draws. The summary says whether the run held (:class:`~tissue_sim_ros.core.health.RunHealth`
+over the recorded points): a collapsed run exits 1.
 """
 from __future__ import annotations
 
+import math
 import os
 import queue
 import signal
@@ -19,7 +24,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Mapping, Sequence
 
 import numpy as np
 from tqdm import tqdm
@@ -27,6 +32,7 @@ from tqdm import tqdm
 from ..core.contact.tool import yaw_from_quaternion
 from ..core.errors import InputError
 from ..core.resources import scene_params_file
+from ..core.series import split_remainder
 from ..core.timing import trajectories as tr
 from ..core.timing.stamps import stamp_to_ns
 from ..ros.domain import free_domain_id
@@ -175,17 +181,32 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
     """Series of a recorded run from the bag alone: energy terms, snapshots by step, contact per body, stamps.
 
     Every series comes from a topic the node publishes once per step (energy, contact, points at
-    points_rate 1000): the k-th message is step k. Contact is ``tissue/contact``'s per-body ``in_contact``,
-    the Simulation's own flag; the markers are a display stream (newest state only) that may skip steps.
+    points_rate 1000; a grasper's held count, attach energy and applied jaw): the k-th message is step k.
+    Contact is ``tissue/contact``'s per-body ``in_contact``, the Simulation's own flag; the markers are a
+    display stream (newest state only) that may skip steps. The energy terms are the ones the bag says it
+    has: ``tissue/energy/bodies``' columns by its ``term:`` label, its ``total`` column the total (the terms
+    it leaves out, strain and attach, come from their scene topics: :func:`~tissue_sim_ros.core.series.split_remainder`).
     """
     from ..ros.bags import Bag  # noqa: PLC0415
-    from ..ros.messages import CONTACT_FIELDS, decode_float64_multiarray, decode_point_cloud, decode_pose_stamped  # noqa: PLC0415
+    from ..ros.messages import (  # noqa: PLC0415
+        CONTACT_FIELDS,
+        decode_float64,
+        decode_float64_multiarray,
+        decode_point_cloud,
+        decode_pose_stamped,
+        decode_uint32,
+    )
+    from ..ros.tool_applied import decode_applied_jaw  # noqa: PLC0415
 
     poses: dict[int, np.ndarray] = {}
     energy: list[np.ndarray] = []
+    labels: list[str] = []
     energy_t: list[int] = []
     contact: list[np.ndarray] = []
     points: list[tuple[int, np.ndarray]] = []
+    scene: dict[str, list[float]] = {"strain": [], "attach": []}
+    grasped: list[int] = []
+    jaw: list[float] = []
     with Bag(path) as bag:
         for topic, _msgtype, t_ns, raw in bag.messages():
             if topic == "/tool/pose":
@@ -193,9 +214,16 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
                 yaw = yaw_from_quaternion(*map(float, q))
                 poses[stamp_to_ns(stamp)] = np.array([pos[0], pos[1], yaw])
             elif topic == "/tissue/energy/bodies":
-                data, _labels = decode_float64_multiarray(raw)
+                data, labels = decode_float64_multiarray(raw)
                 energy.append(np.asarray(data, dtype=np.float64))
                 energy_t.append(t_ns)
+            elif topic in ("/tissue/energy/strain", "/tissue/energy/attach"):
+                scene[topic.rsplit("/", 1)[1]].append(decode_float64(raw))
+            elif topic == "/tool/grasped":
+                grasped.append(decode_uint32(raw))
+            elif topic == "/tool/applied_jaw":
+                value = decode_applied_jaw(raw)[1]
+                jaw.append(math.nan if value is None else value)
             elif topic == "/tissue/contact":
                 data, _labels = decode_float64_multiarray(raw)
                 contact.append(np.asarray(data, dtype=np.float64)[:, CONTACT_FIELDS.index("in_contact")] > 0.5)
@@ -205,20 +233,63 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
     # lock-step with points at every step: the k-th points message is step k, stamped with the stamp of the
     # tool pose that step used (energy and contact messages carry no stamp: the k-th is step k as well)
     step_stamp = {k + 1: t for k, (t, _x) in enumerate(points)}
-    terms = np.array(energy).reshape(len(energy), -1, 4) if energy else np.zeros((0, 0, 4))
-    in_contact = np.zeros((len(energy), terms.shape[1]), dtype=bool)
+    names = _term_names(labels)
+    table = np.array(energy).reshape(len(energy), -1, len(names)) if energy else np.zeros((0, 0, len(names)))
+    in_contact = np.zeros((len(energy), table.shape[1]), dtype=bool)
     n = min(len(contact), len(energy))
     if n:
         in_contact[:n] = np.array(contact[:n])
+    total = table[:, :, names.index("total")]
+    terms = {name: table[:, :, i] for i, name in enumerate(names) if name != "total"}
+    terms.update(split_remainder(terms, total, {k: np.array(v[: len(energy)]) for k, v in scene.items()
+                                                if len(v) >= len(energy)}))
     return {
         "steps": np.arange(1, len(energy) + 1),
-        "inertial": terms[:, :, 0], "spring": terms[:, :, 1], "area": terms[:, :, 2],
+        "terms": terms,
+        "total": total,
         "points": {k: x for k, (_t, x) in enumerate(points, start=1)},
         "contact": in_contact,
         "contact_steps": len(contact),
+        "grasped": np.array(grasped, dtype=np.int64),
+        "jaw": {k: v for k, v in enumerate(jaw, start=1)},
         "tool": {k: poses[t] for k, t in step_stamp.items() if t in poses},
         "energy_time_ns": np.array(energy_t, dtype=np.int64),
     }
+
+
+def _term_names(labels: Sequence[str]) -> list[str]:
+    """The columns of ``tissue/energy/bodies`` from its second dimension's label ``term:inertial,...,total``."""
+    for label in labels[1:]:
+        if label.startswith("term:"):
+            return label[len("term:"):].split(",")
+    return ["inertial", "spring", "area", "total"]  # a bag without labels: the layout msg_docs/topics.md gives
+
+
+def touched_steps(run: Mapping[str, Any]) -> np.ndarray:
+    """Per step, whether the tool touched the tissue: contact with any body, or a grasper holding some of it
+    (a grasp holds the tissue at the tip without the contact pushing a particle)."""
+    touched = run["contact"].any(axis=1)
+    held = run["grasped"]
+    if len(held):
+        touched = touched.copy()
+        touched[: len(held)] |= held[: len(touched)] > 0
+    return touched
+
+
+def write_energy_csv(path: Path, run: Mapping[str, Any], body_names: Sequence[str]) -> Path:
+    """The series the energy plot draws, per step: the total and each term per body, contact and held count."""
+    names = ["step"]
+    cols = [run["steps"].astype(float)]
+    for b, body in enumerate(body_names):
+        for term, arr in [("total", run["total"]), *run["terms"].items()]:
+            names.append(f"{body.replace(',', ' ')}:{term}")
+            cols.append(arr[:, b])
+    names += ["touched", "grasped"]
+    held = np.zeros(len(run["steps"]))
+    held[: min(len(held), len(run["grasped"]))] = run["grasped"][: len(held)]
+    cols += [touched_steps(run).astype(float), held]
+    np.savetxt(path, np.column_stack(cols), delimiter=",", header=",".join(names), comments="", fmt="%.17g")
+    return path
 
 
 def run(out: str | Path, *, scene: str = "paper", params_file: str | Path | None = None,
@@ -249,10 +320,10 @@ def run(out: str | Path, *, scene: str = "paper", params_file: str | Path | None
     InputError
         A bad domain id, trajectory or parameter, or a node or recorder that does not deliver every step.
     """
-    from ..core.config import resolve_config  # noqa: PLC0415
-    from ..core.contact.tool import ToolPose  # noqa: PLC0415
+    from ..core.config import implausible_values, resolve_config  # noqa: PLC0415
+    from ..core.health import RunHealth  # noqa: PLC0415
     from ..core.physics.model import Model  # noqa: PLC0415
-    from ..render import plot_energy, save_snapshots  # noqa: PLC0415
+    from ..render import energy_label, plot_energy  # noqa: PLC0415
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -262,6 +333,8 @@ def run(out: str | Path, *, scene: str = "paper", params_file: str | Path | None
     # the node resolves the same file and -p contact_model through the same front door
     cfg = resolve_config({"contact_model": contact_model}, params_file=params_file, source="--contact-model")
     params, tool = cfg.sim, cfg.tool
+    for line in implausible_values(cfg):
+        print(f"demo: warning: {line}", file=sys.stderr)
     spec = trajectory
     if spec not in tr.PRESETS:
         spec = str(Path(spec).resolve())  # the driver runs in another directory
@@ -290,7 +363,10 @@ def run(out: str | Path, *, scene: str = "paper", params_file: str | Path | None
                             out / "record.log")
         procs.append(recorder)
         # the driver starts only when the recorder subscribes to the node's outputs, so no step is missed
-        wanted = {"/tissue/energy/bodies", "/tissue/contact", "/tissue/points", "/tissue/markers", "/tissue/energy"}
+        wanted = {"/tissue/energy/bodies", "/tissue/contact", "/tissue/points", "/tissue/markers", "/tissue/energy",
+                  "/tissue/energy/strain"}
+        if tool.kind == "grasper":  # the summary's contact counts the steps the grasper held tissue
+            wanted |= {"/tool/grasped", "/tissue/energy/attach"}
         seen: set[str] = set()
 
         def ready(line: str) -> bool:
@@ -314,7 +390,7 @@ def run(out: str | Path, *, scene: str = "paper", params_file: str | Path | None
                           out / "driver.log")
         procs.append(driver)
         try:
-            with tqdm(total=n_steps, desc="experiment a through ROS", unit="step") as bar:
+            with tqdm(total=n_steps, desc=f"{Path(trajectory).name} through ROS", unit="step") as bar:
                 got = monitor.spin(n_steps, lambda: driver.proc.poll() is not None, 3.0, timeout, bar)
             # the node reports its step times on /diagnostics once a second: take the last window too
             monitor.spin(10**9, lambda: monitor.steps_reported >= got, 0.0, 2.5)
@@ -343,25 +419,20 @@ def run(out: str | Path, *, scene: str = "paper", params_file: str | Path | None
                          f"{len(run_['points'])} point messages of {n_steps} steps: the recorder lost messages (see "
                          f"{out}/record.log)")
     model = Model.from_mesh(cfg.scene.build_mesh(), params)
-    snaps = []
-    for s in scene.a_snapshots:
-        x = model.particle_q0 if s == 0 else run_["points"].get(s)
-        if x is None:
-            continue
-        p = run_["tool"].get(s)
-        snaps.append((s, x, None if p is None else ToolPose(*map(float, p))))
-    files = [
-        save_snapshots(out / "demo_snapshots.png", model, snaps, tool=tool,
-                       title=f"Demo (through ROS): trajectory {Path(trajectory).name} ({contact_model} contact)"),
-        plot_energy(out / "demo_energy.png", run_["steps"],
-                    {"inertial": run_["inertial"], "spring": run_["spring"], "area": run_["area"]},
-                    body_names=model.body_names,
-                    markers=[s for s in scene.a_snapshots if s > 0],
-                    contact=run_["contact"],
-                    title="Demo: implicit Euler energy per tissue, recorded through ROS"),
-    ]
-    total = run_["inertial"] + run_["spring"] + run_["area"]
-    touched = run_["contact"].any(axis=1)
+    health = RunHealth(model, params.dt)
+    for k in range(1, n_steps + 1):
+        health.observe(k, run_["points"][k])
+    files = [_draw_snapshots(out / "demo_snapshots.png", model, run_, scene.a_snapshots, tool,
+                             f"Demo (through ROS): trajectory {Path(trajectory).name} ({contact_model} contact)"),
+             plot_energy(out / "demo_energy.png", run_["steps"], run_["terms"], total=run_["total"],
+                         body_names=model.body_names, markers=[s for s in scene.a_snapshots if s > 0],
+                         contact=_shaded(run_),
+                         title="Demo: implicit Euler energy per tissue, recorded through ROS",
+                         ylabel=energy_label(params)),
+             write_energy_csv(out / "demo_energy.csv", run_, model.body_names)]
+    total = run_["total"]
+    touched = touched_steps(run_)
+    held_steps = int((run_["grasped"] > 0).sum())
     sim_time = len(run_["steps"]) * params.dt
     # from the first step to the last, as the recorder received them (the driver's start-up is not the run)
     wall = float(run_["energy_time_ns"][-1] - run_["energy_time_ns"][0]) * 1e-9 + params.dt
@@ -370,16 +441,18 @@ def run(out: str | Path, *, scene: str = "paper", params_file: str | Path | None
     # "8.21 ms on average (1x real time)" read as a contradiction: say the share of the step period it used
     node_time = (f"took {node_ms:.2f} ms on average, {100 * node_ms / (params.dt * 1e3):.0f}% of the "
                  f"{params.dt * 1e3:g} ms step period" if node_ms else "was not reported")
+    held = f", holding it in {held_steps} of them" if tool.kind == "grasper" else ""
     print(f"Ran trajectory {trajectory} through ROS: {len(run_['steps'])} steps ({sim_time:.2f} s simulated) in {wall:.2f} s "
           f"wall (real-time factor {sim_time / wall:.2f}: the driver paces the lock-step node at 1/dt so the recorder "
           f"keeps every message); the node's own step, simulation and messages, {node_time}. "
           f"Driver, node and recorder ran as separate processes on ROS domain {domain}. "
-          f"Peak implicit Euler energy "
-          + ", ".join(f"{n} {v:.3g}" for n, v in zip(model.body_names, peak_b))
+          f"Peak implicit Euler energy (every term: {', '.join(run_['terms'])}) "
+          + ", ".join(f"{n} {v:.4g}" for n, v in zip(model.body_names, peak_b))
           + f" at steps {', '.join(str(int(run_['steps'][i])) for i in total.argmax(axis=0))}; the tool touched "
           f"the tissue in {int(touched.sum())} steps (first at step "
-          f"{int(np.argmax(touched)) + 1 if touched.any() else '-'}). "
-          f"Contact model: {contact_model}. Setup and shutdown took {time.monotonic() - t_start - wall:.1f} s.")
+          f"{int(np.argmax(touched)) + 1 if touched.any() else '-'}){held}. "
+          f"Contact model: {contact_model}. Run held: {health.verdict()}. "
+          f"Setup and shutdown took {time.monotonic() - t_start - wall:.1f} s.")
     print()
     print("wrote:")
     for f in [bag_path, *files, out / "node.log", out / "record.log", out / "driver.log"]:
@@ -387,5 +460,41 @@ def run(out: str | Path, *, scene: str = "paper", params_file: str | Path | None
     bad = {k: v for k, v in codes.items() if v not in (0, -2, 130)}
     if bad:
         print(f"warning: processes exited with {bad}", file=sys.stderr)
+    if health.failure is not None:
+        print(f"demo: the run did not hold ({health.verdict().removeprefix('no: ')}): its figures show a broken "
+              "simulation, not tissue", file=sys.stderr)
+        return 1
     return 0
+
+
+def _shaded(run: Mapping[str, Any]) -> np.ndarray:
+    """The steps the energy plot shades per body: contact, and every body while a grasper holds tissue (the count
+    of held particles is the scene's, not a body's)."""
+    held = np.zeros(len(run["steps"]), dtype=bool)
+    held[: min(len(held), len(run["grasped"]))] = run["grasped"][: len(held)] > 0
+    return run["contact"] | held[:, None]
+
+
+def _draw_snapshots(path: Path, model: Any, run: Mapping[str, Any], steps: Sequence[int], tool: Any,
+                    title: str) -> Path:
+    """The snapshot strip of the recorded run, framed to hold everything drawn (a lifted flap, the tool above
+    the tissue); a grasper is drawn with its jaws as the node applied them."""
+    from ..core.contact.tool import ToolPose  # noqa: PLC0415
+    from ..render import save_grasp_snapshots, save_snapshots, snapshot_bounds, tool_outline  # noqa: PLC0415
+
+    snaps = []
+    for s in steps:
+        x = model.particle_q0 if s == 0 else run["points"].get(s)
+        if x is None:
+            continue
+        p = run["tool"].get(s)
+        snaps.append((s, x, None if p is None else ToolPose(*map(float, p))))
+    grasper = tool.kind == "grasper"
+    outlines = [tool_outline(tool, pose, jaw=run["jaw"].get(s, 0.0) if grasper else None)
+                for s, _x, pose in snaps if pose is not None]
+    bounds = snapshot_bounds(model, [x for _s, x, _p in snaps], outlines)
+    if not grasper:
+        return save_snapshots(path, model, snaps, tool=tool, title=title, bounds=bounds)
+    shots = [(f"step {s}", x, pose, run["jaw"].get(s), np.zeros(0, dtype=np.int64)) for s, x, pose in snaps]
+    return save_grasp_snapshots(path, model, shots, tool=tool, bounds=bounds, title=title)
 

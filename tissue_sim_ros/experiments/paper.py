@@ -22,6 +22,8 @@ from tqdm import tqdm
 from ..core.config import Config, resolve_config
 from ..core.contact.tool import ToolPose, Trajectory
 from ..core.errors import InputError
+from ..core.health import RunHealth
+from ..core.series import rollout_terms
 from ..core.sim.rollout import Rollout, rollout
 from ..core.sim.scene import build_simulation
 from ..core.sim.simulation import Simulation
@@ -66,15 +68,24 @@ def baseline_rollout(values: Mapping[str, Any] | Config, steps: int) -> Rollout:
 
 
 def run_trajectory(sim: Simulation, traj: Trajectory, *, snapshot_steps: Sequence[int] = (),
-                   progress: bool | str = False, max_steps: int | None = None) -> tuple[Rollout, float]:
-    """Roll ``sim`` out along ``traj`` (its first ``max_steps`` steps when given); rollout and wall time [s]."""
+                   progress: bool | str = False, max_steps: int | None = None,
+                   health: RunHealth | None = None) -> tuple[Rollout, float]:
+    """Roll ``sim`` out along ``traj`` (its first ``max_steps`` steps when given); rollout and wall time [s].
+
+    ``health``: checks every step (whether the run collapsed or blew up), for the summary.
+    """
     dt = sim.params.dt
     n = traj.n_steps(dt) if max_steps is None else min(traj.n_steps(dt), max_steps)
     bar = tqdm(total=n, desc=progress if isinstance(progress, str) else "steps", unit="step",
                disable=not progress, leave=False)
+
+    def on_step(report) -> None:
+        bar.update(1)
+        if health is not None:
+            health.observe_sim(sim, report)
+
     t0 = time.perf_counter()
-    run = rollout(sim, itertools.islice(traj.steps(dt), n), snapshot_steps=snapshot_steps,
-                  on_step=lambda r: bar.update(1))
+    run = rollout(sim, itertools.islice(traj.steps(dt), n), snapshot_steps=snapshot_steps, on_step=on_step)
     wall = time.perf_counter() - t0
     bar.close()
     return run, wall
@@ -87,8 +98,10 @@ def _pose_at_step(run: Rollout, step: int) -> ToolPose | None:
     return ToolPose(float(x), float(y), float(yaw)) if np.isfinite(x) else None
 
 
-def summarise(run: Rollout, wall: float, dt: float, body_names: Sequence[str] | None = None) -> dict[str, Any]:
-    """Steps, real-time factor, peak energy per body (by name), contact steps, first contact."""
+def summarise(run: Rollout, wall: float, dt: float, body_names: Sequence[str] | None = None,
+              health: RunHealth | None = None) -> dict[str, Any]:
+    """Steps, real-time factor, peak energy per body (by name), contact steps, first contact; with ``health``,
+    whether the run held (``"run held"``: ``yes`` or what broke, and when)."""
     contact_any = run.in_contact.any(axis=1)
     first = int(run.steps[np.argmax(contact_any)]) if contact_any.any() else None
     total = run.total
@@ -107,7 +120,13 @@ def summarise(run: Rollout, wall: float, dt: float, body_names: Sequence[str] | 
         "first contact step": first,
         "diverged steps": int(run.diverged.sum()),
         "energy finite": bool(np.isfinite(total).all()),
+        **({"run held": health.verdict()} if health is not None else {}),
     }
+
+
+def run_held(summary: Mapping[str, Any]) -> bool:
+    """Whether a run's summary says it held: finite energy and no failure found by its :class:`RunHealth`."""
+    return bool(summary.get("energy finite", True)) and str(summary.get("run held", "yes")) == "yes"
 
 
 def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None = None, steps: int | None = None,
@@ -127,7 +146,7 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None =
     hung for a while (29 steps: docs/paper.md, "Reproducing the authors' run").
     """
     snapshot_steps = scene.a_snapshots if snapshot_steps is None else snapshot_steps
-    from ..render import plot_energy, save_snapshots  # noqa: PLC0415  (matplotlib only when drawing)
+    from ..render import energy_label, plot_energy, save_snapshots  # noqa: PLC0415  (matplotlib only when drawing)
 
     out = Path(out)
     if isinstance(settle, bool) or not isinstance(settle, int) or settle < 0:
@@ -146,10 +165,11 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None =
     n = traj.n_steps(sim.params.dt) if steps is None else min(steps, traj.n_steps(sim.params.dt))
     snaps = [s for s in snapshot_steps if s <= n]
     out.mkdir(parents=True, exist_ok=True)  # only once the scene and trajectory are known good: bad input creates nothing
+    health = RunHealth(sim.model, sim.params.dt)
     run, wall = run_trajectory(sim, traj, snapshot_steps=snaps, progress="experiment a" if progress else False,
-                               max_steps=n)
+                               max_steps=n, health=health)
     res = ExperimentResult("a", rollouts={"a": run})
-    res.summary = summarise(run, wall, sim.params.dt, sim.model.body_names)
+    res.summary = summarise(run, wall, sim.params.dt, sim.model.body_names, health)
     res.summary["contact model"] = sim.params.contact_model
     res.summary["method"] = f"{sim.params.method} ({sim.params.scheme}, {sim.params.iterations} iterations)"
     res.summary["particles"] = sim.model.n_particles
@@ -161,16 +181,22 @@ def experiment_a(out: str | Path, *, params: Mapping[str, Any] | Config | None =
             else f"trajectory {Path(trajectory).name}")
     res.files.append(save_snapshots(out / f"{prefix}_snapshots.png", sim.model, shots, tool=sim.tool,
                                     title=f"Experiment a: {what} ({sim.params.contact_model} contact)"))
-    res.files.append(plot_energy(out / f"{prefix}_energy.png", run.steps,
-                                 {"inertial": run.inertial, "spring": run.spring, "area": run.area},
+    res.files.append(plot_energy(out / f"{prefix}_energy.png", run.steps, rollout_terms(run),
                                  body_names=sim.model.body_names, markers=[s for s in snaps if s > 0],
-                                 contact=run.in_contact, title="Experiment a: implicit Euler energy"))
+                                 contact=run.in_contact, title="Experiment a: implicit Euler energy",
+                                 ylabel=energy_label(sim.params)))
     csv = out / f"{prefix}_energy.csv"
     run.write_csv(csv)
     res.files.append(csv)
     res.files.append(tr.write_trajectory_csv(out / f"{prefix}_trajectory.csv", _Truncated(traj, n, sim.params.dt),
                                              sim.params.dt))
     return res
+
+
+def _held_all(healths: Mapping[str, RunHealth]) -> str:
+    """``yes`` when every run held, else each broken run's verdict by its label."""
+    broken = {label: h.verdict() for label, h in healths.items() if h.failure is not None}
+    return "yes" if not broken else "; ".join(f"{label}: {v}" for label, v in broken.items())
 
 
 class _Truncated(Trajectory):
@@ -210,7 +236,7 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None =
     distance = scene.b_distance if distance is None else distance
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
-    from ..render import TERM_STYLES, draw_scene  # noqa: PLC0415
+    from ..render import OTHER_TERM_STYLE, TERM_STYLES, draw_scene, energy_label  # noqa: PLC0415
 
     out = Path(out)
     tool_values = ({"tool_shape": scene.b_tool.kind, "tool_length": scene.b_tool.length,
@@ -219,6 +245,7 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None =
     res = ExperimentResult("b")
     runs: list[tuple[Any, Rollout, Simulation, float]] = []
     baseline: Rollout | None = None
+    healths: dict[str, RunHealth] = {}
     if trajectories:
         labels: list[Any] = [Path(s).stem if Path(s).suffix else s for s in trajectories]
         specs: list[Any] = list(trajectories)
@@ -237,7 +264,10 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None =
             traj = tr.resolve_trajectory(spec, sim.tool, sim.params.dt)
         else:
             traj = tr.experiment_b(sim.tool, sim.params.dt, spec, speed=speed, target=target, distance=distance)
-        run, wall = run_trajectory(sim, traj, progress=f"experiment b {shown(label)}" if progress else False)
+        health = RunHealth(sim.model, sim.params.dt)
+        run, wall = run_trajectory(sim, traj, progress=f"experiment b {shown(label)}" if progress else False,
+                                   health=health)
+        healths[tag(label)] = health
         if baseline is None or len(baseline.steps) < len(run.steps):
             baseline = baseline_rollout(values, len(run.steps))
         runs.append((label, run, sim, wall))
@@ -257,12 +287,14 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None =
                              else f"{shown(angle)}: final state", fontsize=10)
         ax = axes[1, j]
         ax.plot(run.steps, run.scene_total, color="#c62828", lw=2.0, label="total")
-        for name, arr in (("inertial", run.inertial), ("spring", run.spring), ("area", run.area)):
-            colour, ls = TERM_STYLES[name]
+        for name, arr in rollout_terms(run).items():
+            if not np.any(arr):  # the material's spring and area, a grasper-less attach: zero throughout
+                continue
+            colour, ls = TERM_STYLES.get(name, OTHER_TERM_STYLE)
             ax.plot(run.steps, arr.sum(axis=1), color=colour, ls=ls, lw=1.2, label=name)
         ax.set_ylim(0, ymax)
         ax.set_xlabel("step")
-        ax.set_ylabel("implicit Euler energy (scene)")
+        ax.set_ylabel(energy_label(sim.params).replace("energy", "energy of the scene", 1), fontsize=9)
         ax.set_title(f"{shown(angle)}: cost (energy added) {insertion_cost(run, baseline):.3g}", fontsize=10)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="upper left")
@@ -285,6 +317,8 @@ def experiment_b(out: str | Path, *, params: Mapping[str, Any] | Config | None =
         "peak energy added": {shown(a): float(f"{(r.scene_total - baseline.scene_total[:len(r.steps)]).max():.4g}")
                               for a, r, _, _ in runs},
         "contact steps": {shown(a): int(r.in_contact.any(axis=1).sum()) for a, r, _, _ in runs},
+        "energy finite": all(bool(np.isfinite(r.total).all()) for _, r, _, _ in runs),
+        "run held": _held_all({shown(a): healths[tag(a)] for a, _, _, _ in runs}),
         ("cheaper trajectory" if trajectories else "cheaper angle [deg]"): best,
         "saving vs the other": (f"{(1 - costs[best] / costs[worst]) * 100:.1f}% less energy than {shown(worst)}"
                                 if costs[worst] > 0 else "no energy at either angle"),

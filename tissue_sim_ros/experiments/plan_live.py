@@ -213,6 +213,8 @@ def draw_plan(path: Path, tissue, candidates, costs: bytes, entry: tuple[float, 
     import matplotlib.pyplot as plt  # noqa: PLC0415
     from matplotlib.collections import PolyCollection  # noqa: PLC0415
     from matplotlib.colors import LinearSegmentedColormap, LogNorm  # noqa: PLC0415
+    from matplotlib.lines import Line2D  # noqa: PLC0415
+    from matplotlib.patches import Patch  # noqa: PLC0415
 
     from ..ros import messages  # noqa: PLC0415
 
@@ -220,11 +222,13 @@ def draw_plan(path: Path, tissue, candidates, costs: bytes, entry: tuple[float, 
     fields = labels[1].split(":", 1)[1].split(",")
     col = {name: rows[:, i] for i, name in enumerate(fields)}
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.8), gridspec_kw={"width_ratios": [1.25, 1]})
+    tissue_colour = (0.9, 0.6, 0.6, 1.0)
     for m in tissue.markers:  # the deformed mesh (TRIANGLE_LIST, strain colours) as RViz draws it
         if m.ns == "tissue" and m.type == m.TRIANGLE_LIST and m.points:
             xy = np.array([(p.x, p.y) for p in m.points]).reshape(-1, 3, 2)
             rgba = np.array([(c.r, c.g, c.b, c.a) for c in m.colors]).reshape(-1, 3, 4).mean(axis=1) \
                 if len(m.colors) == len(m.points) else (m.color.r, m.color.g, m.color.b, m.color.a)
+            tissue_colour = tuple(np.atleast_2d(rgba).mean(axis=0))
             ax.add_collection(PolyCollection(xy, facecolors=rgba, edgecolors="#9e9e9e", linewidths=0.4, zorder=1))
     for m in candidates.markers:
         if m.ns != "plan_candidates":
@@ -234,14 +238,16 @@ def draw_plan(path: Path, tissue, candidates, costs: bytes, entry: tuple[float, 
                 solid_capstyle="round", zorder=2 + (m.scale.x > 0.004))
     ax.plot(*target, marker="o", ms=9, color="#ffd600", mec="#8d6e00", zorder=5, label="goal")
     ax.plot(*entry, marker="s", ms=6, color="k", zorder=5, label="start")
-    ax.plot([], [], color="#9e9e9e", lw=1, label="tissue mesh (tissue/markers, strain colours)")
+    # the mesh's legend entry as it is drawn: a filled triangle in its colours with grey edges, not a line
+    mesh_handle = Patch(facecolor=tissue_colour, edgecolor="#9e9e9e", lw=0.4,
+                        label="tissue mesh (tissue/markers, strain colours)")
     ax.set_aspect("equal")
     ax.set_xlim(min(entry[0], target[0]) - 0.25, max(entry[0], target[0]) + 0.1)
     ax.set_ylim(min(entry[1], target[1]) - 0.15, max(entry[1], target[1]) + 0.15)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title("plan/candidates: tip paths coloured by cost (wide: the plan)", fontsize=9)
-    ax.legend(fontsize=7, loc="lower left")
+    ax.legend(handles=ax.get_legend_handles_labels()[0] + [mesh_handle], fontsize=7, loc="lower left")
     feasible = col["feasible"] > 0
     green_red = LinearSegmentedColormap.from_list("cost", [(0.0, 1.0, 0.15), (1.0, 0.2, 0.15)])
     positive = col["cost"][feasible & (col["cost"] > 0)]
@@ -254,13 +260,18 @@ def draw_plan(path: Path, tissue, candidates, costs: bytes, entry: tuple[float, 
                    s=40, marker="o" if v == col["speed_mps"].min() else "^", zorder=2, label=f"{v:g} m/s")
     best = col["best"] > 0
     bx.scatter(col["angle_deg"][best], col["cost"][best], marker="*", s=260, color="#ffd600", edgecolor="#8d6e00",
-               zorder=3, label="the plan")
+               zorder=3)
+    # the points' colour is their cost, not their speed: the legend says the speed by the marker's shape alone
+    # (a scatter's own legend entry takes the colour of its first point's cost)
+    handles = [Line2D([], [], ls="none", marker="o" if v == col["speed_mps"].min() else "^", color="0.45", ms=6,
+                      label=f"{v:g} m/s (colour: cost)") for v in np.unique(col["speed_mps"])]
+    handles.append(Line2D([], [], ls="none", marker="*", ms=13, color="#ffd600", mec="#8d6e00", label="the plan"))
     if positive.size:
         bx.set_yscale("log")
     bx.set_xlabel("approach angle [deg]")
     bx.set_ylabel("cost: energy added over the tool-free baseline")
     bx.set_title("plan/costs", fontsize=9)
-    bx.legend(fontsize=7)
+    bx.legend(handles=handles, fontsize=7)
     bx.grid(alpha=0.3, which="both")
     fig.tight_layout()
     fig.savefig(path, dpi=120)

@@ -1,4 +1,4 @@
-"""Grasp and retract (issue 30), offline: the grasper comes down onto the flap of ``config/scenes/retract.yaml``,
+"""Grasp and retract, offline: the grasper comes down onto the flap of ``config/scenes/retract.yaml``,
 closes, lifts and pulls back 2 cm, holds, opens; snapshots of each phase, the energy with its terms, the reaction
 on the tool and the held count, as figures and a CSV.
 """
@@ -14,7 +14,9 @@ from tqdm import tqdm
 from ..core.config import Config
 from ..core.contact.tool import ToolPose
 from ..core.errors import InputError
+from ..core.health import RunHealth
 from ..core.plan.observe import RETRACT_X, flap_surface  # also imported from here by experiments.control
+from ..core.series import rollout_terms
 from ..core.sim.rollout import rollout
 from ..core.sim.scene import build_simulation
 from ..core.timing import trajectories as tr
@@ -62,8 +64,11 @@ def experiment_retract(out: str | Path, *, params: Mapping[str, Any] | Config | 
         shots.append(("start", sim.state.particle_q.copy(), traj.pose_at(0.0), traj.jaw_at(0.0), np.zeros(0, int)))
     bar = tqdm(total=n, desc="retract", unit="step", disable=not progress, leave=False)
 
+    health = RunHealth(sim.model, dt)
+
     def on_step(report) -> None:
         bar.update(1)
+        health.observe_sim(sim, report)
         if report.step in shot_steps[1:]:
             t = report.step * dt
             shots.append((f"{labels[report.step]} (step {report.step})", sim.state.particle_q.copy(),
@@ -78,8 +83,7 @@ def experiment_retract(out: str | Path, *, params: Mapping[str, Any] | Config | 
     res = ExperimentResult("retract", rollouts={"retract": run})
     res.files.append(save_grasp_snapshots(out / f"{prefix}_snapshots.png", sim.model, shots, tool=sim.tool,
                                           bounds=bounds, title="Grasp and retract (strain; held particles cyan)"))
-    terms = {"inertial": run.inertial.sum(axis=1), "strain": run.strain.sum(axis=1) if run.strain is not None else
-             (run.spring + run.area).sum(axis=1), "attach": run.attach.sum(axis=1)}
+    terms = {name: arr.sum(axis=1) for name, arr in rollout_terms(run).items()}  # the scene's, every term
     phase_marks = [(float(t), name) for (name, _), t in zip(tr.RETRACT_PHASES, np.concatenate([[0.0], ends[:-1]]))]
     res.files.append(plot_grasp(out / f"{prefix}_energy.png", run.time, terms, run.reaction_force, run.n_grasped,
                                 run.jaw, phases=phase_marks, title="Grasp and retract: energy, force, grasp"))
@@ -94,13 +98,14 @@ def experiment_retract(out: str | Path, *, params: Mapping[str, Any] | Config | 
         "wall time [s]": round(wall, 3),
         "real-time factor": round(len(run.steps) * dt / wall, 1) if wall > 0 else float("inf"),
         "particles": sim.model.n_particles,
-        "surface at x [m]": round(surface, 6),
+        f"flap top at x = {x:g} m: height y [m]": round(surface, 6),
         "particles held": int(held.max()) if len(held) else 0,
         "force after the lift [N]": [round(float(v), 4) for v in run.reaction_force[lift_end]],
         "peak energy": float(f"{run.scene_total.max():.4g}"),
         "held at the end": int(held[-1]) if len(held) else 0,
         "diverged steps": int(run.diverged.sum()),
         "energy finite": bool(np.isfinite(run.total).all()),
+        "run held": health.verdict(),
     }
     return res
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..core.contact.tool import ToolPose, ToolTwist, Trajectory
 from ..core.errors import InputError
+from ..core.series import rollout_terms
 from ..core.sim.rollout import Rollout, rollout
 from ..core.sim.simulation import Simulation, StepReport
 from ..core.timing.stamps import ns_from_seconds, stamp_from_ns
@@ -264,8 +265,8 @@ def write_outputs(out: Path, sim: Simulation, result: ReplayResult, *, video: bo
     ro = result.rollout
     ro.write_csv(out / "energy.csv")
     if ro.steps.size:
-        render.plot_energy(out / "energy.png", ro.steps, {"inertial": ro.inertial, "spring": ro.spring, "area": ro.area},
-                           body_names=sim.model.body_names, contact=ro.in_contact, title=title)
+        render.plot_energy(out / "energy.png", ro.steps, rollout_terms(ro), body_names=sim.model.body_names,
+                           contact=ro.in_contact, title=title, ylabel=render.energy_label(sim.params))
     frames_dir = out / "frames"
     if frames_dir.exists():
         shutil.rmtree(frames_dir)

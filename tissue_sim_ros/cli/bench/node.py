@@ -12,7 +12,10 @@ DESCRIPTION = node.__doc__
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="bench_out/node", help="output directory (CSV, PNG, node logs)")
-    parser.add_argument("--seconds", type=float, default=10.0, help="measured time per scene [s]")
+    parser.add_argument("--seconds", type=float, default=10.0,
+                        help="length of one measurement [s]; a run takes many: per scene and mode, timer mode one "
+                             "per --phases phase and --phase-lock setting (16 by default), lock_step one. The run "
+                             "prints how many and about how long before it starts, and each as it begins")
     parser.add_argument("--warmup", type=float, default=2.0, help="time driven before measuring [s]")
     parser.add_argument("--scene", action="append", choices=sorted(node.SCENES),
                         help="scene to run (repeatable; default all)")

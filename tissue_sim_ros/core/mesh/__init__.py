@@ -1,6 +1,6 @@
 """The tissue's mesh: the :class:`TissueMesh` type, meshing an image, mesh files and mesh quality.
 
-``types`` (the mesh type, meshes from arrays, structured rectangles, the size guard),
+``types`` (the mesh type, meshes from arrays, structured rectangles, the size guard and the pixel warning),
 ``geometry`` (triangles' signed areas, points' distances to segments, vectorised),
 ``image`` (reading a tissue image and its mask), ``triangulate`` (image -> mesh: outlines,
 lattice, constrained Delaunay, smoothing), ``files`` (.npz, Triangle, Gmsh) and
@@ -14,6 +14,7 @@ from .quality import mesh_quality, triangle_angles
 from .triangulate import CORNER_RUN_PX, CORNER_TURN_DEG, OUTLINE_CORNERS, Grading, mesh_from_image, mesh_from_mask
 from .types import (
     MAX_PARTICLES,
+    Progress,
     TissueMesh,
     boundary_vertices,
     check_mesh_size,
@@ -24,12 +25,13 @@ from .types import (
     mesh_from_arrays,
     mesh_rectangle,
     region_names,
+    spacing_warning,
 )
 
 __all__ = [
     "CORNER_RUN_PX", "CORNER_TURN_DEG", "Grading", "MAX_PARTICLES", "MAX_PIXELS", "MESH_SUFFIXES", "MIN_REGION_PX",
-    "OUTLINE_CORNERS", "TissueMesh", "boundary_vertices", "check_mesh_size", "combine_meshes", "connected_bodies",
+    "OUTLINE_CORNERS", "Progress", "TissueMesh", "boundary_vertices", "check_mesh_size", "combine_meshes", "connected_bodies",
     "edges_from_triangles", "estimate_vertices", "load_mesh", "load_meshes", "mesh_from_arrays", "mesh_from_image",
     "mesh_from_mask", "mesh_name", "mesh_quality", "mesh_rectangle", "read_image", "region_names", "segment_distances",
-    "signed_areas", "tissue_mask", "triangle_angles", "write_gmsh", "write_triangle",
+    "signed_areas", "spacing_warning", "tissue_mask", "triangle_angles", "write_gmsh", "write_triangle",
 ]

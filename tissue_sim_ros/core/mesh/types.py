@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -262,3 +263,22 @@ def _positive(name: str, value: float) -> float:
     if not np.isfinite(v) or v <= 0:
         raise InputError(f"{name}={value!r}: expected a number > 0")
     return v
+
+
+#: Reports meshing progress: (fraction done in [0, 1], what it is doing). Meshing an image takes minutes at fine
+#: spacings, with nothing to show for it otherwise.
+Progress = Callable[[float, str], None]
+
+
+def spacing_warning(spacing: float, scale: float, spacing_name: str = "--spacing",
+                    scale_name: str = "--scale") -> str | None:
+    """A line saying that ``spacing`` [m] is below the image's pixel ``scale`` [m/px], or None when it is not.
+
+    The outline comes from the pixels, so a finer mesh only adds vertices (and minutes of meshing) inside
+    detail the image does not have.
+    """
+    if spacing < scale:
+        return (f"{spacing_name} {spacing:g} m is {spacing / scale:.2g} of the image's pixel ({scale_name} {scale:g} "
+                f"m/px): the image holds no detail finer than a pixel, so the mesh only grows (expected a spacing "
+                f"of at least {scale:g} m)")
+    return None
