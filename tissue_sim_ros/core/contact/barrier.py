@@ -93,14 +93,11 @@ def friction_f1_over_y(y: float, eps: float) -> float:
 
 
 @njit(cache=True, inline="always")
-def friction_f1_over_y_dy(y: float, eps: float) -> float:
-    """d(f1(y)/y)/dy / y: the curvature term of the friction's Hessian (-1 / y^3 sliding, -1 / (eps^2 y)
-    sticking); the solver keeps only the positive part of the Hessian."""
+def friction_f2(y: float, eps: float) -> float:
+    """f0''(y), y >= 0: 2 (1 - y/eps) / eps sticking, 0 sliding (continuous at y = eps)."""
     if y >= eps:
-        return -1.0 / (y * y * y)
-    if y <= 0.0:
         return 0.0
-    return -1.0 / (eps * eps * y)
+    return 2.0 * (1.0 - y / eps) / eps
 
 
 @njit(cache=True, nogil=True)

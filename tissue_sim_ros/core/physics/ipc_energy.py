@@ -7,6 +7,7 @@ One step of ``method: ipc`` is the minimiser over the free particles x and the t
               + dt^2 [ sum_t V0 Psi(F_t)  +  sum_t (1/alpha_H,t) b(J_t; J_hat)          (material; no inversion)
                        + sum_k 1/(2 c) |x_k - T(q) l_k|^2                              (the grasp's springs)
                        + kappa sum_pairs b(d_pair; dhat)                               (contact barriers)
+                       + sum_pairs mu lambda f0(|u_pair|)                              (friction, lagged)
                        + 1/2 sum_j k_j (q_j - q*_j)^2 ]                                (the tool held to its command)
 
 with x* = x + dt damp v + dt^2 g, Psi the neo-Hookean density of ``core/physics/material.py``, b the IPC barrier
@@ -31,7 +32,7 @@ Bundles (tuples, unpacked at the top of each kernel):
   wall_bottom, wall_top) [m]);
 * ``tool`` = (its core's bundle ``ToolGeometry.arrays``, spring stiffness per dof (4,), present);
 * ``step`` = (x* (N, 2), free (2N,) 1.0 where a coordinate may move, q* (4,) the command, dt^2, attachments
-  (idx (K,) int64, tool-frame places (K, 2), stiffness [N/m]));
+  (idx (K,) int64, tool-frame places (K, 2), stiffness [N/m]), friction (``core/physics/ipc_friction.py``));
 * ``pairs`` = (tissue pairs (P, 2) (vertex, edge), vertex-tool pairs (P, 2) (vertex, core edge), tool-vertex
   pairs (Q, 2) (core vertex, edge), counts (3,) int64);
 * ``scratch`` = (core vertex positions (V, 2), their Jacobian (V, 2, 4), the grasp's world targets (K, 2)).
@@ -45,6 +46,7 @@ from numba import njit
 
 from ..contact.barrier import barrier, point_segment
 from ..contact.collider import tool_vertices
+from .ipc_friction import friction_part
 from .material import _deformation_gradient, _element_rest, neo_hookean_element
 
 
@@ -232,7 +234,7 @@ def potential(x: np.ndarray, q: np.ndarray, model: tuple, contact: tuple, tool: 
     """E(x, q) of the module docstring; its gradient into ``g`` (2N + 4,): the particles' coordinates, then the
     tool's dofs; zero at the coordinates that may not move (``step``'s ``free``)."""
     mass = model[0]
-    x_pred, free, _q_cmd, dt2, _attach = step
+    x_pred, free, _q_cmd, dt2, _attach, friction = step
     n = x.shape[0]
     gq = g[2 * n:]
     e = 0.0
@@ -250,6 +252,7 @@ def potential(x: np.ndarray, q: np.ndarray, model: tuple, contact: tuple, tool: 
     e += line_part(x, free, contact[3], contact[0], contact[2] * dt2, g)
     e += contact_part(x, model, contact, tool, pairs, scratch, dt2, g, gq)
     e += tool_part(x, q, tool, step, scratch, g, gq)
+    e += friction_part(x, friction, scratch, dt2, g)
     for i in range(2 * n):
         if free[i] == 0.0:
             g[i] = 0.0

@@ -21,6 +21,7 @@ from numba import njit
 
 from ..contact.barrier import barrier, point_segment
 from .ipc_energy import element_j
+from .ipc_friction import friction_gradient_row, friction_stiffness
 from .material import _element_rest
 
 
@@ -249,7 +250,7 @@ def assemble(x: np.ndarray, q: np.ndarray, model: tuple, contact: tuple, tool: t
     """A = the Gauss-Newton Hessian of E at (x, q) (module docstring) into ``lin``'s values; the core's vertices
     must be in ``scratch`` for q (``collider.tool_vertices``)."""
     mass = model[0]
-    x_pred, free, _q_cmd, dt2, attach = step
+    x_pred, free, _q_cmd, dt2, attach, friction = step
     values = lin[1]
     n = x.shape[0]
     nd = 2 * n
@@ -262,6 +263,9 @@ def assemble(x: np.ndarray, q: np.ndarray, model: tuple, contact: tuple, tool: t
         values[s] += mass[i // 2] if free[i] != 0.0 else 1.0
     _elements(x, model, free, dt2, lin)
     _pairs(x, model, contact, tool, pairs, scratch, free, dt2, lin, dofs, v)
+    for m in range(friction[4][0]):
+        c = friction_gradient_row(friction, scratch[1], m, nd, dofs, v)
+        add_outer(lin, free, dofs, v, c, friction_stiffness(x, friction, scratch[0], m, dt2))
     y_top, y_bottom, wall_bottom, wall_top = contact[3]
     for i in range(n):
         if free[2 * i + 1] == 0.0:

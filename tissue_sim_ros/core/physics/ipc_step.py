@@ -24,6 +24,7 @@ from ..contact.barrier import barrier, point_segment
 from ..contact.collider import tool_vertices
 from .ipc import ipc_solve, refactor, step_bound, sweep
 from .ipc_energy import contact_part, grasp_targets
+from .ipc_friction import friction_lag, friction_part
 from .kernels import apply_boundary_lines, update_velocity
 from .step_kernels import predict_step
 
@@ -78,6 +79,15 @@ def ipc_step(state: tuple, pred: tuple, timing: tuple, bounds: tuple, model: tup
     q_start, q, q_guess = tool_q
     for j in range(4):
         q[j] = q_start[j]
+    friction = step[5]
+    friction[4][0] = 0
+    if friction[5][0] > 0.0 or friction[5][1] > 0.0:
+        # the friction's lag: the pairs in contact at the step's start (a sweep that does not move)
+        dvec = ws[6]
+        for k in range(dvec.shape[0]):
+            dvec[k] = 0.0
+        sweep(x0, q, dvec, model, contact, tool, pairs, scratch, ws, opts)
+        friction_lag(x0, q, model, contact, tool, pairs, scratch, friction)
     _start(state, pred, timing, model, contact, tool, step, pairs, scratch, ws, opts, q, q_guess)
     out[2] = 0.0
     if factor_state[0] == 0.0 or factor_state[1] > opts[3] or factor_state[2] != dt:
@@ -96,7 +106,7 @@ def contact_report(x: np.ndarray, q: np.ndarray, model: tuple, contact: tuple, t
                    pairs: tuple, scratch: tuple, body: np.ndarray, out_body: np.ndarray, touched: np.ndarray,
                    force: np.ndarray) -> None:
     """What the step's contacts did at its end (x, q): the tissue's force and torque on the tool about its pose
-    (-dE_contact/dq / dt^2: (F_x, F_y, tau, jaw torque) into ``force`` (4,)); per body, the barrier energy dt^2
+    (-dE_contact/dq / dt^2, the barriers' and the friction's: (F_x, F_y, tau, jaw torque) into ``force`` (4,)); per body, the barrier energy dt^2
     kappa sum b (``out_body[:, 0]``), the smallest gap to the tool (``out_body[:, 1]``, inf: none within dhat)
     and 1.0 when the tool touches it (``out_body[:, 2]``); ``touched`` (N,) 1 at the particles in a pair with the
     tool closer than dhat. The grasp's targets at q into ``scratch``."""
@@ -115,6 +125,7 @@ def contact_report(x: np.ndarray, q: np.ndarray, model: tuple, contact: tuple, t
     if tool[2]:
         tool_vertices(q, tool[0], scratch[0], scratch[1])
     contact_part(x, model, contact, tool, pairs, scratch, dt2, g[:2 * n], g[2 * n:])
+    friction_part(x, step[5], scratch, dt2, g)
     for j in range(4):
         force[j] = -g[2 * n + j] / dt2
     pos = scratch[0]

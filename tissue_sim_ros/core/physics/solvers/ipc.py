@@ -10,7 +10,8 @@ compiled call (:func:`~tissue_sim_ros.core.physics.ipc_step.ipc_step`) and the c
 Parameters (``core/physics/params.py``): ``contact_dhat`` (0: a tenth of the 10th percentile of the boundary
 edges' lengths), ``contact_stiffness`` kappa (0: E x thickness), ``tool_stiffness`` (0: 1000 kappa; the tool's
 turn and jaw are held by it times the tool's reach squared), ``contact_bodies``, ``solve_tolerance`` and
-``iterations``.
+``iterations``; ``friction`` (tool and tissue), ``friction_tissue`` and ``friction_velocity`` (the lagged friction of
+``core/physics/ipc_friction.py``).
 """
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ import numpy as np
 from ...contact.collider import TOOL_DOFS, ToolGeometry
 from ...contact.collision import Contacts, boundary_edges_ccw
 from ...errors import InputError
+from ..ipc_friction import friction_workspace
 from ..ipc_hessian import element_slots, hessian_pattern, slot_tables
 from ..ipc_step import contact_report, ipc_step
 from ..kernels import constraint_residual
@@ -115,6 +117,10 @@ class IPCSolver(SolverBase):
         self._ws = (np.zeros((HISTORY, n_dof)), np.zeros((HISTORY, n_dof)), np.zeros(HISTORY), np.zeros(HISTORY),
                     np.zeros(n_dof), np.zeros(n_dof), np.zeros(n_dof), np.zeros(n_dof), np.zeros((n, 2)),
                     np.zeros((MAX_CORE, 2)), tissue_pair_workspace(n_bedges), np.zeros(6), np.zeros(n_dof))
+        n_pairs = sum(b.shape[0] for b in self._pairs[:3])
+        self._friction = friction_workspace(n, n_pairs)
+        p = self.params
+        self._friction[5][:2] = (float(p.friction), float(p.friction_tissue))
         self._scratch = (np.zeros((MAX_CORE, 2)), np.zeros((MAX_CORE, 2, TOOL_DOFS)), np.zeros((0, 2)))
         self._free = np.zeros(2 * n)
         self.factor_state = np.zeros(3)
@@ -167,7 +173,8 @@ class IPCSolver(SolverBase):
             idx, local, k_att = idx[:0], np.zeros((0, 2)), 0.0
         if self._scratch[2].shape[0] != idx.shape[0]:
             self._scratch = (self._scratch[0], self._scratch[1], np.zeros((idx.shape[0], 2)))
-        return (self.x_pred, self._free, q_cmd, dt * dt, (idx, local, k_att))
+        self._friction[5][2] = float(self.params.friction_velocity) * dt
+        return (self.x_pred, self._free, q_cmd, dt * dt, (idx, local, k_att), self._friction)
 
     def step(self, state_in: State, state_out: State, contacts: Contacts, dt: float) -> SolveInfo:
         """One step as the minimiser of its incremental potential with contact barriers (module docstring)."""
