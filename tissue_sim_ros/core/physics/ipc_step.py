@@ -106,9 +106,11 @@ def contact_report(x: np.ndarray, q: np.ndarray, model: tuple, contact: tuple, t
                    pairs: tuple, scratch: tuple, body: np.ndarray, out_body: np.ndarray, touched: np.ndarray,
                    force: np.ndarray) -> None:
     """What the step's contacts did at its end (x, q): the tissue's force and torque on the tool about its pose
-    (-dE_contact/dq / dt^2, the barriers' and the friction's: (F_x, F_y, tau, jaw torque) into ``force`` (4,)); per body, the barrier energy dt^2
-    kappa sum b (``out_body[:, 0]``), the smallest gap to the tool (``out_body[:, 1]``, inf: none within dhat)
-    and 1.0 when the tool touches it (``out_body[:, 2]``); ``touched`` (N,) 1 at the particles in a pair with the
+    (-dE_contact/dq / dt^2, the barriers' and the friction's: (F_x, F_y, tau, jaw torque) into ``force`` (4,));
+    per body, the barrier energy dt^2 kappa sum b (``out_body[:, 0]``), the smallest gap to the tool
+    (``out_body[:, 1]``, inf: none within dhat), 1.0 when the tool touches it (``out_body[:, 2]``) and the net
+    force every contact (the tool, other bodies, itself; barriers and friction) puts on it [N]
+    (``out_body[:, 3:5]``); ``touched`` (N,) 1 at the particles in a pair with the
     tool closer than dhat. The grasp's targets at q into ``scratch``."""
     edges = model[5]
     dhat_t, dhat_tool, kappa, _lines = contact
@@ -119,6 +121,8 @@ def contact_report(x: np.ndarray, q: np.ndarray, model: tuple, contact: tuple, t
         out_body[b, 0] = 0.0
         out_body[b, 1] = math.inf
         out_body[b, 2] = 0.0
+        out_body[b, 3] = 0.0
+        out_body[b, 4] = 0.0
     for i in range(n):
         touched[i] = 0
     g = np.zeros(2 * n + 4)
@@ -128,6 +132,9 @@ def contact_report(x: np.ndarray, q: np.ndarray, model: tuple, contact: tuple, t
     friction_part(x, step[5], scratch, dt2, g)
     for j in range(4):
         force[j] = -g[2 * n + j] / dt2
+    for i in range(n):
+        out_body[body[i], 3] -= g[2 * i] / dt2
+        out_body[body[i], 4] -= g[2 * i + 1] / dt2
     pos = scratch[0]
     geom = tool[0]
     for k in range(counts[0]):

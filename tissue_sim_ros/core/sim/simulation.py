@@ -160,6 +160,9 @@ class StepReport:
     """Barrier contact: how far the tool stopped short of its commanded position [m] (0: it got there)."""
     tool_lag_angle: float = 0.0
     """Barrier contact: how far its yaw stopped short of the command [rad]."""
+    contact_force: np.ndarray | None = None
+    """Barrier contact: the net force every contact (the tool, the other bodies, the body itself; barriers and
+    friction) puts on each body [N], shape (B, 2); None for the other contact models."""
 
 
 class Simulation:
@@ -517,8 +520,9 @@ class Simulation:
             n_inverted = int(count_inverted(out.particle_q, model.tri_indices))
             energy = EnergyTerms.zeros(model.n_bodies)
             self.grasp.release()  # what diverged tore loose: the jaw holds nothing until it opens and closes again
-        elif tool_pose is not None:
-            force, torque, attach_force = self._reaction(info, end_pose, p.dt, contacts, out.particle_q)
+        else:
+            if tool_pose is not None:
+                force, torque, attach_force = self._reaction(info, end_pose, p.dt, contacts, out.particle_q)
             if getattr(info, "contact_energy", None) is not None:
                 energy.contact = info.contact_energy
         checks = (self._tool_checks(self.state.particle_q, out.particle_q, self.tool_pose or tool_pose, end_pose)
@@ -554,6 +558,8 @@ class Simulation:
             grasped=np.asarray(contacts.attach_idx, dtype=np.int64).copy(), attach_force=attach_force,
             tool_applied=end_pose if tool_pose is not None else None, tool_lag=float(lag[0]),
             tool_lag_angle=float(lag[1]),
+            contact_force=(info.contact_force if finite and getattr(info, "contact_force", None) is not None
+                           else None),
         )
 
     def _tool_checks(self, x0: np.ndarray, x1: np.ndarray, pose0: ToolPose | None,

@@ -58,6 +58,8 @@ class SolveInfo:
     """Barrier contact: the smallest gap between the tool and each body [m] (inf: none within reach)."""
     in_contact: np.ndarray | None = None
     """Barrier contact: per body, True when the tool touches it (a pair closer than dhat)."""
+    contact_force: np.ndarray | None = None
+    """Barrier contact: the net force every contact (the tool, other bodies, itself) puts on each body [N] (B, 2)."""
     refactored: bool = False
     """Barrier contact: the step refreshed its Hessian's factor."""
 

@@ -127,7 +127,7 @@ class IPCSolver(SolverBase):
         """(a factor is held, the last step's iterations, the dt it was made for): carried in snapshots."""
         self._q = np.zeros(TOOL_DOFS)
         self._body = np.ascontiguousarray(self.model.particle_body, dtype=np.int64)
-        self._report = np.zeros((self.model.n_bodies, 3))
+        self._report = np.zeros((self.model.n_bodies, 5))
         self._touched = np.zeros(n, dtype=np.int64)
         self._force = np.zeros(TOOL_DOFS)
 
@@ -203,7 +203,8 @@ class IPCSolver(SolverBase):
                          solve_iterations=int(out[0]), solve_residual=float(out[1]),
                          solve_converged=bool(out[1] <= self.params.solve_tolerance),
                          contact_energy=self._report[:, 0].copy(), contact_gap=self._report[:, 1].copy(),
-                         in_contact=self._report[:, 2] > 0.0, refactored=bool(out[2]))
+                         in_contact=self._report[:, 2] > 0.0, refactored=bool(out[2]),
+                         contact_force=self._report[:, 3:5].copy())
         if collider is not None:
             info.tool_q = self._q.copy()
             info.tool_force = self._force.copy()
