@@ -429,11 +429,12 @@ def resolve_material_defaults(values: dict[str, Any], shipped: Mapping[str, Any]
     """A material's own solver settings (:data:`~tissue_sim_ros.core.physics.model.MATERIAL_DEFAULTS`), in place.
 
     The shipped file is the paper's scene (``method: pbd``, one step of 30 iterations, the paper's
-    contact); ``material: neo_hookean`` sets ``method: quasi_newton`` and projection contact, then the
-    method's own substeps and iterations (quasi_newton: 1 step, at most 50 iterations; xpbd: 10 substeps of
-    10; substeps, scheme or relaxation given without a method choose xpbd, the method they belong to), each
-    for what was not ``chosen`` (given by a file, the overrides or a command's defaults) and still
-    holds its shipped value (so an alias's own substeps stay).
+    contact); ``material: neo_hookean`` sets ``method: ipc`` and its barrier contact, then the method's own
+    substeps and iterations (ipc and quasi_newton: 1 step, at most 50 iterations; xpbd: 10 substeps of 10;
+    substeps, scheme or relaxation given without a method choose xpbd, the method they belong to; a
+    projection or paper contact given without a method chooses quasi_newton, the whole-step solve that
+    has it), each for what was not ``chosen`` (given by a file, the overrides or a command's defaults)
+    and still holds its shipped value (so an alias's own substeps stay).
     """
     material = values.get("material")
     chosen = set(chosen)
@@ -443,6 +444,9 @@ def resolve_material_defaults(values: dict[str, Any], shipped: Mapping[str, Any]
         if key not in chosen and _same(values.get(key), _reference_default(key, shipped)):
             if key == "method" and chosen & SWEEP_KEYS and material == "neo_hookean":
                 value = "xpbd"  # substeps or a sweep order asked for: the sweeps they belong to
+            elif (key == "method" and material == "neo_hookean" and "contact_model" in chosen
+                  and values.get("contact_model") in ("projection", "paper")):
+                value = "quasi_newton"  # a constraint contact asked for: the whole-step solve that has it
             values[key] = value
     method = values.get("method")
     for key, value in MATERIAL_METHOD_DEFAULTS.get(material, {}).get(method, {}).items() \
