@@ -7,21 +7,26 @@ entry lands (``slot``). :func:`ldlt_factor` then refactors numerically without a
 :func:`ldlt_solve` applies the factor (A^-1 b) as often as wanted. :class:`LDLTFactor` wraps the three for
 callers outside numba.
 
-Choices, measured on the mesh matrices of ``scripts/ldlt_speed.py`` (2D triangle meshes, 2 dofs a vertex, a
-dense 6x6 block a triangle, 4 tool dofs coupled to a tenth of the vertices):
+Choices, measured by ``scripts/ldlt_speed.py`` on its mesh matrices (2D triangle meshes, 2 dofs a vertex, a
+dense 6x6 block a triangle, 4 tool dofs coupled to a tenth of the vertices; 2,000 to 15,000 vertices):
 
 * Ordering: SuperLU's multiple minimum degree (``MMD_AT_PLUS_A``) on the graph with the two dofs of a vertex
   merged (indistinguishable nodes) and the dense rows set aside and ordered last. Its fill matches AMD's
-  (SuiteSparse's, as qdldl orders) to 1 %: 1.25 M entries of L at 15,000 vertices; merging the dofs makes it
-  about twice as fast as MMD on the dofs and takes 10 % off the flops. A geometric nested dissection (median
-  cuts, MMD on the leaves) filled 12 to 30 % more, reverse Cuthill-McKee 47 times more.
+  (SuiteSparse's, as qdldl orders) to 2 %: 1.25 M entries of L at 15,000 vertices. Merging the dofs halves
+  the ordering's time (50 against 120 ms) and takes up to 6 % off the multiply-adds. A geometric nested
+  dissection (median cuts, MMD on leaves of 256 or 4,000 vertices) filled 2 to 30 % more and was as fast or
+  slower; reverse Cuthill-McKee filled 11 to 47 times more.
 * Numeric factorisation: supernodal, left-looking (as CHOLMOD's), each supernode a dense column-major block
-  (its own columns and the rows below), descendants' updates as multi-column AXPYs. Relaxed supernodes
-  (CHOLMOD's amalgamation rule, smaller limits: :data:`RELAX`) trade a few explicit zeros for longer loops.
-  Loops run on array views, never on offset indices of one array: numba then vectorises them (with an offset
-  index it must allow a negative one and leaves the loop scalar, 3 to 4 times slower).
-* Solve: forward and backward substitution by supernode, the rows below a supernode gathered and scattered
-  once per supernode, not once per entry.
+  (its own columns and the rows below), a descendant's update as multi-column AXPYs into a buffer scattered
+  into the target, two target columns a pass. Relaxed supernodes (CHOLMOD's amalgamation rule, smaller
+  limits: :data:`RELAX`) trade a few explicit zeros for longer loops. Loops run on array views, never on
+  offset indices into one array: numba then vectorises them (with an offset index it must allow a negative
+  one and leaves the loop scalar, 3 to 4 times slower). BLAS (``np.dot`` into a buffer, allocation-free) for
+  the large updates was no faster than the two-column loops, nor was a blocked dense factor of the large
+  supernodes, so the kernels call no BLAS (and start no BLAS threads). An up-looking (QDLDL) factor of the
+  same ordering is qdldl's ``update``: 3 to 4 times slower.
+* Solve: forward and backward substitution by supernode, the rows below a supernode gathered (or scattered)
+  once per supernode.
 
 The bundles (tuples of arrays, documented where they are made): ``LDLTPattern.arrays`` for both kernels,
 :func:`make_workspace` for the factor, :func:`solve_workspace` for the solve.
@@ -374,6 +379,30 @@ def _gemv_sub(y, lx, c0, ld, ncols, x, m):
 
 
 @njit(cache=True, nogil=True, fastmath=FM)
+def _gemv2_sub(y0, y1, lx, c0, ld, ncols, x0, x1, m):
+    """y0[:m] -= sum_k lx[c0 + k ld:][:m] x0[k] and y1 likewise with x1: two targets a pass over the columns."""
+    k = 0
+    while k + 4 <= ncols:
+        a0 = lx[c0 + k * ld:c0 + k * ld + m]
+        a1 = lx[c0 + (k + 1) * ld:c0 + (k + 1) * ld + m]
+        a2 = lx[c0 + (k + 2) * ld:c0 + (k + 2) * ld + m]
+        a3 = lx[c0 + (k + 3) * ld:c0 + (k + 3) * ld + m]
+        u0, u1, u2, u3 = x0[k], x0[k + 1], x0[k + 2], x0[k + 3]
+        v0, v1, v2, v3 = x1[k], x1[k + 1], x1[k + 2], x1[k + 3]
+        for i in range(m):
+            y0[i] -= a0[i] * u0 + a1[i] * u1 + a2[i] * u2 + a3[i] * u3
+            y1[i] -= a0[i] * v0 + a1[i] * v1 + a2[i] * v2 + a3[i] * v3
+        k += 4
+    while k < ncols:
+        a0 = lx[c0 + k * ld:c0 + k * ld + m]
+        u0, v0 = x0[k], x1[k]
+        for i in range(m):
+            y0[i] -= a0[i] * u0
+            y1[i] -= a0[i] * v0
+        k += 1
+
+
+@njit(cache=True, nogil=True, fastmath=FM)
 def _update(lx, d, super_ptr, rows_ptr, rows, lx_ptr, dd, s, p1, p2, local, wi, wf):
     """Subtract descendant dd's update L_dd[p1:] D_dd L_dd[p1:p2]^T from supernode s's block; its rows p1..p2
     are in s's columns. ``local`` maps a row to its place in s; ``wi``, ``wf`` scratch."""
@@ -385,21 +414,36 @@ def _update(lx, d, super_ptr, rows_ptr, rows, lx_ptr, dd, s, p1, p2, local, wi, 
     for i in range(m):
         wi[i] = local[rr[i]]
     contiguous = wi[m - 1] - wi[0] == m - 1
-    x = wf[m:m + ncd]
-    for j in range(p2 - p1):
+    x0 = wf[2 * m:2 * m + ncd]
+    x1 = wf[2 * m + ncd:2 * m + 2 * ncd]
+    j = 0
+    while j < p2 - p1:
+        two = j + 1 < p2 - p1 and not contiguous
         for k in range(ncd):
-            x[k] = lx[bd + k * nrd + p1 + j] * d[fd + k]
+            x0[k] = lx[bd + k * nrd + p1 + j] * d[fd + k]
+            if two:
+                x1[k] = lx[bd + k * nrd + p1 + j + 1] * d[fd + k]
         tgt = bs + (rr[j] - f) * nrs
         if contiguous:
-            _gemv_sub(lx[tgt + wi[j]:tgt + wi[j] + m - j], lx, bd + p1 + j, nrd, ncd, x, m - j)
+            _gemv_sub(lx[tgt + wi[j]:tgt + wi[j] + m - j], lx, bd + p1 + j, nrd, ncd, x0, m - j)
+            j += 1
+            continue
+        t0 = wf[:m - j]
+        t0[:] = 0.0
+        col = lx[tgt:tgt + nrs]
+        wj = wi[j:m]
+        if two:
+            t1 = wf[m:2 * m - j]
+            t1[:] = 0.0
+            _gemv2_sub(t0, t1, lx, bd + p1 + j, nrd, ncd, x0, x1, m - j)
+            col1 = lx[bs + (rr[j + 1] - f) * nrs:bs + (rr[j + 1] - f + 1) * nrs]
+            for i in range(1, m - j):
+                col1[wj[i]] += t1[i]
         else:
-            t = wf[:m - j]
-            t[:] = 0.0
-            _gemv_sub(t, lx, bd + p1 + j, nrd, ncd, x, m - j)
-            col = lx[tgt:tgt + nrs]
-            wj = wi[j:m]
-            for i in range(m - j):
-                col[wj[i]] += t[i]
+            _gemv_sub(t0, lx, bd + p1 + j, nrd, ncd, x0, m - j)
+        for i in range(m - j):
+            col[wj[i]] += t0[i]
+        j += 2 if two else 1
 
 
 @njit(cache=True, nogil=True, fastmath=FM)
@@ -607,8 +651,8 @@ class LDLTPattern:
         self.nnz_a, self.nnz_l, self.l_size = int(rowind.shape[0]), int(count.sum()), int(lx_ptr[-1])
         self.nsuper, self.max_rows, self.max_cols = int(ncol.shape[0]), int(nrow.max()), int(ncol.max())
         self.fmas = int((count * (count - 1) // 2).sum())
-        info = np.array([n, self.nnz_a, self.l_size, self.nsuper, self.max_rows, self.max_rows + self.max_cols],
-                        np.int64)
+        info = np.array([n, self.nnz_a, self.l_size, self.nsuper, self.max_rows,
+                         2 * (self.max_rows + self.max_cols)], np.int64)
         self.arrays = (perm, colptr, amap, super_ptr, col2super, rows_ptr, srows, lx_ptr, info)
 
     def lower(self, a_values: np.ndarray) -> sp.csc_matrix:
@@ -619,7 +663,7 @@ class LDLTPattern:
 def make_workspace(pattern: LDLTPattern) -> tuple:
     """The factor's work bundle: (local (n,) int64: a row's place in the current supernode, head, nxt, lpos
     (nsuper,) int64: the lists of supernodes waiting to update a supernode and where each is in its rows,
-    wi (max_rows,) int64, wf (max_rows + max_cols,) float64: scratch)."""
+    wi (max_rows,) int64, wf (2 max_rows + 2 max_cols,) float64: scratch)."""
     info = pattern.arrays[-1]
     return (np.empty(info[0], np.int64), np.empty(info[3], np.int64), np.empty(info[3], np.int64),
             np.empty(info[3], np.int64), np.empty(info[4], np.int64), np.empty(info[5], np.float64))
