@@ -53,22 +53,6 @@ FM = {"reassoc", "contract"}
 
 
 @njit(cache=True)
-def _transpose(n, colptr, rowind):
-    """The transpose of an n x n CSC pattern (colptr (n+1,), rowind (nnz,) int64): (rowptr, colind), sorted."""
-    cnt = np.zeros(n + 1, np.int64)
-    for p in range(rowind.shape[0]):
-        cnt[rowind[p] + 1] += 1
-    rowptr = np.cumsum(cnt)
-    nxt = rowptr[:-1].copy()
-    colind = np.empty(rowind.shape[0], np.int64)
-    for j in range(n):
-        for p in range(colptr[j], colptr[j + 1]):
-            colind[nxt[rowind[p]]] = j
-            nxt[rowind[p]] += 1
-    return rowptr, colind
-
-
-@njit(cache=True)
 def _etree(n, rowptr, colind):
     """The elimination tree from the lower CSR (row k: its columns j <= k): parent (n,) int64, -1 at a root
     (Liu's algorithm with path compression)."""
@@ -346,6 +330,13 @@ def _lower_csc(n: int, r: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.nda
     col = uniq // n
     colptr = np.searchsorted(col, np.arange(n + 1)).astype(np.int64)
     return colptr, (uniq - col * n).astype(np.int64), inv.reshape(-1)[:r.shape[0]].astype(np.int64)
+
+
+def _rows_of(n: int, colptr: np.ndarray, rowind: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The CSR (rowptr (n+1,), colind, int64, sorted) of the CSC pattern (colptr, rowind)."""
+    t = sp.csc_matrix((np.ones(rowind.shape[0], np.int8), rowind, colptr), shape=(n, n)).tocsr()
+    t.sort_indices()
+    return t.indptr.astype(np.int64), t.indices.astype(np.int64)
 
 
 # ----------------------------------------------------------------------------- the numeric kernels
@@ -635,11 +626,11 @@ class LDLTPattern:
         iperm = np.empty(n, np.int64)
         iperm[perm] = np.arange(n)
         colptr, rowind, _ = _lower_csc(n, iperm[rows], iperm[cols])
-        rowptr, colind = _transpose(n, colptr, rowind)
+        rowptr, colind = _rows_of(n, colptr, rowind)
         perm = perm[_postorder(_etree(n, rowptr, colind))]  # the same fill; subtrees, supernodes contiguous
         iperm[perm] = np.arange(n)
         colptr, rowind, self.slot = _lower_csc(n, iperm[rows], iperm[cols])
-        rowptr, colind = _transpose(n, colptr, rowind)
+        rowptr, colind = _rows_of(n, colptr, rowind)
         parent = _etree(n, rowptr, colind)
         count = _colcounts(n, rowptr, colind, parent)
         super_ptr = _relax(parent, count, _fundamental(parent, count), np.array(relax, np.float64))
@@ -711,18 +702,3 @@ class LDLTFactor:
         out = np.empty(self.pattern.n)
         ldlt_solve(self.pattern.arrays, self.l_values, self.d, b, out, self.solve_work)
         return out
-
-    def l_matrix(self) -> sp.csc_matrix:
-        """L (unit lower, permuted order) as an n x n CSC, from the supernodal blocks."""
-        perm, a_colptr, amap, super_ptr, col2super, rows_ptr, rows, lx_ptr, info = self.pattern.arrays
-        r, c, v = [], [], []
-        for s in range(self.pattern.nsuper):
-            f, nc, nr = super_ptr[s], super_ptr[s + 1] - super_ptr[s], rows_ptr[s + 1] - rows_ptr[s]
-            block = self.l_values[lx_ptr[s]:lx_ptr[s + 1]].reshape(nc, nr).T
-            rr = rows[rows_ptr[s]:rows_ptr[s + 1]]
-            for j in range(nc):
-                r.append(rr[j:])
-                c.append(np.full(nr - j, f + j))
-                v.append(block[j:, j])
-        n = self.pattern.n
-        return sp.csc_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))), shape=(n, n))
