@@ -15,7 +15,7 @@ machine's load hits every column alike) of
 dissection; reverse Cuthill-McKee). BLAS runs on one thread (OPENBLAS_NUM_THREADS, unless set). The load
 (/proc/loadavg) is printed before and after: the machine may be shared. ::
 
-    python scripts/ldlt_speed.py [--spacings 0.0162 0.0082 0.0058] [--repeat 15] [--orders]
+    python scripts/ldlt_speed.py [--spacings 0.0162 0.0082 0.0058] [--repeat 15] [--orders] [--cpu]
 """
 from __future__ import annotations
 
@@ -69,10 +69,13 @@ def load() -> str:
         return " ".join(f.read().split()[:3])
 
 
+CLOCK = [time.perf_counter]
+
+
 def timed(fn) -> float:
-    t = time.perf_counter()
+    t = CLOCK[0]()
     fn()
-    return time.perf_counter() - t
+    return CLOCK[0]() - t
 
 
 def interleaved(runs: dict, repeat: int) -> dict:
@@ -204,8 +207,13 @@ def main() -> None:
     p.add_argument("--spacings", type=float, nargs="+", default=[0.0162, 0.0082, 0.0058])
     p.add_argument("--repeat", type=int, default=15)
     p.add_argument("--orders", action="store_true", help="compare the orderings instead")
+    p.add_argument("--cpu", action="store_true", help="time the thread's CPU time, not the wall clock (every "
+                   "solver here runs on the calling thread): a loaded machine's descheduling then does not count")
     args = p.parse_args()
-    print(f"load before: {load()}  (OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']})")
+    if args.cpu:
+        CLOCK[0] = time.thread_time
+    print(f"load before: {load()}  (OPENBLAS_NUM_THREADS={os.environ['OPENBLAS_NUM_THREADS']}, "
+          f"{'thread CPU time' if args.cpu else 'wall clock'})")
     print(ORDER_HEAD if args.orders else SPEED_HEAD)
     for spacing in args.spacings:
         for row in order_rows(spacing, args.repeat) if args.orders else [speed_row(spacing, args.repeat)]:
