@@ -12,10 +12,10 @@ dense 6x6 block a triangle, 4 tool dofs coupled to a tenth of the vertices; 2,00
 
 * Ordering: SuperLU's multiple minimum degree (``MMD_AT_PLUS_A``) on the graph with the two dofs of a vertex
   merged (indistinguishable nodes) and the dense rows set aside and ordered last. Its fill matches AMD's
-  (SuiteSparse's, as qdldl orders) to 2 %: 1.25 M entries of L at 15,000 vertices. Merging the dofs halves
-  the ordering's time (50 against 120 ms) and takes up to 6 % off the multiply-adds. A geometric nested
-  dissection (median cuts, MMD on leaves of 256 or 4,000 vertices) filled 2 to 30 % more and was as fast or
-  slower; reverse Cuthill-McKee filled 11 to 47 times more.
+  (SuiteSparse's, as qdldl orders) to 2 %: 1.25 M entries of L at 15,000 vertices. Merging the dofs about
+  halves the ordering's time and takes up to 6 % off the multiply-adds. A geometric nested dissection (median
+  cuts, MMD on leaves of 256 or 4,000 vertices) filled 2 to 30 % more and was as fast or slower; reverse
+  Cuthill-McKee filled 11 to 47 times more.
 * Numeric factorisation: supernodal, left-looking (as CHOLMOD's), each supernode a dense column-major block
   (its own columns and the rows below), a descendant's update as multi-column AXPYs into a buffer scattered
   into the target, two target columns a pass. Relaxed supernodes (CHOLMOD's amalgamation rule, smaller
@@ -23,10 +23,10 @@ dense 6x6 block a triangle, 4 tool dofs coupled to a tenth of the vertices; 2,00
   offset indices into one array: numba then vectorises them (with an offset index it must allow a negative
   one and leaves the loop scalar, 3 to 4 times slower). BLAS (``np.dot`` into a buffer, allocation-free) for
   the large updates was no faster than the two-column loops, nor was a blocked dense factor of the large
-  supernodes, so the kernels call no BLAS (and start no BLAS threads). An up-looking (QDLDL) factor of the
-  same ordering is qdldl's ``update``: 3 to 4 times slower.
+  supernodes, so the kernels call no BLAS (and start no BLAS threads). QDLDL's up-looking factor (qdldl's
+  ``update``, on its AMD order of the same fill) took 2 to 4 times as long; SuperLU's factor 7 to 10 times.
 * Solve: forward and backward substitution by supernode, the rows below a supernode gathered (or scattered)
-  once per supernode.
+  once per supernode: as fast as CHOLMOD's supernodal solve (cholespy) to about 10 %.
 
 The bundles (tuples of arrays, documented where they are made): ``LDLTPattern.arrays`` for both kernels,
 :func:`make_workspace` for the factor, :func:`solve_workspace` for the solve.
