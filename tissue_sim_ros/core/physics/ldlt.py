@@ -590,8 +590,9 @@ class LDLTPattern:
     given at (i, j) and at (j, i), so give each off-diagonal value once, in either triangle (a caller with full
     symmetric element blocks keeps ``rows >= cols``). The diagonal is always in the pattern.
     ``last`` (m,) int: dofs to order last (a rigid tool's pose; the postorder keeps them last when they couple
-    to the rest); default: the dense rows (:func:`dense_nodes`). ``order`` (n,) int: a fill-reducing order to use instead of :func:`fill_order`
-    (order[k] = the dof eliminated k-th), which is then postordered. ``relax``: as :data:`RELAX`.
+    to the rest); default: the dense rows (:func:`dense_nodes`). ``order`` (n,) int: a fill-reducing order to
+    use instead of :func:`fill_order` (order[k] = the dof eliminated k-th), which is then postordered.
+    ``relax``: as :data:`RELAX`.
 
     Attributes: ``n``; ``slot`` (K,) int64, where each input entry lands in ``a_values`` (assembly is
     ``a_values[slot[k]] += v_k``, :func:`ldlt_assemble`); ``perm`` (n,) int64, perm[k] = the dof eliminated
