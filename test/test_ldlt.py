@@ -274,7 +274,7 @@ def test_bad_input_is_refused(small) -> None:
 # ----------------------------------------------------------------------------- the kernels allocate nothing
 
 
-@njit
+@njit(cache=True)
 def _factor_and_solve(slot, values, pattern, a_values, l_values, d, work, b, out, solve_work, times):
     status = 0
     for _ in range(times):
