@@ -23,11 +23,13 @@ tangent frozen at the step's start, dissipates mu lambda f0(|u|) with the smooth
 f0(y) = -y^3 / (3 eps^2) + y^2 / eps + eps / 3 for |y| < eps, |y| beyond (eps = eps_v dt: the slip below which
 friction is sticking), f1 = f0' = min(1, (2 - y / eps) y / eps).
 
-CCD: additive CCD (Li, Kaufman, Jiang 2021, "Codimensional IPC", algorithm 1): from a pair's gap g0 > 0,
-advance in steps of 0.9 g / l_p (l_p bounds how fast the pair's points close on each other) until the gap falls
-below ``s g0``; the time before that step is a conservative time of impact. It needs only the distance at any
-time and the bound l_p, so it serves points moving on straight lines (the tissue along a search direction) and a
-rigid tool turning and sliding alike.
+CCD caps every line search so that no pair's gap falls below ``CCD_KEEP`` of what it was. Where the pair's points
+move on straight lines (the tissue along a search direction, the tool sliding without turning) that time is
+found to round-off (:func:`toi_point_segment`: a quadratic for the ends, a bracketed root for the segment's line).
+Where the tool turns or its jaw moves, additive
+CCD (Li, Kaufman, Jiang 2021, "Codimensional IPC", algorithm 1): advance in steps of 0.9 g / l_p (l_p bounds how
+fast the pair's points close on each other) until the gap falls below ``CCD_KEEP g0``; conservative, and slow
+only where a long edge turns about the contact (l_p large, g small), which a sliding tool does not meet.
 """
 from __future__ import annotations
 
@@ -101,34 +103,86 @@ def friction_f2(y: float, eps: float) -> float:
 
 
 @njit(cache=True, nogil=True)
-def accd_pair(p0: np.ndarray, a0: np.ndarray, b0: np.ndarray, dp: np.ndarray, da: np.ndarray, db: np.ndarray,
-              xi: float, t_max: float) -> float:
-    """Conservative time of impact in [0, t_max] of a point moving p0 + t dp against a segment (a0 + t da, b0 + t
-    db), gap |p - c| - xi (additive CCD, module docstring); t_max when they do not come within CCD_KEEP of their
-    gap. The displacements' common part is taken out first (it moves neither closer)."""
-    mx = (dp[0] + da[0] + db[0]) / 3.0
-    my = (dp[1] + da[1] + db[1]) / 3.0
-    dpx, dpy = dp[0] - mx, dp[1] - my
-    dax, day = da[0] - mx, da[1] - my
-    dbx, dby = db[0] - mx, db[1] - my
-    lp = math.sqrt(dpx * dpx + dpy * dpy) + max(math.sqrt(dax * dax + day * day), math.sqrt(dbx * dbx + dby * dby))
-    if lp <= 0.0:
-        return t_max
+def ccd_pair(p0: np.ndarray, a0: np.ndarray, b0: np.ndarray, dp: np.ndarray, da: np.ndarray, db: np.ndarray,
+             xi: float, t_max: float) -> float:
+    """The largest step in [0, t_max] over which a point moving p0 + t dp keeps CCD_KEEP of its gap |p - c| - xi
+    to a segment (a0 + t da, b0 + t db) (:func:`toi_point_segment`); 0 when they touch already."""
     d, _, _, _ = point_segment(p0[0], p0[1], a0[0], a0[1], b0[0], b0[1])
     gap0 = d - xi
     if gap0 <= 0.0:
         return 0.0
-    keep = CCD_KEEP * gap0
-    t = 0.0
-    tl = (1.0 - CCD_KEEP) * gap0 / lp
-    for _ in range(CCD_MAX_STEPS):
-        tn = t + tl
-        d, _, _, _ = point_segment(p0[0] + tn * dpx, p0[1] + tn * dpy, a0[0] + tn * dax, a0[1] + tn * day,
-                                   b0[0] + tn * dbx, b0[1] + tn * dby)
-        if t > 0.0 and d - xi < keep:  # (the first advance is safe by construction: l_p bounds the closing)
-            return t
-        t = tn
-        if t > t_max:
-            return t_max
-        tl = 0.9 * (d - xi) / lp
-    return t
+    return toi_point_segment(p0[0], p0[1], dp[0], dp[1], a0[0], a0[1], da[0], da[1], b0[0], b0[1], db[0], db[1],
+                             xi + CCD_KEEP * gap0, t_max)
+
+
+@njit(cache=True, inline="always")
+def _circle_toi(wx: float, wy: float, vx: float, vy: float, r: float) -> float:
+    """First t >= 0 with |w + t v| = r for a point w outside the circle of radius r about the origin (inf:
+    never): the smaller root of a quadratic, in its stable form."""
+    a = vx * vx + vy * vy
+    b = 2.0 * (wx * vx + wy * vy)
+    c = wx * wx + wy * wy - r * r
+    if a <= 0.0 or b >= 0.0 or c <= 0.0:
+        return math.inf if c > 0.0 else 0.0
+    disc = b * b - 4.0 * a * c
+    if disc < 0.0:
+        return math.inf
+    return 2.0 * c / (-b + math.sqrt(disc))
+
+
+@njit(cache=True, inline="always")
+def _line_gap(wx: float, wy: float, dwx: float, dwy: float, ex: float, ey: float, dex: float, dey: float, t: float,
+              side: float, r: float) -> float:
+    """side (e x w) / |e| - r at time t: the point's distance to the segment's line past r, on its starting side."""
+    qx, qy = wx + t * dwx, wy + t * dwy
+    fx, fy = ex + t * dex, ey + t * dey
+    ll = math.sqrt(fx * fx + fy * fy)
+    return side * (fx * qy - fy * qx) / ll - r if ll > 0.0 else math.inf
+
+
+@njit(cache=True, nogil=True)
+def toi_point_segment(px: float, py: float, dpx: float, dpy: float, ax: float, ay: float, dax: float, day: float,
+                      bx: float, by: float, dbx: float, dby: float, r: float, t_max: float) -> float:
+    """First time in [0, t_max] at which a point moving linearly (p + t dp) comes within r of a segment whose ends
+    move linearly (a + t da, b + t db); t_max when it does not. The earliest of: the point reaching either end's
+    circle of radius r (the smaller root of a quadratic, exact) and its distance to the segment's line falling to
+    r where its projection is on the segment (the first root of (e x w) / |e| = r, bracketed: before the line's
+    crossing, e x w a quadratic in t, or at the quadratic's turn, then bisected to round-off). The point must
+    start farther than r."""
+    wx, wy = px - ax, py - ay
+    dwx, dwy = dpx - dax, dpy - day
+    ex, ey = bx - ax, by - ay
+    dex, dey = dbx - dax, dby - day
+    t_end = min(t_max, _circle_toi(wx, wy, dwx, dwy, r),
+                _circle_toi(px - bx, py - by, dpx - dbx, dpy - dby, r))
+    c0 = ex * wy - ey * wx
+    if c0 == 0.0 or t_end <= 0.0:
+        return max(t_end, 0.0)
+    side = 1.0 if c0 > 0.0 else -1.0
+    c1 = side * (ex * dwy + dex * wy - ey * dwx - dey * wx)
+    c2 = side * (dex * dwy - dey * dwx)
+    # the first time in (0, t_end] with the line's gap <= 0: at the turn of side (e x w) (its least), or t_end
+    hit = math.inf
+    if c2 > 0.0 and c1 < 0.0 and -c1 / (2.0 * c2) < t_end:
+        t_turn = -c1 / (2.0 * c2)
+        if _line_gap(wx, wy, dwx, dwy, ex, ey, dex, dey, t_turn, side, r) <= 0.0:
+            hit = t_turn
+    if hit == math.inf and _line_gap(wx, wy, dwx, dwy, ex, ey, dex, dey, t_end, side, r) <= 0.0:
+        hit = t_end
+    if hit == math.inf:
+        return t_end
+    lo, hi = 0.0, hit
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if _line_gap(wx, wy, dwx, dwy, ex, ey, dex, dey, mid, side, r) > 0.0:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-12 * hit:
+            break
+    # on the segment there? (past an end, that end's circle is what it meets)
+    qx, qy = wx + lo * dwx, wy + lo * dwy
+    fx, fy = ex + lo * dex, ey + lo * dey
+    ll = fx * fx + fy * fy
+    sp = (qx * fx + qy * fy) / ll if ll > 0.0 else -1.0
+    return lo if 0.0 <= sp <= 1.0 else t_end

@@ -10,8 +10,8 @@ rotation). Each iteration:
 
 1. the direction d = -H g (two-loop recursion over the last pairs, H0 = A^-1);
 2. the pairs that may come within dhat along the whole step (``core/contact/broadphase.py``), and the largest
-   step alpha_max <= 1 that keeps every pair apart (additive CCD, ``core/contact/barrier.py``: a tissue pair's
-   points move on straight lines, the tool turns and slides rigidly and its jaw turns), every free particle off
+   step alpha_max <= 1 that keeps every pair apart (CCD, ``core/contact/barrier.py``: exact where the points move
+   on straight lines, the tissue's and a sliding tool's; additive where the tool turns or its jaw moves), every free particle off
    the lines and walls, and every triangle's area positive (the smaller root of a quadratic in alpha);
 3. backtracking from alpha_max until the potential falls (Armijo), then x += alpha d.
 
@@ -37,7 +37,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..contact.barrier import CCD_KEEP, CCD_MAX_STEPS, accd_pair, point_segment
+from ..contact.barrier import CCD_KEEP, CCD_MAX_STEPS, ccd_pair, point_segment, toi_point_segment
 from ..contact.broadphase import tissue_pairs, tool_pairs
 from ..contact.collider import tool_vertices
 from .ipc_energy import potential
@@ -70,11 +70,33 @@ def _accd_tool(x: np.ndarray, dxv: np.ndarray, q: np.ndarray, dq: np.ndarray, ge
                j: int, k: int, xi: float, lt: float, t_max: float) -> float:
     """Additive CCD of a tissue point i against core edge (j, k) (kind 1), or of core vertex i against tissue
     edge (j, k) (kind 2), the tool moving rigidly (and its jaw turning) from q to q + dq: the conservative time
-    of impact in [0, t_max]. ``lt`` bounds how fast a point of the core moves per unit t."""
+    of impact in [0, t_max]. ``lt`` bounds how fast a point of the core moves per unit t relative to the tool's
+    translation (dq[0], dq[1]): the gap's rate is bounded in the frame that translates with the tool (distances
+    do not change there), so a tissue pressed along with the tool is not held to tiny steps."""
+    cx, cy = dq[0], dq[1]
+    if xi == 0.0:
+        # the tool slides (its turn moves no point by a hundredth of the gap CCD keeps): its points move on
+        # straight lines, the time is exact
+        if kind == 1:
+            ax, ay = _tool_point(q, dq, 0.0, geom, j)
+            bx, by = _tool_point(q, dq, 0.0, geom, k)
+            gap0 = point_segment(x[i, 0], x[i, 1], ax, ay, bx, by)[0]
+        else:
+            ax, ay = _tool_point(q, dq, 0.0, geom, i)
+            gap0 = point_segment(ax, ay, x[j, 0], x[j, 1], x[k, 0], x[k, 1])[0]
+        if gap0 <= 0.0:
+            return 0.0
+        if lt * t_max <= 0.01 * CCD_KEEP * gap0:
+            if kind == 1:
+                return toi_point_segment(x[i, 0], x[i, 1], dxv[i, 0], dxv[i, 1], ax, ay, cx, cy, bx, by, cx, cy,
+                                         CCD_KEEP * gap0, t_max)
+            return toi_point_segment(ax, ay, cx, cy, x[j, 0], x[j, 1], dxv[j, 0], dxv[j, 1], x[k, 0], x[k, 1],
+                                     dxv[k, 0], dxv[k, 1], CCD_KEEP * gap0, t_max)
     if kind == 1:
-        lp = math.sqrt(dxv[i, 0] ** 2 + dxv[i, 1] ** 2) + lt
+        lp = math.sqrt((dxv[i, 0] - cx) ** 2 + (dxv[i, 1] - cy) ** 2) + lt
     else:
-        lp = lt + max(math.sqrt(dxv[j, 0] ** 2 + dxv[j, 1] ** 2), math.sqrt(dxv[k, 0] ** 2 + dxv[k, 1] ** 2))
+        lp = lt + max(math.sqrt((dxv[j, 0] - cx) ** 2 + (dxv[j, 1] - cy) ** 2),
+                      math.sqrt((dxv[k, 0] - cx) ** 2 + (dxv[k, 1] - cy) ** 2))
     if lp <= 0.0:
         return t_max
     t = 0.0
@@ -207,8 +229,8 @@ def step_bound(x: np.ndarray, q: np.ndarray, dvec: np.ndarray, model: tuple, con
     t_max = _line_cap(x, dxv, step[1], contact[3], t_max)
     for k in range(counts[0]):
         p, a, b = tt[k, 0], edges[tt[k, 1], 0], edges[tt[k, 1], 1]
-        t_max = min(t_max, accd_pair(x[p], x[a], x[b], dxv[p], dxv[a], dxv[b], 0.0, t_max))
-    lt = math.sqrt(dq[0] * dq[0] + dq[1] * dq[1]) + abs(dq[2]) * opts[5] + 0.5 * abs(dq[3]) * opts[6]
+        t_max = min(t_max, ccd_pair(x[p], x[a], x[b], dxv[p], dxv[a], dxv[b], 0.0, t_max))
+    lt = abs(dq[2]) * opts[5] + 0.5 * abs(dq[3]) * opts[6]  # (the turn's and the jaw's part: see _accd_tool)
     for k in range(counts[1]):
         te = vt[k, 1]
         t_max = min(t_max, _accd_tool(x, dxv, q, dq, geom, 1, vt[k, 0], tool_edges[te, 0], tool_edges[te, 1],
@@ -389,8 +411,8 @@ def ipc_solve(x: np.ndarray, q: np.ndarray, x0: np.ndarray, q0: np.ndarray, mode
     fresh = out[2] > 0.0  # the caller refactored at this x
     since = 0
     while it < max_iterations:
-        # a fresh factor when the lagged one stops helping: every ``refresh`` iterations, at every iteration in
-        # contact (a barrier's curvature changes by orders of magnitude with its gap), after a failed search
+        # a fresh factor when the lagged one stops helping: every ``refresh`` iterations, after a step cut short
+        # in contact, after a failed search
         if not fresh and since >= refresh:
             refactor(x, q, model, contact, tool, step, pairs, scratch, lin)
             out[2] += 1
@@ -414,6 +436,11 @@ def ipc_solve(x: np.ndarray, q: np.ndarray, x0: np.ndarray, q0: np.ndarray, mode
             continue
         fresh = False
         since += 1
+        if a < 1.0 and touching(x, q, model, contact, tool, pairs, scratch):
+            # a cut step in contact: the barriers' curvature has moved away from the factor's (it changes by
+            # orders of magnitude with the gap): a fresh factor next (Newton's step; a lagged one takes many
+            # small ones into a contact that closes)
+            since = refresh
         out[3] = min(out[3], a)
         it += 1
         j = head

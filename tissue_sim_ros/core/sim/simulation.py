@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from ..config import BY_NAME, Config
-from ..contact.collider import ToolCollider, tool_geometry
+from ..contact.collider import ToolCollider, clear_start, pose_dofs, tool_geometry
 from ..contact.collision import ContactModel, Contacts
 from ..contact.tool import ToolPose, ToolShape, ToolTwist, tool_shape_array, twist_from_poses
 from ..contact.tool_checks import INSIDE_TOL, tool_checks
@@ -212,6 +212,8 @@ class Simulation:
         self.tool_jaw: float | None = None
         """Barrier contact: the jaw angle the tool was left at [rad] (the tissue may stop a closing jaw); None
         before the first step."""
+        self._tool_left_free = False
+        """The barrier contact's tool was left by a step (free of the tissue by construction)."""
         self.tool_command: ToolPose | None = None
         """Barrier contact: the last commanded pose (the tool may have stopped short of it, at ``tool_pose``)."""
         self.jaw_command: float | None = None
@@ -262,6 +264,7 @@ class Simulation:
             self.tool_jaw = snap.tool_jaw
             self.tool_command = snap.tool_command
             self.jaw_command = snap.jaw_command
+            self._tool_left_free = False
 
     @classmethod
     def from_config(cls, cfg: Config, mesh: "TissueMesh | None" = None,
@@ -359,11 +362,13 @@ class Simulation:
             self.tool_jaw = None
             self.tool_command = None
             self.jaw_command = None
+            self._tool_left_free = False
 
     def set_state(self, state: State) -> None:
         """Replace the current state (copied)."""
         self.state = state.copy()
         self._last_good = state.copy()
+        self._tool_left_free = False
 
     def place_tool(self, pose: ToolPose | None) -> None:
         """Put the tool at ``pose`` without stepping: the next step moves it from there (its twist, by default,
@@ -374,6 +379,7 @@ class Simulation:
         with self.lock:
             self.tool_pose = pose
             self.tool_command = pose
+            self._tool_left_free = False
 
     def tool_overlaps_tissue(self, pose: ToolPose) -> bool:
         """True when the tool at ``pose`` (its own shape, no margin) holds a particle or lies inside a triangle of
@@ -475,9 +481,22 @@ class Simulation:
             # the tool's jaw: the command (open until one is given), from where it was left
             jaw1 = (self.grasp.jaw if self.grasp.jaw is not None else OPEN_JAW) if self.tool.kind == "grasper" else 0.0
             jaw0 = self.tool_jaw if self.tool_jaw is not None else jaw1
-            contacts.tool_collider = ToolCollider.make(self.tool, self._geometry, self.tool_pose or tool_pose,
+            contacts.tool_collider = ToolCollider.make(self.tool, self._geometry, self._free_start(tool_pose, jaw0),
                                                        tool_pose, jaw0, jaw1, self.tool_command, self.jaw_command)
         return contacts
+
+    def _free_start(self, tool_pose: ToolPose, jaw: float) -> ToolPose:
+        """Where the barrier contact's tool starts the step: where it was left, or (a first pose, a placed one, a
+        restored one) that pose moved out of the tissue by the least distance if it lies in it
+        (``core/contact/collider.py``'s ``clear_start``): the tool then moves in as commanded, and stops short
+        where the tissue cannot make room, instead of starting inside it."""
+        start = self.tool_pose or tool_pose
+        if self._tool_left_free:
+            return start
+        edges = self.solver.boundary_edges
+        q = clear_start(pose_dofs(start, jaw), self._geometry, self.state.particle_q, edges, self.model.tri_indices,
+                        2.0 * self.solver.dhat)
+        return ToolPose(float(q[0]), float(q[1]), start.yaw)
 
     def _step(self, tool_pose: ToolPose | None, tool_twist: ToolTwist | None, keep: bool = False,
               jaw: float | None = None) -> StepReport:
@@ -503,6 +522,7 @@ class Simulation:
             # the barrier contact's tool ends where the tissue let it: the next step starts there
             end_pose = contacts.tool_collider.pose(info.tool_q)
             self.tool_jaw = float(info.tool_q[3])
+            self._tool_left_free = True
         detail = StepDetail(state_in, contacts, _detached(info), (self.tool_pose or tool_pose) if tool_pose else None,
                             tool_pose, p.dt) if keep else None
         out = self._state_out

@@ -7,8 +7,8 @@ the boundary (vertices, edges and the triangle each edge bounds), the Hessian's 
 snapshots, so a rollout from one is the live run's), the pair buffers, the L-BFGS history. Each step is one
 compiled call (:func:`~tissue_sim_ros.core.physics.ipc_step.ipc_step`) and the contact's report another.
 
-Parameters (``core/physics/params.py``): ``contact_dhat`` (0: a tenth of the 10th percentile of the boundary
-edges' lengths), ``contact_stiffness`` kappa (0: E x thickness), ``tool_stiffness`` (0: 1000 kappa; the tool's
+Parameters (``core/physics/params.py``): ``contact_dhat`` (0: a thousandth of the 10th percentile of the boundary
+edges' lengths), ``contact_stiffness`` kappa (0: E x thickness), ``tool_stiffness`` (0: 1e5 kappa; the tool's
 turn and jaw are held by it times the tool's reach squared), ``contact_bodies``, ``solve_tolerance`` and
 ``iterations``; ``friction`` (tool and tissue), ``friction_tissue`` and ``friction_velocity`` (the lagged friction of
 ``core/physics/ipc_friction.py``).
@@ -39,13 +39,15 @@ REFRESH_AFTER = 4
 #: The element's inversion barrier acts below this area ratio J.
 J_HAT = 0.2
 #: dhat: this fraction of the short boundary edges' length, when not given.
-DHAT_FRACTION = 0.1
-#: The tool's spring: this multiple of the barrier's stiffness, when not given.
-TOOL_STIFFNESS_FACTOR = 1000.0
+DHAT_FRACTION = 0.01
+#: The barrier's stiffness kappa: this multiple of E x thickness, when not given.
+KAPPA_FACTOR = 1.0
+#: The tool's spring: this multiple of E x thickness, when not given.
+TOOL_STIFFNESS_FACTOR = 1e5
 #: Candidate tissue pairs a boundary vertex may have at most (buffer size).
 PAIRS_PER_VERTEX = 32
-#: A tool's core has at most this many vertices and edges (a box: 4 and 4).
-MAX_CORE = 4
+#: A tool's outline has at most this many vertices and edges (a capsule: 32 and 32).
+MAX_CORE = 64
 
 
 def boundary_opposite(tris: np.ndarray, edges: np.ndarray) -> np.ndarray:
@@ -86,8 +88,10 @@ class IPCSolver(SolverBase):
         roller = np.zeros(n, dtype=np.bool_)
         roller[self.material_solve.rest_lines[0]] = True
         self.dhat = float(p.contact_dhat) if p.contact_dhat > 0 else default_dhat(q0, edges)
-        self.kappa = float(p.contact_stiffness) if p.contact_stiffness > 0 else float(p.young_modulus * p.thickness)
-        self.tool_stiffness = float(p.tool_stiffness) if p.tool_stiffness > 0 else TOOL_STIFFNESS_FACTOR * self.kappa
+        self.kappa = (float(p.contact_stiffness) if p.contact_stiffness > 0
+                      else KAPPA_FACTOR * float(p.young_modulus * p.thickness))
+        self.tool_stiffness = (float(p.tool_stiffness) if p.tool_stiffness > 0
+                               else TOOL_STIFFNESS_FACTOR * float(p.young_modulus * p.thickness))
         self._model = (np.ascontiguousarray(model.particle_mass, dtype=np.float64), self.tris, self.elastic, J_HAT,
                        bverts, edges, boundary_opposite(model.tri_indices, edges), roller, bool(p.contact_bodies))
         self._contact = (self.dhat, self.dhat, self.kappa, (float(p.boundary_y_top), float(p.boundary_y_bottom),
