@@ -151,6 +151,18 @@ def test_bench_peers_fem_quick(tmp_path, capsys):
         assert all(r["at_rest"] == "True" for r in mj)
         assert abs(float(mj[1]["err_mean_sag"])) < 0.05  # the membrane has stiffness (elastic2d is not none)
     assert "run to rest" in capsys.readouterr().out
+    # the contact scenes: the default (ipc) leaves nothing inside the capsule or the other body, its tool presses
+    # (the reaction of a third deep into 50 kPa is Newtons), the dropped block rests on its contact force =
+    # its weight; the former default lets the block through the strip (bodies never touched)
+    contact = {(r["scene"], r["peer"]): r for r in csv.DictReader(open(tmp_path / "peers_contact.csv"))}
+    press, drop = contact[("press", "ours_ipc")], contact[("drop", "ours_ipc")]
+    assert int(press["inside"]) == 0 and float(press["depth_m"]) == 0.0 and float(press["force_N"]) > 1.0
+    assert int(drop["inside_max"]) == 0 and float(drop["gap_m"]) > 0.0
+    assert float(drop["force_over_weight"]) == pytest.approx(1.0, abs=0.01)
+    assert int(contact[("drop", "ours_former")]["inside_max"]) > 0
+    if available("mujoco"):
+        assert ("press", "mujoco") in contact and ("drop", "mujoco") in contact
+    assert (tmp_path / "peers_contact.png").stat().st_size > 0
 
 
 def test_bench_stability_material_quick(tmp_path, capsys):
