@@ -349,10 +349,11 @@ def plot(path: Path, rows: Sequence[dict[str, Any]]) -> None:
               (axes[2], drop, "force_over_weight", 1.0, "drop: block's contact force / weight"),
               (axes[3], rows, "wall_s", 1.0, "wall time of the run [s]")]
     for ax, sel, key, scale, title in panels:
-        labels = [f"{r['peer']}\n{r['scene']}" if sel is rows else r["peer"] for r in sel]
+        labels = [f"{r['peer']}, {r['scene']}" if sel is rows else r["peer"] for r in sel]
         values = [scale * r[key] if np.isfinite(r[key]) else 0.0 for r in sel]
         ax.bar(range(len(sel)), values, color=["C0" if r["peer"].startswith("ours") else "C1" for r in sel])
-        ax.set_xticks(range(len(sel)), labels, fontsize=6, rotation=30 if sel is rows else 0)
+        ax.set_xticks(range(len(sel)), labels, fontsize=6, rotation=60 if sel is rows else 0,
+                      ha="right" if sel is rows else "center")
         ax.set_title(title, fontsize=8)
         ax.tick_params(labelsize=7)
         if key == "force_over_weight":
