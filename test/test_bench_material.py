@@ -151,26 +151,63 @@ def test_bench_peers_fem_quick(tmp_path, capsys):
         assert all(r["at_rest"] == "True" for r in mj)
         assert abs(float(mj[1]["err_mean_sag"])) < 0.05  # the membrane has stiffness (elastic2d is not none)
     assert "run to rest" in capsys.readouterr().out
+    # the contact scenes: the default (ipc) leaves nothing inside the capsule or the other body, its tool presses
+    # (the reaction of a third deep into 50 kPa is Newtons), the dropped block rests on its contact force =
+    # its weight; the former default lets the block through the strip (bodies never touched)
+    contact = {(r["scene"], r["peer"]): r for r in csv.DictReader(open(tmp_path / "peers_contact.csv"))}
+    press, drop = contact[("press", "ours_ipc")], contact[("drop", "ours_ipc")]
+    assert int(press["inside"]) == 0 and float(press["depth_m"]) == 0.0 and float(press["force_N"]) > 1.0
+    assert int(drop["inside_max"]) == 0 and float(drop["gap_m"]) > 0.0
+    assert float(drop["force_over_weight"]) == pytest.approx(1.0, abs=0.01)
+    assert int(contact[("drop", "ours_former")]["inside_max"]) > 0
+    if available("mujoco"):
+        assert ("press", "mujoco") in contact and ("drop", "mujoco") in contact
+    assert (tmp_path / "peers_contact.png").stat().st_size > 0
 
 
-def test_bench_stability_material_quick(tmp_path):
-    # a gentle press is clean; a 1 m/s tool at dt 20 ms jumps 2 cm per step (4x its own width) into a sliver
-    # mesh of a 1 MPa tissue and ends inside it: the run names that (buried, tunnelling or penetrating)
-    assert main(["bench", "stability", "--material", "--quick", "--out", str(tmp_path)]) == 0
-    rows = list(csv.DictReader(open(tmp_path / "material_stability.csv")))
-    assert rows[0]["outcome"] == "stable"
-    assert rows[1]["outcome"] in ("buried", "tunnelling", "penetrating")
-    assert (tmp_path / "material_stability.png").stat().st_size > 0
-
-
-def test_material_stability_poses_press_a_third_deep():
+def test_bench_stability_material_quick(tmp_path, capsys):
+    # a gentle press and a drag of each scheme, and the hardest press of the box: a 1 m/s tool at dt 20 ms jumps
+    # 2 cm per step (4x its own width) into a sliver mesh of a 1 MPa tissue. The default (ipc) holds in every run
+    # (its tool stops short where it must); the former default (quasi_newton + projection) ends inside the tissue
     from tissue_sim_ros.bench import material_stability as ms
 
+    assert main(["bench", "stability", "--material", "--quick", "--out", str(tmp_path)]) == 0
+    rows = list(csv.DictReader(open(tmp_path / "material_stability.csv")))
+    assert len(rows) == len(ms.sweep(True)) == 6
+    assert {r["motion"] for r in rows} == {"press", "drag"}
+    ipc = [r for r in rows if r["scheme"] == "ipc"]
+    assert all(r["outcome"] == "stable" for r in ipc), [(r["motion"], r["outcome"], r["detail"]) for r in ipc]
+    assert all(float(r["max_penetration_m"]) == 0.0 and int(r["max_inverted"]) == 0 for r in ipc)
+    # the lag is a distance the tool stopped short: finite, >= 0, and far below the travel here
+    assert all(0.0 <= float(r["lag_end_m"]) <= float(r["lag_max_m"]) < 1e-3 for r in ipc)
+    former = {(r["motion"], r["young_modulus"]): r for r in rows if r["scheme"] == "quasi_newton"}
+    assert former[("press", "1000.0")]["outcome"] == "stable"
+    assert former[("press", "1000000.0")]["outcome"] in ("buried", "tunnelling", "penetrating")
+    assert all(float(r["lag_end_m"]) == 0.0 for r in former.values())  # projection: the tool goes where it is sent
+    assert all(int(r["steps_run"]) >= 1 and float(r["iterations_median"]) >= 1 for r in rows)
+    assert (tmp_path / "material_stability.png").stat().st_size > 0
+    printed = capsys.readouterr()
+    assert "[6/6]" in printed.out + printed.err  # a progress line per run
+
+
+def test_material_stability_poses_press_a_third_deep_and_drag():
+    from tissue_sim_ros.bench import material_stability as ms
+
+    below = 0.5 * ms.TOOL.length + ms.TOOL.radius  # the capsule's lowest point below its pose
     ps = ms.poses(0.01, 0.1)
-    tip = [p.y - 0.5 * ms.TOOL.length for p in ps]
+    tip = [p.y - below for p in ps]
     assert tip[0] == pytest.approx(ms.HEIGHT + 0.002)
     assert tip[-1] == pytest.approx(ms.HEIGHT - ms.HEIGHT / 3)
-    assert ps[-1] == ps[-20]  # held at the end
+    assert ps[-1] == ps[-ms.HOLD_STEPS]  # held at the end
+    # each move at the tool speed: 1 mm per step at 0.1 m/s and dt 10 ms
+    assert max(abs(a.y - b.y) for a, b in zip(ps, ps[1:])) == pytest.approx(0.001, rel=0.05)
+    drag = ms.poses(0.01, 0.1, "drag")
+    assert drag[0].y - below == pytest.approx(ms.HEIGHT + 0.002)
+    assert drag[-1].y - below == pytest.approx(ms.HEIGHT - ms.DRAG_DEPTH)
+    assert drag[-1].x - drag[0].x == pytest.approx(ms.DRAG_DISTANCE)
+    assert len(drag) == 1 + 5 + 20 + ms.HOLD_STEPS
+    # the slowest run is capped at MAX_STEPS steps of motion
+    assert len(ms.poses(0.001, 0.01, "drag")) <= 1 + ms.MAX_STEPS + ms.HOLD_STEPS
 
 
 def test_tune_material_quick_writes_a_file_that_reproduces_its_setting(tmp_path, capsys):

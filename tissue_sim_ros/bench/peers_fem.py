@@ -37,6 +37,10 @@ it has taken longer than the peer's best so far (it cannot be the best). The bes
 twice more: its wall time to rest is the median of 3. Reported per peer and mesh: the relative errors of the mean and the
 largest sag against the FEM (:mod:`~tissue_sim_ros.bench.fem_reference`), steps and wall time to rest,
 time per step. The wall times are from this run, one after the other on the same machine.
+
+Then the contact scenes of :mod:`~tissue_sim_ros.bench.peers_contact`: a capsule pressed into a strip and a block
+dropped on it, ours (the default ``ipc`` step and the former default) beside MuJoCo's flex contact and its IPC
+mode: penetration, force, wall time (``peers_contact.csv``, ``peers_contact.png``).
 """
 from __future__ import annotations
 
@@ -476,4 +480,8 @@ def run_fem(out: Path, quick: bool, have_mujoco: bool, have_newton: bool = False
                   "accurate peer, at half the wall time to rest or less):")
             print(format_table(g, list(g[0])))
     print(f"wrote {out / 'peers_fem.csv'} and {out / 'peers_fem.png'}")
+    from .peers_contact import run_contact  # noqa: PLC0415
+
+    print()
+    run_contact(out, quick, have_mujoco)
     return 0 if all(r["at_rest"] for r in rows if r["peer"].startswith("ours")) else 1

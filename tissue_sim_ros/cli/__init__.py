@@ -46,7 +46,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
     "tune": ("tissue_sim_ros.cli.tune", "pick the cheapest mesh spacing/method/iterations meeting an error tolerance"),
     "bench": {
         "solver": ("tissue_sim_ros.cli.bench.solver", "ms per step, ns per projection and ratio to NumPy, per method and mesh size"),
-        "contact": ("tissue_sim_ros.cli.bench.contact", "contact detection cost per step: culled vs full per-step python-fcl BVH rebuild"),
+        "contact": ("tissue_sim_ros.cli.bench.contact", "contact detection cost per step; force smoothness of the material's default (ipc) vs the former under a held and a dragged tool"),
         "node": ("tissue_sim_ros.cli.bench.node", "sustained rate, overruns and pose-to-mesh latency of the ROS node"),
         "accuracy": ("tissue_sim_ros.cli.bench.accuracy", "error against an exact Newton solve versus time per step, Pareto front"),
         "stability": ("tissue_sim_ros.cli.bench.stability", "where each method fails over dt, stiffness, tool speed and mesh quality"),
