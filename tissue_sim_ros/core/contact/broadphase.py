@@ -4,8 +4,8 @@ q to q + dq) inflated by the activation distance.
 
 Tissue pairs come from a uniform grid: each boundary edge is entered in the cells its swept, inflated bounding
 box covers, each boundary vertex looks in the cells of its own; a pair is kept when the two boxes overlap and the
-vertex is neither an end of the edge nor the opposite corner of the triangle the edge bounds (those are the mesh's
-own neighbours: their distance is the mesh's shape, not a contact). The tool has a few vertices and edges: its
+vertex shares no triangle with either end of the edge (the mesh's own neighbours: their distance is the mesh's
+shape, not a contact). The tool has a few vertices and edges: its
 pairs are tested against every boundary vertex and edge directly.
 """
 from __future__ import annotations
@@ -27,17 +27,18 @@ def _box(ax: float, ay: float, bx: float, by: float, cx: float, cy: float, dx: f
 
 
 @njit(cache=True, nogil=True)
-def tissue_pairs(x: np.ndarray, dx: np.ndarray, vertices: np.ndarray, edges: np.ndarray, opposite: np.ndarray,
+def tissue_pairs(x: np.ndarray, dx: np.ndarray, vertices: np.ndarray, edges: np.ndarray, near: tuple,
                  pad: float, cell: float, out: np.ndarray, ws: tuple) -> int:
     """Candidate (boundary vertex, boundary edge) pairs of the sweep x -> x + dx within ``pad`` [m]: rows
     (vertex, edge index) into ``out`` (P, 2) int32; returns their count, or -1 when ``out`` is too small.
 
-    ``vertices`` (Nb,) int32 the boundary vertices, ``edges`` (Ne, 2) int32 the boundary edges, ``opposite`` (Ne,)
-    int32 the third corner of each edge's triangle; ``cell`` [m] the grid's cell size (grown as needed). ``ws`` =
+    ``vertices`` (Nb,) int32 the boundary vertices, ``edges`` (Ne, 2) int32 the boundary edges, ``near`` = (pointers
+    (Ne + 1,), vertices) int64: the vertices sharing a triangle with each edge's ends, never paired with it; ``cell`` [m] the grid's cell size (grown as needed). ``ws`` =
     (edge boxes (Ne, 4), cell counts, cell starts, cell entries (Ne * MAX_CELLS_PER_EDGE,) int32, stamp (Ne,)
     int64) scratch.
     """
     boxes, counts, starts, entries, stamp = ws
+    near_ptr, near_idx = near
     ne = edges.shape[0]
     if ne == 0 or vertices.shape[0] == 0:
         return 0
@@ -101,7 +102,12 @@ def tissue_pairs(x: np.ndarray, dx: np.ndarray, vertices: np.ndarray, edges: np.
                     if stamp[e] == p:
                         continue
                     stamp[e] = p
-                    if edges[e, 0] == p or edges[e, 1] == p or opposite[e] == p:
+                    mesh_near = False
+                    for m in range(near_ptr[e], near_ptr[e + 1]):
+                        if near_idx[m] == p:
+                            mesh_near = True
+                            break
+                    if mesh_near:
                         continue
                     if px1 < boxes[e, 0] or px0 > boxes[e, 2] or py1 < boxes[e, 1] or py0 > boxes[e, 3]:
                         continue

@@ -74,24 +74,24 @@ def _accd_tool(x: np.ndarray, dxv: np.ndarray, q: np.ndarray, dq: np.ndarray, ge
     translation (dq[0], dq[1]): the gap's rate is bounded in the frame that translates with the tool (distances
     do not change there), so a tissue pressed along with the tool is not held to tiny steps."""
     cx, cy = dq[0], dq[1]
-    if xi == 0.0:
-        # the tool slides (its turn moves no point by a hundredth of the gap CCD keeps): its points move on
-        # straight lines, the time is exact
+    # the tool slides (its turn moves no point by a hundredth of the gap CCD keeps): its points move on straight
+    # lines, the time is exact
+    if kind == 1:
+        ax, ay = _tool_point(q, dq, 0.0, geom, j)
+        bx, by = _tool_point(q, dq, 0.0, geom, k)
+        gap0 = point_segment(x[i, 0], x[i, 1], ax, ay, bx, by)[0] - xi
+    else:
+        ax, ay = _tool_point(q, dq, 0.0, geom, i)
+        bx, by = 0.0, 0.0
+        gap0 = point_segment(ax, ay, x[j, 0], x[j, 1], x[k, 0], x[k, 1])[0] - xi
+    if gap0 <= 0.0:
+        return 0.0
+    if lt * t_max <= 0.01 * CCD_KEEP * gap0:
         if kind == 1:
-            ax, ay = _tool_point(q, dq, 0.0, geom, j)
-            bx, by = _tool_point(q, dq, 0.0, geom, k)
-            gap0 = point_segment(x[i, 0], x[i, 1], ax, ay, bx, by)[0]
-        else:
-            ax, ay = _tool_point(q, dq, 0.0, geom, i)
-            gap0 = point_segment(ax, ay, x[j, 0], x[j, 1], x[k, 0], x[k, 1])[0]
-        if gap0 <= 0.0:
-            return 0.0
-        if lt * t_max <= 0.01 * CCD_KEEP * gap0:
-            if kind == 1:
-                return toi_point_segment(x[i, 0], x[i, 1], dxv[i, 0], dxv[i, 1], ax, ay, cx, cy, bx, by, cx, cy,
-                                         CCD_KEEP * gap0, t_max)
-            return toi_point_segment(ax, ay, cx, cy, x[j, 0], x[j, 1], dxv[j, 0], dxv[j, 1], x[k, 0], x[k, 1],
-                                     dxv[k, 0], dxv[k, 1], CCD_KEEP * gap0, t_max)
+            return toi_point_segment(x[i, 0], x[i, 1], dxv[i, 0], dxv[i, 1], ax, ay, cx, cy, bx, by, cx, cy,
+                                     xi + CCD_KEEP * gap0, t_max)
+        return toi_point_segment(ax, ay, cx, cy, x[j, 0], x[j, 1], dxv[j, 0], dxv[j, 1], x[k, 0], x[k, 1],
+                                 dxv[k, 0], dxv[k, 1], xi + CCD_KEEP * gap0, t_max)
     if kind == 1:
         lp = math.sqrt((dxv[i, 0] - cx) ** 2 + (dxv[i, 1] - cy) ** 2) + lt
     else:
@@ -185,7 +185,7 @@ def sweep(x: np.ndarray, q: np.ndarray, dvec: np.ndarray, model: tuple, contact:
           scratch: tuple, ws: tuple, opts: tuple) -> bool:
     """The candidate pairs of the step x -> x + dvec (``ws``'s dx holds it as (N, 2)), the tool q -> q + dq;
     False when a pair buffer overflowed."""
-    bverts, bedges, opposite, bodies = model[4], model[5], model[6], model[8]
+    bverts, bedges, near, bodies = model[4], model[5], model[6], model[8]
     dhat_t, dhat_tool, _kappa, _lines = contact
     geom, _servo, present = tool
     tt, vt, tv, counts = pairs
@@ -194,7 +194,7 @@ def sweep(x: np.ndarray, q: np.ndarray, dvec: np.ndarray, model: tuple, contact:
     for i in range(n):
         dxv[i, 0] = dvec[2 * i]
         dxv[i, 1] = dvec[2 * i + 1]
-    counts[0] = tissue_pairs(x, dxv, bverts, bedges, opposite, dhat_t, opts[4], tt, bp_ws) if bodies else 0
+    counts[0] = tissue_pairs(x, dxv, bverts, bedges, near, dhat_t, opts[4], tt, bp_ws) if bodies else 0
     counts[1] = 0
     counts[2] = 0
     if present:
@@ -210,6 +210,21 @@ def sweep(x: np.ndarray, q: np.ndarray, dvec: np.ndarray, model: tuple, contact:
         counts[1], counts[2] = tool_pairs(x, dxv, bverts, bedges, scratch[0][:nv], tool_end[:nv], geom[3], bulge,
                                           dhat_tool + radius, vt, tv)
     return counts[0] >= 0 and counts[1] >= 0 and counts[2] >= 0
+
+
+@njit(cache=True, nogil=True)
+def sweep_fitting(x: np.ndarray, q: np.ndarray, dvec: np.ndarray, model: tuple, contact: tuple, tool: tuple,
+                  pairs: tuple, scratch: tuple, ws: tuple, opts: tuple) -> float:
+    """:func:`sweep` of dvec, halved (in place) until its candidate pairs fit the buffers (a long first direction
+    sweeps past many pairs it will never reach): the scale kept, 0 when not even 2^-40 of it fits."""
+    scale = 1.0
+    for _ in range(40):
+        if sweep(x, q, dvec, model, contact, tool, pairs, scratch, ws, opts):
+            return scale
+        scale *= 0.5
+        for k in range(dvec.shape[0]):
+            dvec[k] *= 0.5
+    return 0.0
 
 
 @njit(cache=True, nogil=True)
@@ -426,9 +441,11 @@ def ipc_solve(x: np.ndarray, q: np.ndarray, x0: np.ndarray, q0: np.ndarray, mode
             fresh = False
             since = refresh
             continue
-        if not sweep(x, q, d, model, contact, tool, pairs, scratch, ws, opts):
+        scale = sweep_fitting(x, q, d, model, contact, tool, pairs, scratch, ws, opts)
+        if scale == 0.0:
             out[4] = 1.0
             break
+        slope *= scale
         a_max = step_bound(x, q, d, model, contact, tool, step, pairs, ws, opts)
         f_new, a = _line_search(x, q, f, slope, a_max, model, contact, tool, step, pairs, scratch, ws)
         if a == 0.0 and not fresh:

@@ -26,7 +26,7 @@ particles the mesh does not connect keeps only its diagonal blocks there.
 Bundles (tuples, unpacked at the top of each kernel):
 
 * ``model`` = (mass (N,), triangles (T, 3), packed rest data (T, 6), J_hat, boundary vertices (Nb,), boundary
-  edges (Ne, 2), their triangles' third corners (Ne,), rollers (N,) bool: particles at or past a line in the rest
+  edges (Ne, 2), the vertices never paired with each (``solvers/ipc.py``'s ``edge_neighbours``), rollers (N,) bool: particles at or past a line in the rest
   shape (their y does not move), bodies: the tissue's boundary repels itself);
 * ``contact`` = (dhat between tissues [m], dhat against the tool [m], kappa [N/m], lines (y_top, y_bottom,
   wall_bottom, wall_top) [m]);

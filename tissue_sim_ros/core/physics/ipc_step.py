@@ -11,7 +11,7 @@ one is put on it and stopped).
 
 Bundles: :mod:`.ipc` and :mod:`.ipc_energy`'s, the step kernels' ``state``, ``pred``, ``timing``, ``bounds``
 (``core/physics/step_kernels.py``; ``pred``'s x_start slot holds the guess), ``tool_q`` = (q at the step's start
-(4,), q (4,) out, where to start the tool (4,)), ``factor_state`` (3,) = (a factor is held, the last step's iterations, the dt it was made for).
+(4,), q (4,) out, where to start the tool (4,), the command (4,), the parts it is approached in), ``factor_state`` (3,) = (a factor is held, the last step's iterations, the dt it was made for).
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from numba import njit
 
 from ..contact.barrier import barrier, point_segment
 from ..contact.collider import tool_vertices
-from .ipc import ipc_solve, refactor, step_bound, sweep
+from .ipc import ipc_solve, refactor, step_bound, sweep, sweep_fitting
 from .ipc_energy import contact_part, grasp_targets
 from .ipc_friction import friction_lag, friction_part
 from .kernels import apply_boundary_lines, update_velocity
@@ -48,7 +48,7 @@ def _start(state: tuple, pred: tuple, timing: tuple, model: tuple, contact: tupl
     for j in range(4):
         dvec[2 * n + j] = (q_guess[j] - q[j]) if tool[2] else 0.0
     a = 0.0
-    if sweep(x, q, dvec, model, contact, tool, pairs, scratch, ws, opts):
+    if sweep_fitting(x, q, dvec, model, contact, tool, pairs, scratch, ws, opts) > 0.0:
         a = step_bound(x, q, dvec, model, contact, tool, step, pairs, ws, opts)
     for i in range(n):
         x[i, 0] += a * dvec[2 * i]
@@ -76,7 +76,7 @@ def ipc_step(state: tuple, pred: tuple, timing: tuple, bounds: tuple, model: tup
         f = 1.0 if w[i] != 0.0 else 0.0
         free[2 * i] = f
         free[2 * i + 1] = 0.0 if roller[i] else f
-    q_start, q, q_guess = tool_q
+    q_start, q, q_guess, q_final, n_sub = tool_q
     for j in range(4):
         q[j] = q_start[j]
     friction = step[5]
@@ -95,8 +95,17 @@ def ipc_step(state: tuple, pred: tuple, timing: tuple, bounds: tuple, model: tup
         factor_state[0] = 1.0
         factor_state[2] = dt
         out[2] = 1.0
-    ipc_solve(x, q, x0, q_start, model, contact, tool, step, pairs, scratch, lin, ws, opts)
-    factor_state[1] = out[0]
+    # the command approached in n_sub equal parts, each solved from the last (the same minimiser at the end):
+    # a tool that moves far in one step never runs ahead of the tissue it pushes by more than a part
+    q_cmd = step[2]
+    its = 0.0
+    for k in range(1, n_sub + 1):
+        for j in range(4):
+            q_cmd[j] = q_final[j] if k == n_sub else q_start[j] + (k / n_sub) * (q_final[j] - q_start[j])
+        ipc_solve(x, q, x0, q_start, model, contact, tool, step, pairs, scratch, lin, ws, opts)
+        its += out[0]
+    out[0] = its
+    factor_state[1] = out[0] / n_sub
     update_velocity(x, x0, dt, v)
     apply_boundary_lines(x, v, inv_mass, bounds[3], bounds[4])
 

@@ -7,7 +7,7 @@ the boundary (vertices, edges and the triangle each edge bounds), the Hessian's 
 snapshots, so a rollout from one is the live run's), the pair buffers, the L-BFGS history. Each step is one
 compiled call (:func:`~tissue_sim_ros.core.physics.ipc_step.ipc_step`) and the contact's report another.
 
-Parameters (``core/physics/params.py``): ``contact_dhat`` (0: a thousandth of the 10th percentile of the boundary
+Parameters (``core/physics/params.py``): ``contact_dhat`` (0: 0.3 % of the 10th percentile of the boundary
 edges' lengths), ``contact_stiffness`` kappa (0: E x thickness), ``tool_stiffness`` (0: 1e5 kappa; the tool's
 turn and jaw are held by it times the tool's reach squared), ``contact_bodies``, ``solve_tolerance`` and
 ``iterations``; ``friction`` (tool and tissue), ``friction_tissue`` and ``friction_velocity`` (the lagged friction of
@@ -39,24 +39,37 @@ REFRESH_AFTER = 4
 #: The element's inversion barrier acts below this area ratio J.
 J_HAT = 0.2
 #: dhat: this fraction of the short boundary edges' length, when not given.
-DHAT_FRACTION = 0.01
+DHAT_FRACTION = 0.003
 #: The barrier's stiffness kappa: this multiple of E x thickness, when not given.
 KAPPA_FACTOR = 1.0
 #: The tool's spring: this multiple of E x thickness, when not given.
 TOOL_STIFFNESS_FACTOR = 1e5
+#: The tool's command is approached in parts of at most this fraction of the boundary's median edge.
+COMMAND_PART = 0.1
+#: Parts at most.
+MAX_PARTS = 64
 #: Candidate tissue pairs a boundary vertex may have at most (buffer size).
 PAIRS_PER_VERTEX = 32
 #: A tool's outline has at most this many vertices and edges (a capsule: 32 and 32).
 MAX_CORE = 64
 
 
-def boundary_opposite(tris: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """The third corner of the triangle each boundary edge (K, 2) bounds, (K,) int32."""
-    owner = {}
+def edge_neighbours(tris: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each boundary edge (K, 2), the vertices that share a triangle with either of its ends (the ends and
+    their rings), as (pointers (K + 1,), vertices) int64: a pair of the edge with one of them is the mesh's own
+    shape (a corner folding about a pin, an edge squeezed along a line), which the element's inversion barrier
+    keeps; self-contact is between parts of the surface farther apart than that."""
+    ring: dict[int, set[int]] = {}
     for t in np.asarray(tris, dtype=np.int64):
-        for k in range(3):
-            owner[(int(t[k]), int(t[(k + 1) % 3]))] = int(t[(k + 2) % 3])
-    return np.array([owner[(int(a), int(b))] for a, b in edges], dtype=np.int32)
+        for v in t:
+            ring.setdefault(int(v), set()).update(int(u) for u in t)
+    ptr = [0]
+    idx: list[int] = []
+    for a, b in np.asarray(edges, dtype=np.int64):
+        near = sorted(ring.get(int(a), {int(a)}) | ring.get(int(b), {int(b)}))
+        idx += near
+        ptr.append(len(idx))
+    return np.array(ptr, dtype=np.int64), np.array(idx, dtype=np.int64)
 
 
 def default_dhat(q0: np.ndarray, edges: np.ndarray) -> float:
@@ -93,7 +106,7 @@ class IPCSolver(SolverBase):
         self.tool_stiffness = (float(p.tool_stiffness) if p.tool_stiffness > 0
                                else TOOL_STIFFNESS_FACTOR * float(p.young_modulus * p.thickness))
         self._model = (np.ascontiguousarray(model.particle_mass, dtype=np.float64), self.tris, self.elastic, J_HAT,
-                       bverts, edges, boundary_opposite(model.tri_indices, edges), roller, bool(p.contact_bodies))
+                       bverts, edges, edge_neighbours(model.tri_indices, edges), roller, bool(p.contact_bodies))
         self._contact = (self.dhat, self.dhat, self.kappa, (float(p.boundary_y_top), float(p.boundary_y_bottom),
                                                            float(p.wall_y_bottom), float(p.wall_y_top)))
         size = float(np.hypot(*np.ptp(q0, axis=0))) if n else 0.0
@@ -134,6 +147,7 @@ class IPCSolver(SolverBase):
         self._report = np.zeros((self.model.n_bodies, 5))
         self._touched = np.zeros(n, dtype=np.int64)
         self._force = np.zeros(TOOL_DOFS)
+        self._q_cmd = np.zeros(TOOL_DOFS)
 
     @property
     def n_projections_per_step(self) -> int:
@@ -180,19 +194,31 @@ class IPCSolver(SolverBase):
         self._friction[5][2] = float(self.params.friction_velocity) * dt
         return (self.x_pred, self._free, q_cmd, dt * dt, (idx, local, k_att), self._friction)
 
+    @staticmethod
+    def _parts(q0: np.ndarray, q1: np.ndarray, opts: tuple) -> int:
+        """In how many parts the step approaches the tool's command: one per ``COMMAND_PART`` of the boundary's
+        median edge (``opts[4]``) its farthest point moves (1 for a tool moving less)."""
+        d = q1 - q0
+        move = math.hypot(d[0], d[1]) + abs(d[2]) * opts[5] + 0.5 * abs(d[3]) * opts[6]
+        return max(1, min(MAX_PARTS, int(math.ceil(move / (COMMAND_PART * opts[4]) - 1e-9))))
+
     def step(self, state_in: State, state_out: State, contacts: Contacts, dt: float) -> SolveInfo:
         """One step as the minimiser of its incremental potential with contact barriers (module docstring)."""
         step = self.check_step(state_in, state_out, contacts, dt)
         collider = getattr(contacts, "tool_collider", None)
         tool, opts, q_start, q_cmd, q_guess = self._tool_bundles(collider)
-        sb = self._step_bundle(contacts, q_cmd, dt)
+        n_sub = self._parts(q_start, q_cmd, opts) if collider is not None else 1
+        if n_sub > 1:
+            q_guess = q_start + (q_guess - q_start) / n_sub
+        np.copyto(self._q_cmd, q_cmd)
+        sb = self._step_bundle(contacts, self._q_cmd, dt)
         damp = self.damp_factor(dt)
         x = state_out.particle_q
         ipc_step((state_in.particle_q, state_in.particle_qd, x, state_out.particle_qd),
                  (self.model.particle_inv_mass, self.inv_mass_eff, self.x_pred, self.material_solve.guess,
                   step.held_idx, step.held_dx), (dt, 1, self.params.gravity, damp, damp), self.bounds, self._model,
-                 self._contact, tool, sb, self._pairs, self._scratch, self._lin, self._ws, opts, (q_start, self._q, q_guess),
-                 self.factor_state)
+                 self._contact, tool, sb, self._pairs, self._scratch, self._lin, self._ws, opts,
+                 (q_start, self._q, q_guess, q_cmd, n_sub), self.factor_state)
         contact_report(x, self._q, self._model, self._contact, tool, sb, self._pairs, self._scratch, self._body,
                        self._report, self._touched, self._force)
         out = self._ws[11]
