@@ -53,7 +53,10 @@ setup(
         "numba>=0.59",
         "python-fcl>=0.7",
         "opencv-python-headless>=4.8",
-        "rosbags>=0.10",
+        # bags: rosbags' Writer and Reader (the storage protocol of 0.11) and the mcap library's writer (flush,
+        # metadata) and stream reader (a killed recording); test_bags checks the behaviour relied on
+        "rosbags>=0.11,<0.12",
+        "mcap>=1.6,<2",
         "matplotlib>=3.8",
         "scipy>=1.11",
         "tqdm>=4.60",
@@ -61,7 +64,7 @@ setup(
     ],
     extras_require={
         "ros": ROS_WHEELS,
-        "test": ["pytest>=7", "ruff>=0.6", "mcap>=1.1", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5", "scikit-fem>=10", "cma>=3.3",
+        "test": ["pytest>=7", "ruff>=0.6", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5", "scikit-fem>=10", "cma>=3.3",
                  "ray>=2.40",  # the --backend ray tests on a local cluster (measured: +254 MB, ~10 s to install)
                  *ENVS],
         # the learning environments (tissue_sim_ros.envs) and their Minari datasets (tissue-sim envs collect)
