@@ -8,9 +8,10 @@ definitions and type hashes, so they open in ``ros2 bag``, Foxglove and PlotJugg
 """
 from __future__ import annotations
 
+from ..typestore import typestore
 from .read import Bag
 from .recover import recover_bag, recover_mcap
-from .storage import STORAGES, durable_custom_data, typestore
+from .storage import STORAGES, durable_custom_data
 from .tracks import (
     JAW_SUFFIXES,
     JAW_TYPE,

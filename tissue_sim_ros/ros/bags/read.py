@@ -9,7 +9,8 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from ...core.errors import InputError
-from .storage import ROSBAG2_RECORD, durable_custom_data, is_mcap, mcap_is_finished, mcap_metadata, typestore
+from ..typestore import typestore
+from .storage import ROSBAG2_RECORD, durable_custom_data, is_mcap, mcap_is_finished, mcap_metadata
 
 
 def looks_like_cut_mcap(path: Path) -> bool:

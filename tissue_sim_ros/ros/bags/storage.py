@@ -21,14 +21,12 @@ from __future__ import annotations
 
 import contextlib
 import sqlite3
-from functools import lru_cache
 from importlib.metadata import version
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Iterator
 
 if TYPE_CHECKING:
     from rosbags.interfaces import Connection
-    from rosbags.typesys.store import Typestore
 
 STORAGES = ("mcap", "sqlite3")
 """Storage plugins accepted by :class:`~.write.BagWriter` (rosbag2's own identifiers)."""
@@ -47,14 +45,6 @@ LIBRARY = "tissue_sim_ros"
 
 CHUNK_SIZE = 1 << 20
 """An MCAP chunk is written once it holds this many bytes (and at every flush)."""
-
-
-@lru_cache(maxsize=1)
-def typestore() -> "Typestore":
-    """The ROS 2 Jazzy typestore of ``rosbags`` (type names, definitions, hashes, CDR)."""
-    from rosbags.typesys import Stores, get_typestore  # noqa: PLC0415
-
-    return get_typestore(Stores.ROS2_JAZZY)
 
 
 def _schema_encoding(connection: "Connection") -> str:

@@ -26,7 +26,8 @@ from typing import TYPE_CHECKING, Any, Iterator
 import numpy as np
 
 from ...core.errors import InputError
-from .storage import STORAGES, McapStorage, Sqlite3Storage, typestore
+from ..typestore import typestore
+from .storage import STORAGES, McapStorage, Sqlite3Storage
 
 if TYPE_CHECKING:
     from rosbags.interfaces import Connection
