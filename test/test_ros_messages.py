@@ -176,7 +176,7 @@ def test_reader_rejects_non_cdr_bytes() -> None:
     import struct  # noqa: PLC0415
 
     with pytest.raises(ValueError, match="not CDR"):
-        M.decode_point_cloud(b"\x00\x00\x00\x00" + bytes(8))
+        M.decode_marker_array(b"\x00\x00\x00\x00" + bytes(8))
     assert M.decode_float64(b"\x00\x00\x00\x00" + struct.pack(">d", 2.5)) == 2.5
 
 

@@ -3,11 +3,11 @@
 rclpy's ``Publisher.publish`` takes CDR bytes as they are, and ``raw=True`` subscriptions deliver them, so the
 node, the recorders and ``tissue-sim replay`` never build message objects:
 
-* :mod:`.small`: Float64, UInt32, Float64MultiArray, PoseStamped, TwistStamped, WrenchStamped and JointState
-  through ``rosbags``' typestore;
-* :mod:`.markers` (Marker, MarkerArray) and :mod:`.points` (PointCloud2): written by hand from NumPy arrays
-  with the writer and reader of :mod:`.cdr`, since a message object per point is what makes these slow (the
-  numbers: docs/benchmarks/ros.md);
+* :mod:`.small` (Float64, UInt32, Float64MultiArray, PoseStamped, TwistStamped, WrenchStamped, JointState) and
+  :mod:`.points` (PointCloud2, whose points are one byte array) through ``rosbags``' typestore;
+* :mod:`.markers` (Marker, MarkerArray): written by hand from NumPy arrays with the writer and reader of
+  :mod:`.cdr`, since a message object per point is what makes a 5,000-triangle array slow through the typestore
+  and through rclpy alike (the numbers: docs/benchmarks/ros.md);
 * :mod:`.scene` (:class:`SceneEncoder`: a scene's points, markers and rest mesh into preallocated buffers) and
   :mod:`.step` (:class:`StepEncoder`: a step's outputs, the one encoding the node publishes and replay writes).
 

@@ -1,5 +1,5 @@
-"""The CDR writer and reader of the fast path (:mod:`.markers`, :mod:`.points`): XCDR1 little endian straight
-from and into NumPy arrays.
+"""The CDR writer and reader of the markers' fast path (:mod:`.markers`; a JointState's positions,
+:mod:`.small`): XCDR1 little endian straight from and into NumPy arrays.
 
 The byte layout is the one rmw_fastrtps writes (and ``rclpy.serialization.serialize_message`` produces): a
 4-byte encapsulation header ``00 01 00 00`` (CDR, little endian), then the fields in declaration order, every
