@@ -32,6 +32,7 @@ node, and the flow reads one way: inputs -> stepping -> outputs.
 """
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from rclpy.node import Node
@@ -39,6 +40,7 @@ from rclpy.parameter import Parameter
 from std_srvs.srv import SetBool, Trigger
 
 from ...core.config import SIM_NAMES, Config
+from ...core.contact.tool import ToolPose
 from ...core.sim.simulation import Simulation
 from ...core.timing.phase_lock import PhaseLock
 from ..marker_publisher import MarkerPublisher
@@ -58,6 +60,13 @@ from .stats import NodeStats
 from .stepping import Stepper
 
 __all__ = ["HeapTrimmer", "MemoryTrace", "TissueSimNode", "main"]
+
+
+def start_pose(settings: Any) -> ToolPose | None:
+    """The tool's start pose of the node's settings (``tool_start_*``), None without one."""
+    if math.isnan(settings.tool_start_x):
+        return None
+    return ToolPose(settings.tool_start_x, settings.tool_start_y, settings.tool_start_yaw)
 
 
 class TissueSimNode(Node):
@@ -114,7 +123,7 @@ class TissueSimNode(Node):
                                 logger=self.get_logger())
         self.inputs = ToolInputs(self.current, self.sim, clock, self.stats, self.warnings, self.frames, phase_lock,
                                  step=self.stepping.step, subscribe=self.create_subscription,
-                                 record=self.recorder.write if self.recorder else None)
+                                 record=self.recorder.write if self.recorder else None, start=start_pose(settings))
         if self.recorder is not None:
             self.recorder.add_subscriptions([*self.inputs.subscriptions, *self.frames.subs])
             self.frames.record = self.recorder.write

@@ -30,9 +30,11 @@ from rclpy.time import Time
 from sensor_msgs.msg import JointState
 
 from ...core.contact.tool import ToolPose, ToolTwist, yaw_from_quaternion
+from ...core.errors import InputError
 from ...core.timing.frames import FrameLookupError
 from ...core.timing.stamps import stamp_from_ns, stamp_to_seconds
 from .. import qos
+from ..tool_applied import planar_quaternion
 
 TAKE_MAX = 10
 """Queued tool messages a tick takes at most per topic (the subscriptions keep 10 in timer mode)."""
@@ -68,6 +70,8 @@ class ToolInput:
     """Node-clock time the twist arrived [s]."""
     jaw: float | None = None
     """The newest accepted jaw angle [rad] (None: none yet; the grasper counts as open)."""
+    at_start: bool = False
+    """The pose is the start pose (``tool_start_*``): no tool pose taken yet."""
     jaw_stamp: tuple[int, int] = (0, 0)
     recent_jaws: list = field(default_factory=list)
     """The newest accepted jaws as (stamp, angle), oldest first (at most ``TWIST_HISTORY``): lock-step gives a
@@ -132,16 +136,22 @@ class ToolInputs:
         Makes a subscription (the node's ``create_subscription``): ``tool/pose``, ``tool/twist``, ``tool/jaw``.
     record : callable, optional
         ``record(topic, message)`` of every message as received (the node's bag).
+    start : ToolPose, optional
+        The tool's start pose (``tool_start_*``): the tool is put there now and after each :meth:`reset`, and the
+        first tool pose is taken where it lies (:meth:`take_up`).
     """
 
     def __init__(self, config: Any, sim: Any, clock: Any, stats: Any, warnings: Any, frames: Any,
                  phase_lock: Any, step: Callable[[tuple[int, int], ToolTwist | None], None],
-                 subscribe: Callable[..., Any], record: Callable[[str, Any], None] | None = None) -> None:
+                 subscribe: Callable[..., Any], record: Callable[[str, Any], None] | None = None,
+                 start: ToolPose | None = None) -> None:
         self.config, self.sim, self.clock, self.stats, self.warnings = config, sim, clock, stats, warnings
         self.frames, self.phase_lock, self._step, self._record = frames, phase_lock, step, record
-        self.tool = ToolInput()
-        self._run: list[tuple[float, float]] = []
-        """The rejected poses in a row, each within max_tool_jump of the one before (a relocated robot)."""
+        self.start = start
+        if start is not None and sim.tool_overlaps_tissue(start):
+            raise InputError(f"parameters tool_start_x={start.x!r}, tool_start_y={start.y!r}, tool_start_yaw="
+                             f"{start.yaw!r}: the tool there overlaps the tissue; expected a start pose clear of it")
+        self.reset()
         depth = qos.tool_input(config.node.lock_step)
         # the pose with its message info: its reception time is the pose's arrival for the phase lock
         self.sub_pose = subscribe(PoseStamped, "tool/pose", lambda msg, info: self.on_pose(msg, info), depth)
@@ -153,9 +163,15 @@ class ToolInputs:
         return self.sub_pose, self.sub_twist, self.sub_jaw
 
     def reset(self) -> None:
-        """Forget the tool (``~/reset``): the next pose is accepted however far and whenever stamped."""
+        """Forget the tool (``~/reset``): the next pose is accepted however far and whenever stamped; with a start
+        pose the tool is put back there (the simulation's ``place_tool``: no step)."""
         self.tool = ToolInput()
-        self._run = []
+        self._run: list[tuple[float, float]] = []
+        """The rejected poses in a row, each within max_tool_jump of the one before (a relocated robot)."""
+        if self.start is not None:
+            self.tool.pose, self.tool.at_start = self.start, True
+            self.tool.quaternion = planar_quaternion(self.start.yaw)
+            self.sim.place_tool(self.start)
 
     def forget_stamps(self) -> None:
         """The node's clock switched: the last input stamps mean nothing on the new one."""
@@ -220,6 +236,21 @@ class ToolInputs:
                          f"{last.y:.4g}) (max_tool_jump {max_jump} m): the tool holds its pose until a pose "
                          "within max_tool_jump of it arrives, or ~/reset")
         return False
+
+    def near(self, x: float, y: float) -> bool:
+        """Whether (x, y) lies within max_tool_jump of the tool's pose."""
+        pose = self.tool.pose
+        return pose is not None and math.hypot(x - pose.x, y - pose.y) <= self.config.node.max_tool_jump
+
+    def take_up(self, pose: ToolPose) -> bool:
+        """The first tool pose after the start pose, farther than max_tool_jump from it: the tool is put there
+        without a step (as a relocation is), unless it would overlap the tissue there (dropped, counted)."""
+        if self.sim.tool_overlaps_tissue(pose):
+            self.warnings.drop("tool_jump", f"tool/pose ({pose.x:.4g}, {pose.y:.4g}): the tool there would overlap "
+                                            "the tissue; it stays at its start pose")
+            return False
+        self.sim.place_tool(pose)
+        return True
 
     def relocation_due(self) -> bool:
         """A consistent stream of rejected poses (``relocate_poses`` in a row) while nothing is grasped."""
@@ -291,9 +322,13 @@ class ToolInputs:
         if yaw is None:
             self.warnings.drop("nonfinite", f"{topic}: its orientation is not a rotation in '{settings.frame_id}'")
             return
-        if not self.check_jump(x, y):
+        if self.tool.at_start and not self.near(x, y):
+            if not self.take_up(ToolPose(x, y, yaw)):
+                return
+        elif not self.check_jump(x, y):
             if not (self.relocation_due() and self.relocate(ToolPose(x, y, yaw))):
                 return
+        self.tool.at_start = False
         self.tool.pose = ToolPose(x, y, yaw)
         self.tool.pose_stamp = stamp
         self.tool.quaternion = quaternion
