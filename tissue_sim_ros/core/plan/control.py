@@ -31,7 +31,8 @@ step returns the next tool command (pose, twist, jaw):
   start point that the open grasper can reach from above without touching the tissue: each is rolled out on the
   model (tool placed at the site, jaw closed, a straight pull by the goal's displacement at ``pull_speeds[0]``)
   and the one whose rollout leaves the goal point nearest its goal is taken. The tool then moves above the site
-  at ``approach_speed``, comes down to ``approach_clearance`` above it and closes the jaw.
+  at ``approach_speed`` (from wherever it is: first straight up to the hover height when it is below it),
+  comes down to ``approach_clearance`` above it and closes the jaw.
 * **pull** (model-predictive): every ``replan_every`` steps the candidates are straight tool motions of
   ``horizon`` steps toward the tool pose plus g R(theta) d (d: the goal's displacement still to go in the synced
   model; g in ``gains``, theta in ``angles_deg``, at each of ``pull_speeds``; and holding still), rolled out in a
@@ -552,7 +553,8 @@ class TissueController:
             self.queue = [(ToolPose(tool_pose.x, tool_pose.y, tool_pose.yaw), s.closed_jaw)]
             return
         waypoints = [np.array([target.x, target.y])] if abs(tool_pose.x - target.x) < 1e-3 and \
-            tool_pose.y <= hover.y + 1e-9 else [np.array([hover.x, hover.y]), np.array([target.x, target.y])]
+            tool_pose.y <= hover.y + 1e-9 else [*self._rise(tool_pose, hover), np.array([hover.x, hover.y]),
+                                                 np.array([target.x, target.y])]
         for w in waypoints:
             while len(queue) < s.replan_every:
                 d = w - pos
@@ -565,6 +567,14 @@ class TissueController:
         if not queue:
             queue.append((ToolPose(target.x, target.y, 0.0), s.open_jaw))
         self.queue = queue
+
+    @staticmethod
+    def _rise(tool_pose: ToolPose, hover: ToolPose) -> list[np.ndarray]:
+        """A tool below the hover height and not over the site first rises straight up to that height: from
+        wherever it starts, the open grasper then crosses to the site above the tissue, never through it."""
+        if tool_pose.y < hover.y - 1e-9 and abs(tool_pose.x - hover.x) >= 1e-3:
+            return [np.array([tool_pose.x, hover.y])]
+        return []
 
     def planned_path(self, points: Any, tool_pose: ToolPose, jaw: float, *, t: float | None = None,
                      ids: Any = None) -> np.ndarray:
@@ -584,7 +594,9 @@ class TissueController:
                 self._choose_site(tool_pose, jaw, rec)
                 self._record(rec)
             site = self._site_pose(self.site)
-            pts += [(site.x, site.y + s.approach_hover, 0.0), (site.x, site.y, 0.0)]
+            hover = ToolPose(site.x, site.y + s.approach_hover, 0.0)
+            pts += [(float(w[0]), float(w[1]), 0.0) for w in self._rise(tool_pose, hover)]
+            pts += [(hover.x, hover.y, 0.0), (site.x, site.y, 0.0)]
         else:
             pts += [(p.x, p.y, p.yaw) for p, _ in self.queue]
         disp = self.to_go()
