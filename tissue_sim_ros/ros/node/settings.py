@@ -21,7 +21,7 @@ from rclpy.parameter import Parameter
 
 from ...core.config import FOREIGN_PREFIXES, METHOD_ALIASES, Config, closest_name, resolve_config
 from ...core.errors import InputError
-from ..parameters import BY_NAME, PARAMETERS, descriptor, parameter_value
+from ..parameters import BY_NAME, PARAMETERS, descriptor, parameter_value, take_overrides
 
 
 class UnknownParameter(ParameterNotDeclaredException):
@@ -49,26 +49,17 @@ class CurrentConfig:
 def declare_parameters(node: Any) -> Config:
     """Resolve the parameters given to the node (file and -p) through the front door; declare them resolved.
 
-    ``node`` was made with ``automatically_declare_parameters_from_overrides``: what was given is declared as
-    given, read back, resolved, and declared again with its descriptor and resolved value. An unknown name, a
-    type mismatch or a bad value raises InputError naming it. Each parameter is declared with its resolved
-    value (a method alias such as ``xpbd_substep`` reads back as ``method: xpbd`` with its substeps and
-    iterations), so ``ros2 param get`` shows what the simulation runs.
+    An unknown name, a type mismatch or a bad value raises InputError naming it. Each parameter is declared
+    with its descriptor and resolved value (a method alias such as ``xpbd_substep`` reads back as ``method:
+    xpbd`` with its substeps and iterations), so ``ros2 param get`` shows what the simulation runs.
     """
-    names = [n for n in node.get_parameters_by_prefix("") if n not in KEPT_AS_GIVEN]
-    given = {p.name: parameter_value(p.value) for p in node.get_parameters(names)}
+    given = take_overrides(node)
     cfg = resolve_config(overrides={k: v for k, v in given.items() if not k.startswith(FOREIGN_PREFIXES)},
                          source=f"the parameters of {node.get_name()}")
-    for name in names:
-        node.undeclare_parameter(name)
     flat = cfg.flat()
     for spec in PARAMETERS:
         node.declare_parameter(spec.name, flat[spec.name], descriptor(spec), ignore_override=True)
     return cfg
-
-
-#: Parameters rclpy declares for every node, left as they are.
-KEPT_AS_GIVEN = ("use_sim_time", "start_type_description_service")
 
 
 class ParameterChanges:
