@@ -38,7 +38,7 @@ import rclpy, sys
 from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 from tissue_sim_ros.ros import qos
-rclpy.init()
+rclpy.init(args=[])
 node = Node("bench_ros_paths_subscriber")
 node.create_subscription(MarkerArray, "bench_markers", lambda data: None, qos.state_stream(qos.MARKER_DEPTH), raw=True)
 try:
@@ -196,7 +196,7 @@ def publish_rows(arrays: int = 150, rounds: int = 2, triangles: int = 5000, rate
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     proc = subprocess.Popen([sys.executable, "-c", SUBSCRIBER], env=env, stdout=subprocess.DEVNULL)
     context = Context()
-    rclpy.init(context=context, domain_id=domain)
+    rclpy.init(args=[], context=context, domain_id=domain)
     switch = sys.getswitchinterval()
     results: dict[str, list[dict[str, Any]]] = {"rclpy": [], "ctypes": []}
     try:
