@@ -2,7 +2,7 @@
 
 Arrows point down only::
 
-    cli -> experiments / bench -> ros -> envs -> render -> core
+    cli -> tune -> experiments / bench -> ros -> envs -> render -> core
 
 and inside the core, from the bottom up::
 
@@ -28,7 +28,7 @@ ROS_MODULES = ("rclpy", "std_msgs", "geometry_msgs", "sensor_msgs", "visualizati
                "std_srvs", "nav_msgs", "rosgraph_msgs", "builtin_interfaces", "tf2_msgs", "rcl_interfaces")
 
 #: the package's layers, bottom (0) to top; a module imports only its own layer or lower ones
-LAYERS = {"core": 0, "render": 1, "envs": 2, "ros": 3, "experiments": 4, "bench": 5, "cli": 6}
+LAYERS = {"core": 0, "render": 1, "envs": 2, "ros": 3, "experiments": 4, "bench": 5, "tune": 6, "cli": 7}
 #: the core's packages, bottom (0) to top
 CORE_RANKS = {"errors": 0, "resources": 0, "mesh": 1, "contact": 2, "timing": 3, "physics": 4, "config": 5, "sim": 6,
               "plan": 7, "fit": 7}

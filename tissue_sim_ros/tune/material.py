@@ -317,13 +317,13 @@ def run_tune_material(cfg: Config, *, tolerance: float, budget_ms: float, materi
                       verify_only: bool = False, depth: float = 0.003, out: str | Path | None = None,
                       csv_path: str | Path | None = None, png_path: str | Path | None = None,
                       params_file: str | Path | None = None, **backend: Any) -> int:
-    """``tissue-sim tune`` on a neo_hookean scene: the arguments of :func:`~tissue_sim_ros.bench.tune.run`.
+    """``tissue-sim tune`` on a neo_hookean scene: the arguments of :func:`~tissue_sim_ros.tune.settings.run`.
 
     ``material_spacings`` and ``grade_spacings`` [m] are the candidates (``quick``: 6 mm and 3 mm; no grade
     spacing: uniform meshes only); ``backend`` holds ``jobs``, ``backend`` and ``address``. Returns the exit status.
     """
+    from ..bench.accuracy import format_table, write_csv  # noqa: PLC0415
     from ..core.config import resolve_config  # noqa: PLC0415
-    from .accuracy import format_table, write_csv  # noqa: PLC0415
 
     if quick:
         spacings, grades, settings, converged = [0.006], [0.003], QUICK_SETTINGS, QUICK_CONVERGED
