@@ -171,6 +171,27 @@ def test_moved_paths_are_gone_and_alias_their_new_home():
                    "True True"]
 
 
+def test_no_import_cycle_in_bench():
+    """The benchmarks import each other one way (a lazy import counts): a sweep with variants dispatched by the
+    command line, not by a module that its variants import back."""
+    modules = {_module_name(p): p for p in (PACKAGE / "bench").rglob("*.py")}
+    graph = {m: {t for _, t in _runtime_imports(p) if t in modules and t != m} for m, p in modules.items()}
+    state: dict[str, int] = {}  # 1 on the stack, 2 done
+
+    def cycle_from(m: str, stack: list[str]) -> list[str] | None:
+        state[m] = 1
+        for t in sorted(graph[m]):
+            if state.get(t) == 1:
+                return stack[stack.index(t):] + [m, t] if t in stack else [m, t]
+            if t not in state and (found := cycle_from(t, stack + [m])):
+                return found
+        state[m] = 2
+        return None
+
+    cycles = [c for m in sorted(graph) if m not in state and (c := cycle_from(m, []))]
+    assert not cycles, f"import cycles in bench/: {cycles}"
+
+
 def test_core_sources_import_no_ros():
     offenders = []
     for path in CORE.rglob("*.py"):
