@@ -399,7 +399,7 @@ def compare(spacings: Sequence[float] = SPACINGS, dampings: Sequence[float] = DA
 
 
 def goal(rows: Sequence[dict[str, Any]], ours: str = "ours_static") -> list[dict[str, Any]]:
-    """Per mesh, the issue's goal: ``ours`` as accurate as the most accurate peer (|mean sag error| no larger,
+    """Per mesh, the goal: ``ours`` as accurate as the most accurate peer (|mean sag error| no larger,
     within :data:`ACCURACY_TOL`) at half the wall time to rest or less: ``ratio_to_fastest`` against the fastest
     peer whatever its error, ``ratio_to_as_accurate`` against the fastest peer at least as accurate as ours."""
     out = []

@@ -18,7 +18,7 @@ batch ``--repeats`` times (median wall time):
 Reported: wall time, candidates/s, steps/s (steps rolled out, solved or
 taken from the baseline), the share of steps taken from the baseline, the
 ratio to serial and to one worker, and whether every number is bit-identical
-to the serial ones (they must be). Goals (issue 11): <= 1 s for 64 x 100 on 2 cores, >= 1.7x the
+to the serial ones (they must be). Goals: <= 1 s for 64 x 100 on 2 cores, >= 1.7x the
 one-worker speed, on an idle machine.
 
 Node part (skip with ``--no-node``): ``tissue_sim_node`` (timer mode, 100 Hz,

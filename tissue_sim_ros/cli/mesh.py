@@ -44,7 +44,7 @@ examples:
   tissue-sim mesh Bottom.1.node Upper.1.node --out scene.npz --png scene.png
 """
 
-#: quality targets of the issue: >= 99 % of triangles with min angle >= 20 deg, none below 10, area within 2 %
+#: the mesh quality targets: >= 99 % of triangles with min angle >= 20 deg, none below 10, area within 2 %
 TARGET_FRAC_20 = 0.99
 TARGET_MIN_ANGLE = 10.0
 TARGET_AREA_ERROR = 0.02

@@ -1,4 +1,4 @@
-"""Drive the tissue to a target offline (issue 31): the controller of :mod:`~tissue_sim_ros.core.plan.control`
+"""Drive the tissue to a target offline: the controller of :mod:`~tissue_sim_ros.core.plan.control`
 against a simulation standing in for the world.
 
 The world is the retraction scene (``config/scenes/retract.yaml``) with its Young's modulus ``world_young_factor``

@@ -1,4 +1,4 @@
-"""Grasp and retract (issue 30), offline: the grasper comes down onto the flap of ``config/scenes/retract.yaml``,
+"""Grasp and retract, offline: the grasper comes down onto the flap of ``config/scenes/retract.yaml``,
 closes, lifts and pulls back 2 cm, holds, opens; snapshots of each phase, the energy with its terms, the reaction
 on the tool and the held count, as figures and a CSV.
 """

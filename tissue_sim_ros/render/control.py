@@ -1,4 +1,4 @@
-"""Pictures of a controlled run (issue 31, ``tissue-sim control``): the goal error over time, the tool's path over
+"""Pictures of a controlled run (``tissue-sim control``): the goal error over time, the tool's path over
 the tissue, snapshots. matplotlib, Agg."""
 from __future__ import annotations
 

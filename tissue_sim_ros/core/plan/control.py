@@ -1,4 +1,4 @@
-"""Drive the tissue to a target (issue 31): a model-predictive controller for a grasper, on its own model.
+"""Drive the tissue to a target: a model-predictive controller for a grasper, on its own model.
 
 The controller sees what a tracker gives: tissue points (positions, with the model's particle ids, or bound to the
 model at the first observation), the tool's measured pose and jaw. It keeps its own model of the tissue (a
