@@ -41,7 +41,7 @@ each phase with the node's ``phase_lock`` off, then on (set at run time: one
 node process, the two side by side under the same load). With the lock on the
 phase is where the publisher started: the node then moves its ticks.
 
-Targets (issues 5, 13): 100 Hz held, < 1 % missed deadlines, pose -> points
+Targets: 100 Hz held, < 1 % missed deadlines, pose -> points
 latency (median; the 95th percentile is reported too) < one period + 2 ms. Writes ``node.csv`` (one row per
 scene), ``node_latency_<scene>.csv`` (every pose), ``node.png`` and prints a table.
 

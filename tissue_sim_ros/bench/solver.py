@@ -235,7 +235,7 @@ def run(out: str | Path, *, sizes: Sequence[int] | None = None, steps: int | Non
             params = dict(method.params)
             params.setdefault("iterations", iterations)
             model = strip_model(mesh, params)
-            # the NumPy baseline is ~20x slower: fewer steps keep the run short, the median stays robust
+            # the NumPy baseline is much slower: fewer steps keep the run short, the median stays robust
             n_steps = max(3, steps // 4) if method.numpy else steps
             progress.set_postfix_str(f"{model.n_particles} particles, {method.name}")
             med, n_proj, threads = time_solver(model, method, n_steps)

@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
         v = getattr(args, name)
         if not np.isfinite(v) or v <= 0:
             raise InputError(f"--{name} {v}: expected a number > 0")
-    # the output names are checked before any work: a wrong suffix used to be written anyway (mesh.txt as
+    # the output names are checked before any work: a wrong suffix would be written anyway (mesh.txt as
     # mesh.txt.npz, JPEG-named PNG data)
     out = output_file(args.out, "--out", suffixes=(".npz",)) if args.out is not None else None
     png = output_file(args.png, "--png", suffixes=(".png",)) if args.png is not None else None

@@ -151,7 +151,7 @@ def read_applied_steps(path: str | Path, namespace: str | None = None) -> Applie
                              f"tool (record with the node's record_path); it has: {bag.describe_topics()}")
         # the node writes each step's pose (when it had a tool), then its twist, but a recorder in another process
         # receives the topics on separate subscriptions: a pose can arrive after its twist, or two poses before
-        # their twists (seen under load). So the steps are the twists in order, and a pose or jaw belongs to the
+        # their twists (on a busy machine). So the steps are the twists in order, and a pose or jaw belongs to the
         # twist with its stamp. Stamps need not increase (a node that starts following /clock jumps to the bag's
         # time), so when a stamp recurs, the step whose twist arrived nearest in time takes it
         jaw_topic = namespace.rstrip("/") + JAW_TOPIC

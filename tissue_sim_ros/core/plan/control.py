@@ -25,8 +25,7 @@ step returns the next tool command (pose, twist, jaw):
   and its prediction is offset-free: the model's point plus a bias b, the observed point nearest the start minus
   the model's, filtered over the syncs (b <- (1 - a) b + a (o - m), a = ``bias_gain``). A model that is not the
   world (coarser, another E) is then wrong about where the point goes by what it was wrong about where it is,
-  which the bias removes: measured, a 4 mm model of the 2.5 mm flap stopped 4.7 mm off its goal without it and
-  0.7 mm with it.
+  which the bias removes (docs/control.md: a coarse model of the flap reaches its goal with it, not without).
 * **approach**: the grasp site is chosen once, from the free particles within ``grasp_search`` of the goal's
   start point that the open grasper can reach from above without touching the tissue: each is rolled out on the
   model (tool placed at the site, jaw closed, a straight pull by the goal's displacement at ``pull_speeds[0]``)
@@ -76,8 +75,8 @@ from .observe import SyncEnergy, embed, particle_points
 PHASES = ("approach", "close", "pull", "holding")
 MODEL_COARSENING = 2.0
 """The controller's model is its scene on a mesh this many times coarser than the world's by default
-(:func:`default_model`): the retraction flap's 2.5 mm world (150 particles) is modelled at 5 mm (39), where a
-replan's 32 candidates x 50 steps fit in 100 ms on two cores (docs/control.md)."""
+(:func:`default_model`): the retraction flap's 2.5 mm world is modelled at 5 mm, where a replan's candidates fit
+within the steps it commits (docs/control.md)."""
 RECORDS_KEPT = 200
 """Replan records a controller keeps by default (:attr:`TissueController.records`, the newest last)."""
 APPROACH_REACHED = 3e-4

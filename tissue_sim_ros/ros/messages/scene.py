@@ -76,7 +76,7 @@ class SceneEncoder:
         self.wireframe = wireframe
         self.lut = strain_colormap()
         self._lut16 = np.ascontiguousarray(self.lut).view(np.complex128).ravel()
-        # flat index arrays and preallocated buffers: np.take into them is ~3x faster than fancy indexing
+        # flat index arrays and preallocated buffers: np.take into them is faster than fancy indexing
         self.tri_flat = np.ascontiguousarray(self.tri.ravel())
         self.edge_flat = np.ascontiguousarray(self.edges.ravel())
         self.tri_points = np.zeros((3 * len(self.tri), 3), dtype="<f8")
