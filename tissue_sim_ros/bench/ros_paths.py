@@ -10,7 +10,8 @@
   go). A subscriber in another process on a private ROS domain; in this one, a thread publishes ``--arrays``
   arrays at 30 Hz while a Python loop (what the node's step thread is) notes every gap between its turns
   longer than 1 ms; a gap that overlaps a publish call is one the publish held the loop up (the others are the
-  machine's scheduling, alike for both). The two publishers take turns, round by round (``--rounds``), so the
+  machine's scheduling, alike for both), and a publish during which the loop did not turn once is ``frozen``
+  (held, or descheduled, for all of it). The two publishers take turns, round by round (``--rounds``), so the
   machine's load falls on both alike; Python's switch interval is the node's (0.5 ms).
 
 Prints both tables with the 1-minute load average before and after, writes ``ros_paths.csv``.
@@ -167,7 +168,10 @@ def _publish_round(publisher: Any, data: bytes, arrays: int, rate: float) -> dic
             t_next += 1.0 / rate
             time.sleep(max(0.0, t_next - time.perf_counter()))
     held = [g for g in ticker.gaps if any(g[0] < c1 and c0 < g[1] for c0, c1 in calls)]
-    return {"calls": [c1 - c0 for c0, c1 in calls], "held": [g1 - g0 for g0, g1 in held], "gaps": len(ticker.gaps)}
+    # a publish the loop did not turn once during: the loop was held (or descheduled) for all of it
+    frozen = sum(any(g0 <= c0 and c1 <= g1 for g0, g1 in ticker.gaps) for c0, c1 in calls)
+    return {"calls": [c1 - c0 for c0, c1 in calls], "held": [g1 - g0 for g0, g1 in held], "gaps": len(ticker.gaps),
+            "frozen": frozen}
 
 
 def _wait_for_subscriber(pub: Any, proc: subprocess.Popen, timeout: float) -> None:
@@ -218,6 +222,7 @@ def publish_rows(arrays: int = 150, rounds: int = 2, triangles: int = 5000, rate
         calls = [c for r in runs for c in r["calls"]]
         rows.append({"publisher": name, "bytes": len(data), "arrays": len(calls),
                      "publish_ms_median": 1e3 * statistics.median(calls), "publish_ms_max": 1e3 * max(calls),
+                     "frozen_publishes": " / ".join(str(r["frozen"]) for r in runs),
                      "held_over_1ms": " / ".join(str(len(r["held"])) for r in runs),
                      "longest_held_ms": " / ".join(f"{1e3 * max(r['held'], default=0.0):.2f}" for r in runs),
                      "other_gaps": " / ".join(str(r["gaps"] - len(r["held"])) for r in runs)})
