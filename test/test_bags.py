@@ -480,12 +480,12 @@ def test_signals_are_held_during_a_write_and_delivered_after():
     import os
     import signal
 
-    from tissue_sim_ros.ros.bags import _signals_held
+    from tissue_sim_ros.ros.bags.write import signals_held
 
     seen = []
     old = signal.signal(signal.SIGINT, lambda *_: seen.append("int"))
     try:
-        with _signals_held():
+        with signals_held():
             os.kill(os.getpid(), signal.SIGINT)
             inside = list(seen)
         assert inside == [] and seen == ["int"]
@@ -524,3 +524,99 @@ def test_every_thread_can_write_a_bag(tmp_path, storage):
     with Bag(path) as bag:
         values = sorted(struct.unpack_from("<d", bytes(raw), 4)[0] for _, _, _, raw in bag.messages(["/a"]))
     assert values == sorted(float(100 * k + i) for k in range(3) for i in range(20))
+
+
+# --------------------------------------------------------------------------- the libraries, as relied on
+
+
+def test_installed_bag_libraries_are_within_the_pinned_ranges():
+    """setup.py pins rosbags and mcap to the ranges whose behaviour the tests below check."""
+    import ast
+    from importlib.metadata import version
+    from pathlib import Path
+
+    from packaging.requirements import Requirement
+
+    tree = ast.parse((Path(__file__).resolve().parent.parent / "setup.py").read_text())
+    call = next(n for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, "id", "") == "setup")
+    requires = ast.literal_eval(next(k.value for k in call.keywords if k.arg == "install_requires"))
+    pins = {r.name: r.specifier for r in map(Requirement, requires) if r.name in ("rosbags", "mcap")}
+    assert set(pins) == {"rosbags", "mcap"} and all(str(s).count(",") == 1 for s in pins.values()), pins
+    for name, spec in pins.items():
+        assert spec.contains(version(name)), f"{name} {version(name)} is outside setup.py's {spec}"
+
+
+@pytest.mark.parametrize("storage", STORAGES)
+def test_rosbags_writer_writes_through_the_storage_its_plugins_map_name(tmp_path, storage):
+    """rosbags' Writer makes its storage from ``STORAGE_PLUGINS`` and calls the storage protocol (add_msgtype
+    once per type, add_connection, write, close with the metadata); the bag's storage file is ours."""
+    from tissue_sim_ros.ros.bags.storage import LIBRARY
+
+    with BagWriter(tmp_path / "bag", storage) as w:
+        w.add_topic("/a", "std_msgs/msg/Float64", reliable=True)
+        w.add_topic("/b", "std_msgs/msg/Float64")
+        w.write("/a", m.encode_float64(1.0), 5)
+        w.write("/b", m.encode_float64(2.0), 6)
+    if storage == "mcap":
+        from mcap.reader import make_reader
+
+        with open(tmp_path / "bag" / "bag.mcap", "rb") as f:
+            reader = make_reader(f)
+            assert reader.get_header().library.startswith(LIBRARY)
+            assert [md.name for md in reader.iter_metadata()] == ["rosbag2"]
+            assert len(reader.get_summary().schemas) == 1 and len(reader.get_summary().channels) == 2
+    else:
+        con = sqlite3.connect(tmp_path / "bag" / "bag.db3")
+        assert con.execute("select count(*) from message_definitions").fetchone() == (1,)
+        assert "storage_identifier: sqlite3" in con.execute("select metadata from metadata").fetchone()[0]
+        con.close()
+    with Reader(tmp_path / "bag") as r:
+        assert r.message_count == 2 and [c.topic for c in r.connections] == ["/a", "/b"]
+
+
+@pytest.mark.parametrize("storage", STORAGES)
+def test_a_bare_storage_file_keeps_the_bags_custom_data(tmp_path, storage):
+    with BagWriter(tmp_path / "bag", storage) as w:
+        w.set_custom_data("plain", "at close")
+        w.set_custom_data("durable", "at once", durable=True)
+        w.add_topic("/a", "std_msgs/msg/Float64")
+        w.write("/a", m.encode_float64(1.0), 5)
+    (tmp_path / "bag" / "metadata.yaml").unlink()
+    with Bag(next(p for p in (tmp_path / "bag").iterdir())) as bag:
+        assert bag.custom_data == {"plain": "at close", "durable": "at once"}
+
+
+def test_mcap_library_flushes_a_readable_prefix_and_reads_up_to_a_cut(tmp_path):
+    """What the writer relies on in ``mcap``: ``Writer.flush`` puts complete chunks on disk while the file stays
+    open, ``add_metadata`` then ``flush`` puts its record there too, and the stream reader yields the records
+    before a cut."""
+    from mcap.records import Message, Metadata
+    from mcap.stream_reader import StreamReader
+    from mcap.writer import CompressionType, Writer
+
+    path = tmp_path / "x.mcap"
+    with path.open("wb") as f:
+        w = Writer(f, compression=CompressionType.NONE)
+        w.start(profile="ros2", library="test")
+        channel = w.register_channel("/e", "cdr", w.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data"))
+        for i in range(5):
+            w.add_message(channel, 10 + i, m.encode_float64(float(i)), 10 + i)
+        w.flush()
+        w.add_metadata("tissue_sim", {"k": "v"})
+        w.flush()
+        w.add_message(channel, 20, m.encode_float64(9.0), 20)  # pending in a chunk, never flushed
+        size = path.stat().st_size
+        cut = path.read_bytes()[: size - 3]  # the metadata record cut short
+        full = path.read_bytes()
+    records = []
+    for data in (full, cut):
+        stream = StreamReader(__import__("io").BytesIO(data)).records
+        got = []
+        with pytest.raises(Exception):  # noqa: B017  the end of a file whose writer did not finish it
+            for r in stream:
+                got.append(r)
+        records.append(got)
+    assert [r.log_time for r in records[0] if isinstance(r, Message)] == [10, 11, 12, 13, 14]
+    assert [r.metadata for r in records[0] if isinstance(r, Metadata)] == [{"k": "v"}]
+    assert [r.log_time for r in records[1] if isinstance(r, Message)] == [10, 11, 12, 13, 14]
+    assert not [r for r in records[1] if isinstance(r, Metadata)]

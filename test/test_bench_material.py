@@ -213,8 +213,8 @@ def test_material_stability_poses_press_a_third_deep_and_drag():
 def test_tune_material_quick_writes_a_file_that_reproduces_its_setting(tmp_path, capsys):
     # the real-size scene through the same path as the full run, on a tiny candidate set: a uniform and a
     # graded 6 mm mesh against a 3 mm reference graded to 1.5 mm at the instrument
-    from tissue_sim_ros.bench import tune_material as tm
     from tissue_sim_ros.core.resources import scene_params_file
+    from tissue_sim_ros.tune import material as tm
 
     scene = scene_params_file("liver_probe")
     out = tmp_path / "tuned.yaml"

@@ -188,7 +188,7 @@ def test_the_mesh_pictures_legend_shows_the_bodies_as_drawn(tmp_path: Path, monk
     import matplotlib.figure
     from matplotlib.collections import PolyCollection
 
-    from tissue_sim_ros.cli.mesh import draw_mesh
+    from tissue_sim_ros.render.mesh import draw_mesh
 
     figures = []
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig", lambda fig, *a, **k: figures.append(fig))

@@ -57,6 +57,27 @@ def test_controller_drives_a_point_to_its_goal_with_a_wrong_model_and_noise(cfg)
     assert {r.phase for r in res.records} >= {"approach", "pull"}
 
 
+def test_the_approach_starts_from_wherever_the_tool_is(cfg):
+    """A grasper beside the flap and below it (a robot's home anywhere): the approach rises straight up to the
+    hover height first, so the open grasper never passes through the tissue on its way to the site."""
+    ctrl = TissueController(cfg, SMALL)
+    x = ctrl.x.copy()
+    top = float(flap_surface(x, 0.04))
+    pose = ToolPose(0.004, 0.010, 0.0)  # left of the flap (x = 10..70 mm), below its top (16 mm)
+    assert not ctrl.sim.tool_overlaps_tissue(pose)
+    ctrl.set_goal([((0.04, top), (0.05, top + 0.02))], x, pose)
+    path = ctrl.planned_path(x, pose, SMALL.open_jaw, t=0.0)
+    assert path[1, 0] == pytest.approx(pose.x) and path[1, 1] > top  # first straight up, above the flap
+    jaw = SMALL.open_jaw
+    for k in range(200):
+        cmd = ctrl.command(x, pose, jaw, t=k * ctrl.dt)
+        assert not ctrl.sim.tool_overlaps_tissue(cmd.pose), (k, cmd.pose)
+        pose, jaw = cmd.pose, cmd.jaw
+        if cmd.phase != "approach":
+            break
+    assert cmd.phase != "approach", "the approach did not reach the site"
+
+
 @pytest.mark.parametrize("spacing", [0.004, 0.0025])
 def test_a_model_on_another_mesh_reaches_the_goal_by_its_bias_estimate(cfg, spacing):
     """The world is the 2.5 mm flap. A 4 mm model's particles lie between the world's points (the goal point

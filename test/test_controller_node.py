@@ -2,10 +2,10 @@
 topics.md) with rclpy's own message types: move a point of the retract scene's flap 1 cm right and 2 cm up
 through ``~/move_tissue`` and watch it arrive on tissue/points; the refusals answer at once with an empty path.
 
-One simulator (timer mode, 100 Hz) and one controller serve the module's tests in turn. The controller runs
-with its defaults: its own model on a 5 mm mesh (the world's is 2.5 mm), 19 candidates x 30 steps per replan,
-every 10 steps (measured beside the simulator: 2.8 s of wall time to the goal, replans up to ~0.5 s while the
-simulator keeps the other core and holds the last pose in between).
+One simulator (timer mode, 100 Hz) and one controller serve the module's tests in turn, both started as
+msg_docs/controller.md shows (the scene's parameter file, the controller's defaults) and nothing else publishing
+a tool pose: the scene's start pose (``tool_start_*``) gives the controller its first measured pose. The
+controller's model is its own 5 mm mesh of the scene (the world's is 2.5 mm).
 """
 from __future__ import annotations
 
@@ -34,10 +34,9 @@ SCENE = ROOT / "config" / "scenes" / "retract.yaml"
 TIMEOUT = 30.0  # discovery and start-up of a process on a loaded 2-core machine
 REACH_WALL_S = 20.0  # the issue's bound: the point at its goal within 20 s of wall time
 X = 0.040  # the flap spans x = 10..70 mm (the scene's YAML); its top surface is at y = 16 mm
-HOME = (0.030, 0.031)  # where the test puts the grasper first (a robot's home): 15 mm above the flap, open
+HOME = (0.030, 0.031)  # the scene's start pose (tool_start_x, tool_start_y): 15 mm above the flap, open
 RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-CONTROLLER_ARGS = ["-p", "diagnostics_rate:=5.0", "--log-level", "tissue_controller:=debug"]
 SERVICE = "/tissue_controller/move_tissue"
 
 
@@ -68,9 +67,7 @@ class World:
             n.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, RELIABLE),
             n.create_subscription(MarkerArray, "control/markers", self.markers.append, LATCHED),
         ]
-        self.pose_pub = n.create_publisher(PoseStamped, "tool/pose", RELIABLE)
         self.client = n.create_client(GetPlan, SERVICE)
-        self.tool_placed = False
 
     def _on_points(self, msg: PointCloud2) -> None:
         xy = xy_of(msg)
@@ -89,7 +86,6 @@ class World:
     def close(self) -> None:
         for s in self.subs:
             self.ros.node.destroy_subscription(s)
-        self.ros.node.destroy_publisher(self.pose_pub)
         self.ros.node.destroy_client(self.client)
 
     # ------------------------------------------------------------------ reading
@@ -114,28 +110,11 @@ class World:
 
     # ------------------------------------------------------------------ acting
 
-    def place_tool(self) -> None:
-        """The grasper at HOME (the simulator has no tool before its first tool/pose), until tool/applied_pose
-        shows it and the controller has received a measured pose."""
-        if self.tool_placed:
-            return
-        self.ros.wait_for_subscriber(self.pose_pub, TIMEOUT, self.sim)
-        end = time.monotonic() + TIMEOUT
-        while not self.applied:  # resent every 0.5 s until applied (one best-effort copy may be lost)
-            if time.monotonic() > end:
-                pytest.fail(f"the simulator never applied the home pose:\n{self.sim.output()[-3000:]}")
-            msg = PoseStamped()
-            msg.header.stamp = self.ros.node.get_clock().now().to_msg()
-            msg.header.frame_id = "world"
-            msg.pose.position.x, msg.pose.position.y = HOME
-            msg.pose.orientation.w = 1.0
-            self.pose_pub.publish(msg)
-            resend = time.monotonic() + 0.5
-            self.ros.spin_until(lambda: self.applied or time.monotonic() > resend, TIMEOUT, self.sim,
-                                "tool/applied_pose")
+    def measured_tool(self) -> None:
+        """The simulator publishes its start pose as the applied pose, and the controller has received it."""
+        self.spin_until(lambda: self.applied, TIMEOUT, "tool/applied_pose from the scene's start pose")
         self.spin_until(lambda: self.ctrl_diag and int(self.ctrl_diag[-1]["poses_received"]) > 0, TIMEOUT,
                         "the controller to receive a measured tool pose")
-        self.tool_placed = True
 
     def flap_top(self) -> tuple[int, np.ndarray]:
         """The highest particle within 1.5 mm of x = X: its index and position."""
@@ -162,10 +141,9 @@ class World:
 def world(ros_client: RosClient, ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> Any:
     """The simulator on the retract scene (timer mode) and the controller, for the module; both ended after it."""
     logs = tmp_path_factory.mktemp("controller_node")
-    sim = RosProcess([console_script("tissue_sim_node"), "--ros-args", "--params-file", str(SCENE),
-                      "-p", "diagnostics_rate:=5.0"], ros_env, logs / "sim.log")
-    ctrl = RosProcess([console_script("tissue_controller"), "--ros-args", *CONTROLLER_ARGS], ros_env,
-                      logs / "controller.log")
+    sim = RosProcess([console_script("tissue_sim_node"), "--ros-args", "--params-file", str(SCENE)], ros_env,
+                     logs / "sim.log")
+    ctrl = RosProcess([console_script("tissue_controller")], ros_env, logs / "controller.log")
     w = World(ros_client, sim, ctrl)
     try:
         w.spin_until(lambda: w.client.service_is_ready(), 60.0, f"service {SERVICE}")
@@ -177,15 +155,17 @@ def world(ros_client: RosClient, ros_env: dict[str, str], tmp_path_factory: pyte
         sim.stop(signal.SIGTERM, timeout=10)
 
 
+def test_the_two_nodes_work_as_started(world: World) -> None:
+    """Nobody but the controller publishes tool/pose, and the simulator's applied pose is its start pose."""
+    world.measured_tool()
+    writers = [i.node_name for i in world.ros.node.get_publishers_info_by_topic("/tool/pose")]
+    assert writers == ["tissue_controller"], writers
+    p = world.applied[-1].pose.position
+    assert (p.x, p.y) == pytest.approx(HOME, abs=1e-12)
+
+
 def test_refusals_answer_at_once_with_an_empty_path(world: World) -> None:
-    if not world.tool_placed:  # the simulator has no tool yet: no measured pose to plan from
-        world.spin_until(lambda: world.ctrl_diag and int(world.ctrl_diag[-1]["points_received"]) > 0, TIMEOUT,
-                         "the controller to receive points")
-        resp, took = world.move((X, 0.016), (X + 0.01, 0.036))
-        assert not resp.plan.poses and took < 2.0
-        d = world.fresh_ctrl_diag()
-        assert "no tool pose" in d["last_refusal"] and d["state"] == "refused", d
-    world.place_tool()
+    world.measured_tool()
     _, top = world.flap_top()
     cases = [
         ((top[0], top[1] + 0.03), (top[0] + 0.01, top[1] + 0.05), "on the tissue"),  # 3 cm above
@@ -203,7 +183,7 @@ def test_refusals_answer_at_once_with_an_empty_path(world: World) -> None:
 
 
 def test_the_flap_point_reaches_its_goal(world: World) -> None:
-    world.place_tool()
+    world.measured_tool()
     i, start = world.flap_top()
     goal = start + np.array([0.01, 0.02])
     t_diag0, d0 = world.fresh_sim_diag()
@@ -273,6 +253,13 @@ def test_help_and_a_bad_parameter(ros_env: dict[str, str], tmp_path: Path) -> No
     assert run.returncode == 2, run.stderr
     assert run.stderr.strip().splitlines() == ["tissue_controller: error: replan_every=10: expected at most "
                                                "horizon=5 steps"], run.stderr
+    # the node's own ranges are its parameters' descriptors' (rclpy refuses the value at declaration)
+    for given, line in (("jobs:=0", "jobs=0: expected 1 to 256"), ("max_time:=0", "max_time=0.0: expected 0.001 to 1e+06"),
+                        ("nice:=hi", "nice='hi': expected an integer")):
+        run = subprocess.run([console_script("tissue_controller"), "--ros-args", "-p", given], env=ros_env,
+                             capture_output=True, text=True, timeout=60)
+        assert run.returncode == 2 and run.stderr.strip().splitlines() == [f"tissue_controller: error: parameter {line}"], \
+            run.stderr
 
 
 def test_the_parameter_table_is_current() -> None:

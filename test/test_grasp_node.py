@@ -264,3 +264,57 @@ def test_a_step_that_stops_short_is_reported_and_warned(ros_client: Any, start_p
                          "the node's warning")
     finally:
         c.close()
+
+
+def test_the_scenes_start_pose_is_applied_until_a_pose_is_taken_where_it_lies(ros_client: Any,
+                                                                               start_process: Any) -> None:
+    """Timer mode on the retract scene, which sets tool_start_*: tool/applied_pose is the start pose from the
+    first step; a first pose 3 cm away is taken where it lies (no drop, no relocation counted); a first pose in
+    the tissue is refused; ~/reset puts the tool back at the start pose."""
+    from std_srvs.srv import Trigger  # noqa: PLC0415
+
+    start = (0.030, 0.031)
+    proc = start_process(["tissue_sim_node", "--ros-args", "--params-file", str(SCENE),
+                          "-p", "diagnostics_rate:=5.0"], name="retract_start")
+    n = ros_client.node
+    applied: list[PoseStamped] = []
+    diag: list[dict[str, str]] = []
+    subs = [n.create_subscription(PoseStamped, "tool/applied_pose", applied.append, RELIABLE),
+            n.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diag.extend(
+                {kv.key: kv.value for kv in s.values} for s in m.status), RELIABLE)]
+    pub = n.create_publisher(PoseStamped, "tool/pose", RELIABLE)
+    reset = n.create_client(Trigger, "/tissue_sim_node/reset")
+
+    def at(x: float, y: float, what: str) -> None:
+        applied.clear()
+        ros_client.spin_until(lambda: applied and (applied[-1].pose.position.x, applied[-1].pose.position.y)
+                              == pytest.approx((x, y), abs=1e-12), TIMEOUT, proc, what)
+
+    def send(x: float, y: float) -> None:
+        msg = PoseStamped()
+        msg.header.stamp = n.get_clock().now().to_msg()
+        msg.header.frame_id = "world"
+        msg.pose.position.x, msg.pose.position.y = x, y
+        msg.pose.orientation.w = 1.0
+        pub.publish(msg)
+
+    try:
+        at(*start, "the start pose applied")
+        ros_client.wait_for_subscriber(pub, TIMEOUT, proc)
+        send(0.060, 0.030)  # 3 cm from the start pose (max_tool_jump 5 mm), clear of the flap
+        at(0.060, 0.030, "the first pose taken where it lies")
+        diag.clear()
+        d = ros_client.spin_until(lambda: diag and diag[-1], TIMEOUT, proc, "/diagnostics")
+        assert d["dropped_tool_jump"] == "0" and d["relocations"] == "0", d
+        ros_client.call(reset, Trigger.Request(), TIMEOUT, proc)
+        at(*start, "the start pose after ~/reset")
+        send(0.040, 0.010)  # inside the flap (y = 4..16 mm): the tool stays at its start pose
+        diag.clear()
+        d = ros_client.spin_until(lambda: diag and diag[-1]["dropped_tool_jump"] == "1" and diag[-1], TIMEOUT, proc,
+                                  "the pose in the tissue dropped")
+        at(*start, "the start pose held")
+    finally:
+        for s in subs:
+            n.destroy_subscription(s)
+        n.destroy_publisher(pub)
+        n.destroy_client(reset)

@@ -78,6 +78,17 @@ def test_the_worker_thread_alone_runs_at_the_added_niceness(nice: int) -> None:
 
 # ----------------------------------------------------------------------------- GIL-free publishing (raw_publish.py)
 
+def test_the_gil_free_publisher_was_checked_against_the_installed_rclpy() -> None:
+    """The ctypes call assumes rclpy's publisher handle and rcl's serialized-message layout of the releases it
+    names: a new rclpy fails here (check the layout, then add its version to RCLPY_CHECKED)."""
+    pytest.importorskip("rclpy")
+    from importlib.metadata import version  # noqa: PLC0415
+
+    from tissue_sim_ros.ros.raw_publish import RCLPY_CHECKED, rclpy_checked  # noqa: PLC0415
+
+    assert rclpy_checked(), f"rclpy {version('rclpy')} is not one of {RCLPY_CHECKED}"
+
+
 def test_gil_free_publisher_delivers_the_same_bytes(ros_client: Any) -> None:
     """The ctypes path hands rcl the caller's bytes: a subscriber receives them unchanged, large and small."""
     pytest.importorskip("rclpy")

@@ -101,8 +101,8 @@ def _untimed(rows):
 
 
 def test_tune_constraints_on_ray_equals_the_local_backend(cluster):
-    from tissue_sim_ros.bench.tune import tune
     from tissue_sim_ros.core.config import resolve_config
+    from tissue_sim_ros.tune.settings import tune
 
     values = resolve_config().flat()
     # a budget no setting exceeds: which counts run depends on the errors only, not on the times
@@ -115,8 +115,8 @@ def test_tune_constraints_on_ray_equals_the_local_backend(cluster):
 
 
 def test_tune_material_runs_on_ray_as_locally(cluster):
-    from tissue_sim_ros.bench import tune_material as tm
     from tissue_sim_ros.core.config import resolve_config
+    from tissue_sim_ros.tune import material as tm
 
     cfg = resolve_config(params_file="config/scenes/liver_probe.yaml")
     press = tm.press_point(cfg.replace(spacing=0.008), 0.003)

@@ -52,7 +52,7 @@ def _marker_msg(spec: M.MarkerSpec) -> Marker:
     m.scale.x, m.scale.y, m.scale.z = spec.scale
     r, g, b, a = (float(c) for c in np.asarray(spec.color, dtype=np.float32))  # the wire type is float32
     m.color = ColorRGBA(r=r, g=g, b=b, a=a)
-    pts = M._points3(spec.points)
+    pts = M.points3(spec.points)
     m.points = [Point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in pts]
     if spec.colors is not None:
         m.colors = [ColorRGBA(r=float(c[0]), g=float(c[1]), b=float(c[2]), a=float(c[3]))
@@ -91,7 +91,7 @@ def test_marker_and_marker_array_match_rclpy(rng: np.random.Generator) -> None:
     for spec, d in zip(specs, decoded):
         assert (d.ns, d.id, d.type, d.action, d.frame_id, d.stamp, d.text) == \
                (spec.ns, spec.id, spec.type, spec.action, spec.frame_id, spec.stamp, spec.text)
-        np.testing.assert_array_equal(d.points, M._points3(spec.points))
+        np.testing.assert_array_equal(d.points, M.points3(spec.points))
         if spec.colors is not None:
             np.testing.assert_array_equal(d.colors, spec.colors)
         np.testing.assert_array_equal(d.orientation, spec.orientation)
@@ -155,11 +155,29 @@ def test_small_messages_match_rclpy() -> None:
     twist.header.frame_id = "world"
     twist.twist.linear.x, twist.twist.linear.y, twist.twist.angular.z = 0.1, -0.2, 0.3
     _same(M.encode_twist_stamped((0, 0), "world", 0.1, -0.2, 0.3), twist)
+    assert M.decode_pose_stamped(serialize_message(pose))[2].tolist() == [0.25, 0.5, 0.0]
+    assert M.decode_twist_stamped(serialize_message(twist))[3].tolist() == [0.0, 0.0, 0.3]
+
+    from sensor_msgs.msg import JointState  # noqa: PLC0415
+    from std_msgs.msg import UInt32  # noqa: PLC0415
+
+    _same(M.encode_uint32(7), UInt32(data=7))
+    for positions in ([], [0.25]):
+        jaw = JointState(name=["jaw"], position=positions)
+        jaw.header.stamp = Time(sec=3, nanosec=4)
+        # Fast CDR pads the empty velocity and effort to 8 bytes each, which its reader does not need: the same
+        # message, a few bytes shorter
+        assert deserialize_message(M.encode_joint_state((3, 4), "", ["jaw"], positions), JointState) == jaw
+        assert M.decode_joint_state(serialize_message(jaw))[3].tolist() == positions  # Fast CDR's padding too
 
 
 def test_reader_rejects_non_cdr_bytes() -> None:
+    """The hand-written reader takes little-endian CDR only; the small messages (the typestore) take both."""
+    import struct  # noqa: PLC0415
+
     with pytest.raises(ValueError, match="not CDR"):
-        M.decode_float64(b"\x00\x00\x00\x00" + bytes(8))
+        M.decode_marker_array(b"\x00\x00\x00\x00" + bytes(8))
+    assert M.decode_float64(b"\x00\x00\x00\x00" + struct.pack(">d", 2.5)) == 2.5
 
 
 def test_scene_encoder_rest_and_stretch() -> None:
@@ -205,12 +223,14 @@ def test_scene_encoder_rest_and_stretch() -> None:
 
 
 def test_tool_outline_shapes() -> None:
-    box = M.tool_outline(0.4, 0.0025, 0.0)
+    from tissue_sim_ros.core.contact.tool import rounded_box_outline as tool_outline  # noqa: PLC0415  (the markers')
+
+    box = tool_outline(0.4, 0.0025, 0.0)
     assert box.shape == (4, 2)
-    capsule = M.tool_outline(0.4, 0.0, 0.01, segments=8)
+    capsule = tool_outline(0.4, 0.0, 0.01, segments=8)
     assert capsule.shape == (36, 2)
     assert np.abs(capsule[:, 0]).max() == pytest.approx(0.41)
-    disc = M.tool_outline(0.0, 0.0, 0.02)
+    disc = tool_outline(0.0, 0.0, 0.02)
     np.testing.assert_allclose(np.hypot(disc[:, 0], disc[:, 1]), 0.02)
     # counter-clockwise: positive shoelace area
     for poly in (box, capsule):

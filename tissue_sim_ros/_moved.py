@@ -54,6 +54,8 @@ MOVED = {
     "core.frames": "core.timing.frames",
     "core.phase_lock": "core.timing.phase_lock",
     "core.trajectories": "core.timing.trajectories",
+    "bench.tune": "tune.settings",
+    "bench.tune_material": "tune.material",
 }
 PREFIX = "tissue_sim_ros."
 

@@ -532,7 +532,7 @@ class Plan:
     per_step_every_fine: int
     n_steps_fine: int
     """Steps run on the finer meshes: the first steps of the same motion. Per-constraint stiffnesses make
-    a finer mesh a softer material; on the 4x mesh the exact run folds (inverted triangles) after ~8 steps,
+    a finer mesh a softer material; on the 4x mesh the exact run folds (inverted triangles) after a few steps,
     where each exact step takes Newton minutes."""
     graded: bool
     sleep_spacing: float = 0.025

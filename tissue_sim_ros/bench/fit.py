@@ -11,7 +11,7 @@ the recording held out, and the table gives the errors, whether the 95%
 intervals hold the truth, the RMS tracking errors and the wall time of the fit
 (--jobs worker processes).
 
-The issue's targets: Young's modulus within 5%, Poisson's ratio within 0.05,
+The targets: Young's modulus within 5%, Poisson's ratio within 0.05,
 error bars that cover the truth, a two-parameter fit of a 300-step recording
 in at most 60 s on 2 cores. Writes fit.csv and fit.png to --out.
 """

@@ -1,4 +1,4 @@
-"""``tissue-sim bench stability --grasp``: where a grasp fails (issue 30).
+"""``tissue-sim bench stability --grasp``: where a grasp fails.
 
 The retraction scene (``config/scenes/retract.yaml``: a 6 cm flap held at its base, a 5 mm grasper) grasped
 at the middle of its top surface and lifted straight up by ``lift`` [m] at a tool speed of ``speed`` [m per

@@ -85,8 +85,8 @@ def exact_step(sim: Simulation, start: State, rtol: float = 1e-9, worst: list[fl
         pred[:, 1] += h * h * p.gravity
         pred[fixed] = x[fixed]
         x_new, info = minimize_step(MembraneEnergy(model, pred, h), fixed, rtol=rtol)
-        # converged, or stopped by the line search at float64 round-off of the energy (measured: below
-        # 3e-6 of the starting gradient; the exact step's own error, far below the errors measured)
+        # converged, or stopped by the line search at float64 round-off of the energy (the exact step's own
+        # error then far below the errors this benchmark reports)
         worst[0] = max(worst[0], info["grad_norm"] / max(info["grad_norm0"], 1e-300))
         if not info["converged"] and info["grad_norm"] > 1e-5 * info["grad_norm0"]:
             raise RuntimeError(f"the exact step did not converge (gradient {info['grad_norm']:.3g} of "

@@ -1,7 +1,7 @@
 """``tissue-sim bench material-speed``: the material's default solve, cost per step against accuracy, at four
 meshes, next to the paper PBD's step on the same mesh.
 
-The scene is the hanging strip of ``bench refinement`` with the issue's block: 10 x 4 cm, E 50 kPa, nu 0.45,
+The scene is the hanging strip of ``bench refinement`` with its block: 10 x 4 cm, E 50 kPa, nu 0.45,
 5 mm thick, 1060 kg/m^3, top edge held, gravity, stepped at dt 10 ms from the rest shape with damping 20 1/s
 for ``steps`` steps (3 s). For each mesh spacing it runs
 

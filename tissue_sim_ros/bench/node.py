@@ -290,7 +290,7 @@ def bench_scene(name: str, overrides: dict[str, Any], seconds: float, warmup: fl
         counts["markers"] += 1
         r = messages.CdrReader(data)
         r.u32()
-        tool = messages._read_marker(r)  # the tool marker comes first; small
+        tool = messages.read_marker(r)  # the tool marker comes first; small
         step_stamp = r.header()[0]
         markers.append((arrival, tool.stamp, step_stamp, tool.action))
 

@@ -13,7 +13,7 @@ largest sag per second, which float32 peers reach; the oscillation left is about
   minimiser of its incremental potential), dt and damping swept;
 * **ours, static**: ``settle: static`` -- :meth:`Simulation.settle` solves the equilibrium by Newton's
   method (core/physics/statics.py); its wall time is the whole solve, setup included (median of 5);
-* **MuJoCo** (optional, ``pip install mujoco``, measured with 4.0): a ``flexcomp`` with ``dim="2"``
+* **MuJoCo** (optional, ``pip install mujoco``, tested with 4.0): a ``flexcomp`` with ``dim="2"``
   ``dof="2d"`` and ``<elasticity young poisson thickness elastic2d="stretch">`` (MuJoCo's membrane).
   Pitfalls handled here: ``elastic2d`` defaults to ``none`` (no membrane stiffness at all); flexcomp's
   ``mass`` is spread equally over the points, so each vertex body's mass is set to its lumped mass after
@@ -21,7 +21,7 @@ largest sag per second, which float32 peers reach; the oscillation left is about
   so ``integrator="discrete"``; a diverged state is silently reset by MuJoCo, so a run counts as stable
   only without ``mjWARN_BADQACC`` warnings and with finite positions. The damping is a per-dof damping
   m_i x c.
-* **Newton** (optional, ``pip install newton warp-lang``, measured with 1.8 / 1.19, float32, CPU): the
+* **Newton** (optional, ``pip install newton warp-lang``, tested with 1.8 / 1.19, float32, CPU): the
   particles and triangles of the mesh in the z = 0 plane, its semi-implicit (``newton_si``) and VBD
   (``newton_vbd``, 10 iterations) solvers. Newton has no thickness: its moduli are per area, so
   ``tri_ke`` = mu h and ``tri_ka`` = (lambda + mu) h for the semi-implicit solver (its triangle reads
@@ -403,7 +403,7 @@ def compare(spacings: Sequence[float] = SPACINGS, dampings: Sequence[float] = DA
 
 
 def goal(rows: Sequence[dict[str, Any]], ours: str = "ours_static") -> list[dict[str, Any]]:
-    """Per mesh, the issue's goal: ``ours`` as accurate as the most accurate peer (|mean sag error| no larger,
+    """Per mesh, the goal: ``ours`` as accurate as the most accurate peer (|mean sag error| no larger,
     within :data:`ACCURACY_TOL`) at half the wall time to rest or less: ``ratio_to_fastest`` against the fastest
     peer whatever its error, ``ratio_to_as_accurate`` against the fastest peer at least as accurate as ours."""
     out = []

@@ -56,7 +56,7 @@ DT = 0.01
 
 
 #: The material rows' tissue: a stiff membrane (1 MPa) so the 1 m strip sags little under gravity;
-#: one substep, so that its iterations equal the constraint rows' (the cost comparison of issue 16).
+#: one substep, so that its iterations equal the constraint rows' (so the two compare cost per constraint row).
 MATERIAL = dict(method_options("xpbd"), material="neo_hookean", young_modulus=1e6, poisson_ratio=0.45,
                 thickness=0.005, density=1000.0)
 
@@ -235,7 +235,7 @@ def run(out: str | Path, *, sizes: Sequence[int] | None = None, steps: int | Non
             params = dict(method.params)
             params.setdefault("iterations", iterations)
             model = strip_model(mesh, params)
-            # the NumPy baseline is ~20x slower: fewer steps keep the run short, the median stays robust
+            # the NumPy baseline is much slower: fewer steps keep the run short, the median stays robust
             n_steps = max(3, steps // 4) if method.numpy else steps
             progress.set_postfix_str(f"{model.n_particles} particles, {method.name}")
             med, n_proj, threads = time_solver(model, method, n_steps)
@@ -294,7 +294,7 @@ def print_table(rows: list[dict[str, Any]]) -> None:
 
 
 def print_summary(rows: list[dict[str, Any]]) -> None:
-    """The numbers the issue's targets are about, from this run."""
+    """The numbers the targets are about, from this run."""
     strip = [r for r in rows if r["scene"] == "strip"]
     by = {(r["particles"], r["method"]): r for r in strip}
     sizes = sorted({r["particles"] for r in strip})

@@ -319,9 +319,12 @@ def inversion_rows(n_steps: int) -> list[dict[str, Any]]:
     return rows
 
 
-def run(out: str | Path, *, quick: bool = False, material: bool = False, grasp: bool = False, jobs: int = 1,
-        backend: str = "local", address: str | None = None) -> int:
+def run(out: str | Path, *, quick: bool = False, jobs: int = 1, backend: str = "local",
+        address: str | None = None) -> int:
     """Run the sweep; print the failure counts, write stability.csv and a map per method into ``out``; 0.
+
+    The material's and the grasp's sweeps are their own (:func:`~tissue_sim_ros.bench.material_stability.run_material`,
+    :func:`~tissue_sim_ros.bench.grasp_stability.run_grasp_sweep`), which use this module's meshes.
 
     Parameters
     ----------
@@ -329,11 +332,6 @@ def run(out: str | Path, *, quick: bool = False, material: bool = False, grasp: 
         Output directory (created).
     quick : bool
         A few runs (smoke test).
-    material : bool
-        Instead: the neo_hookean material's sweep (:func:`~tissue_sim_ros.bench.material_stability.run_material`,
-        in this process).
-    grasp : bool
-        Instead: a grasp's sweep (:func:`~tissue_sim_ros.bench.grasp_stability.run_grasp_sweep`, in this process).
     jobs, backend, address
         Where the runs go: worker processes or Ray (:func:`~tissue_sim_ros.core.sim.backends.map_calls`);
         the same rows either way.
@@ -342,14 +340,6 @@ def run(out: str | Path, *, quick: bool = False, material: bool = False, grasp: 
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    if material:
-        from .material_stability import run_material  # noqa: PLC0415
-
-        return run_material(out, quick)
-    if grasp:
-        from .grasp_stability import run_grasp_sweep  # noqa: PLC0415
-
-        return run_grasp_sweep(out, quick)
     sweep = make_sweep(quick)
     meshes = {q: make_mesh(q) for q in sweep.mesh_qualities}
     configs = [RunConfig(m, c, dt, s, v, q, n_steps=sweep.n_steps)

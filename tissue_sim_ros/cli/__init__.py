@@ -58,6 +58,7 @@ COMMANDS: dict[str, tuple[str, str] | dict[str, tuple[str, str]]] = {
         "fit": ("tissue_sim_ros.cli.bench.fit", "fit known parameters back from simulated recordings on another mesh: error, coverage, time"),
         "peers": ("tissue_sim_ros.cli.bench.peers", "time per step against Taichi, MuJoCo flex and the NumPy baseline (optional extras)"),
         "envs": ("tissue_sim_ros.cli.bench.envs", "learning environments: steps per second, single and vectorised, beside the plain Simulation.step"),
+        "ros": ("tissue_sim_ros.cli.bench.ros", "the ROS layer's fast paths: CDR by hand vs the typestore vs rclpy; ctypes vs rclpy publish of 1 MB markers"),
     },
     "envs": {
         "collect": ("tissue_sim_ros.cli.envs.collect", "record a task's expert episodes as a Minari dataset (offline RL)"),

@@ -14,7 +14,6 @@ from ..core.mesh import (
     MAX_PARTICLES,
     MESH_SUFFIXES,
     Grading,
-    TissueMesh,
     load_meshes,
     mesh_from_mask,
     mesh_quality,
@@ -48,7 +47,7 @@ examples:
   tissue-sim mesh Bottom.1.node Upper.1.node --out scene.npz --png scene.png
 """
 
-#: quality targets of the issue: >= 99 % of triangles with min angle >= 20 deg, none below 10, area within 2 %
+#: the mesh quality targets: >= 99 % of triangles with min angle >= 20 deg, none below 10, area within 2 %
 TARGET_FRAC_20 = 0.99
 TARGET_MIN_ANGLE = 10.0
 TARGET_AREA_ERROR = 0.02
@@ -104,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
         v = getattr(args, name)
         if not np.isfinite(v) or v <= 0:
             raise InputError(f"--{name} {v}: expected a number > 0")
-    # the output names are checked before any work: a wrong suffix used to be written anyway (mesh.txt as
+    # the output names are checked before any work: a wrong suffix would be written anyway (mesh.txt as
     # mesh.txt.npz, JPEG-named PNG data)
     out = output_file(args.out, "--out", suffixes=(".npz",)) if args.out is not None else None
     png = output_file(args.png, "--png", suffixes=(".png",)) if args.png is not None else None
@@ -152,6 +151,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {out}")
     if png is not None:
         make_parent(png, "--png")
+        from ..render.mesh import draw_mesh  # noqa: PLC0415  (matplotlib only when a picture is asked for)
+
         draw_mesh(mesh, png, image=image, scale=args.scale, origin=tuple(args.origin), grading=grading,
                   title=f"{source.name}: {q['n_vertices']} vertices, {q['n_triangles']} triangles, "
                         f"min angle {q['min_angle']:.1f} deg")
@@ -176,53 +177,3 @@ def format_quality(q: dict) -> str:
     if any("name" in b for b in q["bodies"]):
         rows.append("bodies: " + ", ".join(f"{b['body']} = {b['name']}" for b in q["bodies"] if "name" in b))
     return "\n".join(rows)
-
-
-#: How opaque a body's triangles are over the image (faint: the image shows through)
-BODY_ALPHA = 0.18
-
-
-def draw_mesh(mesh: TissueMesh, path: Path, *, image: np.ndarray | None = None, scale: float = 0.002,
-              origin: tuple[float, float] = (0.0, 0.0), grading: Grading | None = None, title: str = "") -> None:
-    """PNG of the mesh (triangles coloured by body, boundary vertices marked) over the image, world axes [m]."""
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-    from matplotlib.collections import PolyCollection  # noqa: PLC0415
-
-    colours = ["#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#17becf"]
-    fig, ax = plt.subplots(figsize=(7, 7), dpi=120)
-    if image is not None:
-        rgb = image[:, :, ::-1] if image.ndim == 3 else image
-        h, w = image.shape[:2]
-        ax.imshow(rgb, cmap="gray" if image.ndim == 2 else None, origin="upper", zorder=0, alpha=0.55,
-                  extent=(origin[0], origin[0] + w * scale, origin[1], origin[1] + h * scale))
-    tb = mesh.tri_body
-    face = [colours[b % len(colours)] for b in tb]
-    ax.add_collection(PolyCollection(mesh.vertices[mesh.triangles], facecolors=face, alpha=BODY_ALPHA, zorder=1))
-    for b, name in enumerate(mesh.names):  # the legend's swatch as the triangles are filled, alpha and all
-        ax.fill([], [], color=colours[b % len(colours)], alpha=BODY_ALPHA, label=f"body {b}: {name}")
-    ax.add_collection(PolyCollection(mesh.vertices[mesh.triangles], facecolors="none", edgecolors="#263238",
-                                     linewidths=0.45, zorder=1))
-    bv = mesh.vertices[mesh.boundary]
-    ax.plot(bv[:, 0], bv[:, 1], "o", ms=2.2, color="#c62828", zorder=2, label="boundary vertices")
-    if grading is not None:
-        ax.add_patch(plt.Circle((grading.x, grading.y), grading.radius, fill=False, ls="--", color="#333333",
-                                zorder=3, label="fine region"))
-    lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
-    if image is not None:
-        h, w = image.shape[:2]
-        lo = np.minimum(lo, origin)
-        hi = np.maximum(hi, (origin[0] + w * scale, origin[1] + h * scale))
-    pad = 0.02 * float(np.max(hi - lo))
-    ax.set_xlim(lo[0] - pad, hi[0] + pad)
-    ax.set_ylim(lo[1] - pad, hi[1] + pad)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(title, fontsize=9)
-    ax.legend(loc="upper right", fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)

@@ -1,10 +1,10 @@
-"""``tissue-sim tune``: the command line of bench/tune.py (and bench/tune_material.py for a neo_hookean scene)."""
+"""``tissue-sim tune``: the command line of tune/settings.py (and tune/material.py for a neo_hookean scene)."""
 from __future__ import annotations
 
 import argparse
 
-from ..bench import tune
 from ..core.config import resolve_config
+from ..tune import settings as tune
 from .options import add_backend_arguments, backend_kwargs, positive_floats
 
 HELP = "pick the cheapest mesh spacing/method/iterations meeting an error tolerance"

@@ -73,6 +73,10 @@ def _finite(v: Any) -> str | None:
     return None if math.isfinite(v) else "a finite number"
 
 
+def _finite_or_nan(v: Any) -> str | None:
+    return None if not math.isinf(v) else "a finite number, or NaN for none"
+
+
 def _at_least_one(v: Any) -> str | None:
     return None if v >= 1 else "an integer >= 1"
 
@@ -154,7 +158,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("tool_frame", str, "", "", "TF frame of the tool: every /tf transform with this child_frame_id is a tool pose (in its parent frame, taken to the plane like tool/pose). Needs tf2_msgs. Empty = off.", True, "node", _frame_or_empty),
     ParamSpec("tf_tolerance", float, 0.05, "s", "A tool input stamped up to this long after the newest transform of its chain uses that transform; later ones are dropped (no extrapolation).", False, "node", _non_negative),
     ParamSpec("lock_step", bool, False, "", "true: one step per received tool pose (exact replay), no timer; false: a timer at 1/dt.", True, "node"),
-    ParamSpec("phase_lock", bool, True, "", "Timer mode: move the step timer's ticks to just after the tool poses' arrivals (measured: median of recent arrivals, a margin for their jitter, at most 2 ms per shift), so a pose waits for its step a fraction of a period, not up to a whole one; a stream at another rate or too irregular is left alone. Off with use_sim_time.", False, "node"),
+    ParamSpec("phase_lock", bool, True, "", "Timer mode: move the step timer's ticks to just after the tool poses' arrivals (from the median of recent arrivals, a margin for their jitter, at most 2 ms per shift), so a pose waits for its step a fraction of a period, not up to a whole one; a stream at another rate or too irregular is left alone. Off with use_sim_time.", False, "node"),
     ParamSpec("paused", bool, False, "", "true: no steps (also set by the ~/pause service).", False, "node"),
     ParamSpec("follow_clock", bool, True, "", "Timer mode without use_sim_time: while a /clock publisher exists (tissue-sim play publishes the bag's time), use it (use_sim_time on); back to the system clock 1 s after it goes.", True, "node"),
     ParamSpec("marker_rate", float, 30.0, "Hz", "Rate of tissue/markers, a display rate (RViz redraws at ~30 Hz); capped at 1/dt (every round(1/(dt*rate)) steps). Encoded and published off the step thread, newest state only.", False, "node", _positive),
@@ -165,6 +169,9 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("markers_wireframe", bool, True, "", "Include the wireframe LINE_LIST in tissue/markers.", False, "node"),
     ParamSpec("strain_color_max", float, 0.2, "", "Strain shown at full colour in the mesh marker (blue -max, red +max).", False, "node", _positive),
     ParamSpec("wire_width", float, 0.002, "m", "Line width of the wireframe markers.", False, "node", _positive),
+    ParamSpec("tool_start_x", float, math.nan, "m", "The tool's start pose in the plane: x (NaN, the default, with tool_start_y: no tool before the first tool/pose). With a start pose the tool is there from the first step (and after ~/reset), tool/applied_pose is published from the start, and the first tool pose is taken where it lies, however far (unless the tool there would overlap the tissue).", True, "node", _finite_or_nan),
+    ParamSpec("tool_start_y", float, math.nan, "m", "The tool's start pose in the plane: y (NaN with tool_start_x: none).", True, "node", _finite_or_nan),
+    ParamSpec("tool_start_yaw", float, 0.0, "rad", "The tool's start pose in the plane: the yaw about z.", True, "node", _finite),
     ParamSpec("max_tool_jump", float, 0.05, "m", "A tool pose farther than this from the last one accepted is rejected (dropped and counted): the tool holds its pose until a pose within this distance arrives, or ~/reset (after which any pose is accepted).", False, "node", _positive),
     ParamSpec("relocate_poses", int, 5, "", "A relocated robot: when the tool grasps nothing and this many rejected poses in a row are each within max_tool_jump of the one before, the tool is taken there (through the contact checks: swept in steps no longer than max_tool_jump, stopped before it would pass through the tissue), with a warning and a count on /diagnostics; 0 = never (only ~/reset).", False, "node", _non_negative),
     ParamSpec("max_stamp_age", float, 0.5, "s", "Timer mode: tool messages stamped older than this are dropped as stale; 0 = no check.", False, "node", _non_negative),
@@ -359,7 +366,7 @@ def coerce(spec: ParamSpec, value: Any) -> Any:
         raise InputError(f"parameter {spec.name}={value!r}: expected {_type_name(kind)}")
     value = float(value) if kind is float else value
     if spec.check is not None and HOME[spec.name] == "node":
-        if kind is float and not math.isfinite(value):
+        if kind is float and not math.isfinite(value) and not (math.isnan(value) and spec.check is _finite_or_nan):
             raise InputError(f"parameter {spec.name}={value!r}: expected a finite number")
         expected = spec.check(value)
         if expected is not None:
@@ -614,6 +621,10 @@ def _build(values: Mapping[str, Any]) -> Config:
         if lo in values and hi in values and values[hi] < values[lo]:
             raise InputError(f"parameter {hi}={values[hi]!r}: expected >= {lo}={values[lo]!r} (to move the range past "
                              "its other end, set both at once: a parameter file, or ~/set_parameters_atomically)")
+    start = [values.get(name, math.nan) for name in ("tool_start_x", "tool_start_y")]
+    if math.isnan(start[0]) != math.isnan(start[1]):
+        raise InputError(f"parameters tool_start_x={start[0]!r}, tool_start_y={start[1]!r}: expected both (a start "
+                         "pose) or neither (NaN: no tool before the first tool/pose)")
     by_home: dict[str, dict[str, Any]] = {"sim": {}, "scene": {}, "tool": {}, "node": {}}
     for name, value in values.items():
         home = HOME[name]

@@ -299,8 +299,8 @@ class TissueEnv(gym.Env):
         """The scene at t = 0 with this episode's material, in the same solver state whatever ran before.
 
         A new material is :meth:`Simulation.retune` (a fresh solver, nothing carried over) and a reset, and the
-        scene is then kept as a snapshot; the same material again restores that snapshot (a retune costs ~10 ms
-        on the retraction scene, a restore a few microseconds). Both start the step from the same numbers.
+        scene is then kept as a snapshot; the same material again restores that snapshot (a retune builds a
+        solver, a restore copies arrays). Both start the step from the same numbers.
         """
         key = tuple(material[k] for k in MATERIAL)
         if key != self._material_key:

@@ -2,7 +2,7 @@
 
 Not in ``render/``: that package draws publication figures with Matplotlib and selects the Agg backend when it is
 imported, which an RL user's own plotting (often interactive) must not inherit from a ``render()`` call, and a
-frame every step wants a rasteriser (~0.2 ms for the retraction flap at 480 x 320) rather than a figure.
+frame every step wants a rasteriser rather than a figure.
 
 ``human`` mode shows the frames in a Tk window (the standard library's ``tkinter``; the project's
 opencv-python-headless has no windows of its own). Where there is no display it is refused when the environment

@@ -89,7 +89,7 @@ class ProbeEnv(TissueEnv):
 
     def _start_episode(self, material: Mapping[str, float | None]) -> None:
         """The scene as the base class starts it, and the tool-free energy of the episode's steps from there (once
-        per material: ~0.1 s for 300 steps of the paper scene), which each step's energy is measured against."""
+        per material), which each step's energy is measured against."""
         super()._start_episode(material)
         key = tuple(material[k] for k in MATERIAL)
         if key not in self._baselines:

@@ -1,6 +1,6 @@
 """What ``tissue_controller`` (:mod:`~tissue_sim_ros.ros.controller_node`) is built from: its parameters (the
-tables, their checks and their markdown for ``msg_docs/parameters.md``), its model's configuration, and the
-start-up warm-up of the controller's kernels.
+tables, their descriptors with their ranges, and their markdown for ``msg_docs/parameters.md``), its model's
+configuration, and the start-up warm-up of the controller's kernels.
 
 Three tables: the node's own (:data:`NODE_PARAMETERS`), one row per
 :class:`~tissue_sim_ros.core.plan.control.ControlSettings` field (:data:`SETTINGS_PARAMETERS`; a field without a row
@@ -10,18 +10,19 @@ still becomes a parameter, :func:`settings_rows`), and the simulation parameters
 from __future__ import annotations
 
 import math
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 
-from ..core.config import BY_NAME, Config, ParamSpec, load_params_file, resolve_config
+from ..core.config import BY_NAME, Config, ParamSpec, coerce, load_params_file, resolve_config
 from ..core.contact.tool import ToolPose
 from ..core.errors import InputError
-from ..core.plan.control import MODEL_COARSENING, ControlSettings, TissueController
+from ..core.plan.control import MODEL_COARSENING, ControlSettings, TissueController, default_model
 from ..core.resources import scene_params_file
-from .parameters import parameter_value
+from .parameters import parameter_value, take_overrides
 
 #: The node's own parameters, name -> (default, description).
 NODE_PARAMETERS: dict[str, tuple[Any, str]] = {
@@ -37,6 +38,12 @@ NODE_PARAMETERS: dict[str, tuple[Any, str]] = {
     "warm_up": (True, "At start, before ~/move_tissue is offered, drive a throwaway copy of the controller through a grasp and one pull replan on its own model, so the numba kernels are compiled (or loaded) before the first goal."),
     "diagnostics_rate": (1.0, "Rate of /diagnostics [Hz]."),
     "warn_period": (2.0, "Each kind of warning about bad input is logged at most once per period [s]."),
+}
+
+#: The node's parameters with a range (inclusive; rclpy checks it at declaration): name -> (lowest, highest).
+NODE_RANGES: dict[str, tuple[float, float]] = {
+    "max_time": (1e-3, 1e6), "hold_time": (0.0, 1e6), "jobs": (1, 256), "nice": (0, 19),
+    "diagnostics_rate": (1e-3, 1e3), "warn_period": (0.0, 1e6),
 }
 
 #: One parameter per ControlSettings field: node name -> (field, description); default = the dataclass default.
@@ -117,7 +124,8 @@ def typed_value(name: str, value: Any, default: Any) -> Any:
     if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
         value = float(value)
     if type(value) is not type(default):
-        raise InputError(f"parameter {name}={value!r}: expected a {type(default).__name__}")
+        kind = {bool: "a boolean", int: "an integer", float: "a number", str: "a string"}[type(default)]
+        raise InputError(f"parameter {name}={value!r}: expected {kind}")
     if isinstance(value, float) and not math.isfinite(value):
         raise InputError(f"parameter {name}={value!r}: expected a finite number")
     return value
@@ -130,10 +138,77 @@ def model_default_text(name: str) -> str:
     return "the scene's (and params_file's) value"
 
 
-def sim_descriptor(spec: ParamSpec) -> ParameterDescriptor:
+def sim_description(spec: ParamSpec) -> str:
     unit = f" [{spec.unit}]" if spec.unit else ""
-    return ParameterDescriptor(description=f"The controller's model: {spec.description}{unit} Default: "
-                                           f"{model_default_text(spec.name)}.", read_only=True, dynamic_typing=True)
+    return f"The controller's model: {spec.description}{unit} Default: {model_default_text(spec.name)}."
+
+
+_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
+          float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
+
+
+def descriptor(name: str, default: Any, description: str) -> ParameterDescriptor:
+    """Read-only, typed as its default (a list: of floats), with its range from :data:`NODE_RANGES`."""
+    kind = ParameterType.PARAMETER_DOUBLE_ARRAY if isinstance(default, list) else _TYPES[type(default)]
+    d = ParameterDescriptor(name=name, type=kind, description=description, read_only=True)
+    if name in NODE_RANGES:
+        lo, hi = NODE_RANGES[name]
+        if isinstance(default, int):
+            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+        else:
+            d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
+    return d
+
+
+def _declare(node: Any, name: str, value: Any, default: Any, description: str) -> Any:
+    """Declare one parameter at ``value`` (its default's type); a value out of its range is an InputError."""
+    try:
+        node.declare_parameter(name, value, descriptor(name, default, description), ignore_override=True)
+    except (InvalidParameterValueException, InvalidParameterTypeException):
+        lo, hi = NODE_RANGES.get(name, (None, None))
+        raise InputError(f"parameter {name}={value!r}: expected {lo:g} to {hi:g}" if lo is not None
+                         else f"parameter {name}={value!r}: rclpy refused it") from None
+    return value
+
+
+@dataclass
+class ControllerParameters:
+    """The controller's parameters, declared: the node's own and the settings' values by name, its settings, its
+    model's Config and the model parameters that differ from the scene's."""
+
+    values: dict[str, Any]
+    settings: ControlSettings
+    config: Config
+    overrides: dict[str, Any]
+
+
+def declare_controller_parameters(node: Any) -> ControllerParameters:
+    """Declare every parameter of the controller (read-only, typed, ranged) at the value it was given or its
+    default; an integer given for a float (or a list of them) is taken as one. A bad value: InputError naming it.
+
+    ``node`` was made with ``automatically_declare_parameters_from_overrides`` (:func:`~.parameters.take_overrides`).
+    """
+    given = take_overrides(node)
+    values: dict[str, Any] = {}
+    rows = settings_rows()
+    tables = [(name, default, description) for name, (default, description) in NODE_PARAMETERS.items()]
+    tables += [(name, default, rows[name][1]) for name, default in settings_defaults().items()]
+    for name, default, description in tables:
+        value = typed_value(name, given.get(name, default), default)
+        values[name] = _declare(node, name, value, default, description)
+    files, base = model_config(values["scene"], values["params_file"])
+    flat = base.flat()
+    defaults = {**flat, **default_model(base)}  # the model's mesh: coarser than the scene's
+    overrides = {}
+    for name in MODEL_PARAMETERS:
+        spec = BY_NAME[name]
+        value = coerce(spec, given.get(name, defaults[name]))
+        _declare(node, name, value, float(defaults[name]), sim_description(spec))
+        if value != flat[name]:
+            overrides[name] = value
+    config = resolve_config(overrides, params_file=files, source="the controller's parameters")
+    settings = ControlSettings(**{attr: values[name] for name, (attr, _) in rows.items()})
+    return ControllerParameters(values, settings, config, overrides)
 
 
 def markdown_table() -> str:
@@ -144,7 +219,9 @@ def markdown_table() -> str:
         return f'`"{v}"`' if isinstance(v, str) else f"`{v!r}`".replace("True", "true").replace("False", "false")
 
     for name, (default, description) in NODE_PARAMETERS.items():
-        lines.append(f"| `{name}` | {shown(default)} | {description} |")
+        lo_hi = NODE_RANGES.get(name)
+        ranged = f" Range {lo_hi[0]:g} to {lo_hi[1]:g}." if lo_hi else ""
+        lines.append(f"| `{name}` | {shown(default)} | {description}{ranged} |")
     defaults = settings_defaults()
     for name, (attr, description) in settings_rows().items():
         field = f" ControlSettings' field {attr}." if attr != name else ""

@@ -1,8 +1,8 @@
 """A ROS_DOMAIN_ID no other participant on this machine uses, for the private graphs of tests, benchmarks and the demo.
 
 A process-id-based domain (``1 + pid % 100``) collides when two runs share a
-machine: a test's recorder once recorded a benchmark's node on the same domain
-(12,776 energy messages for a 300-step demo). A domain is in use when its first
+machine: a test's recorder then records a benchmark's node on the same domain.
+A domain is in use when its first
 participant's unicast discovery port is bound: the DDS port mapping of the
 RTPS standard (section 9.6.1.1, the defaults PB 7400, DG 250, d1 10) puts
 participant 0 of domain d on UDP port 7410 + 250 d, and every DDS vendor in

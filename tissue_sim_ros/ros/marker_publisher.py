@@ -1,6 +1,6 @@
 """``tissue/markers`` encoded and published off the step thread, newest state only.
 
-A 5,000-triangle MarkerArray is ~1 MB: encoding it takes ~1 ms, but handing
+A 5,000-triangle MarkerArray is about 1 MB: encoding it is quick, but handing
 1 MB to DDS every step is what made the node miss its ticks. The step thread
 therefore only copies what the markers need (particle positions, the tool
 pose, the contact particles: a few hundred kB of memcpy) into a one-slot
@@ -12,9 +12,8 @@ step never waits.
 The worker runs at a lower priority than the step thread (``nice``, added to
 its own niceness: Linux schedules threads, and raising a niceness needs no
 privileges): when the node shares its cores with other work, the scheduler
-then gives the core to the step first and the markers take what is left.
-Measured side by side on the 5k scene (docs/benchmarks.md): 2.9/1.7/3.2 %
-missed ticks with the worker at the step's priority, 2.0/1.2/0.1 % at +10.
+then gives the core to the step first and the markers take what is left
+(docs/benchmarks/node.md: fewer missed ticks at +10 than at the step's priority).
 
 The worker holds no ROS objects of its own: it calls the ``publish`` it was
 given (an rclpy publisher's, thread-safe in rcl) with the encoded bytes.

@@ -38,5 +38,23 @@ def parameter_value(value: Any) -> Any:
     return list(value) if hasattr(value, "tolist") or isinstance(value, tuple) else value
 
 
+#: Parameters rclpy declares for every node: left as they are.
+RCLPY_OWN = ("use_sim_time", "start_type_description_service")
+
+
+def take_overrides(node: Any) -> dict[str, Any]:
+    """What a node was given (its parameter files, ``-p``, ``parameter_overrides``), as plain Python, undeclared
+    again so that the node declares each with its own descriptor.
+
+    The node must be made with ``automatically_declare_parameters_from_overrides=True``: rclpy then declares
+    every override as given, which its public API reads back (rclpy keeps the overrides themselves private).
+    """
+    names = [n for n in node.get_parameters_by_prefix("") if n not in RCLPY_OWN]
+    given = {p.name: parameter_value(p.value) for p in node.get_parameters(names)}
+    for name in names:
+        node.undeclare_parameter(name)
+    return given
+
+
 if __name__ == "__main__":
     print(markdown_table())

@@ -109,6 +109,133 @@ def check_remaps(bag: Bag, topics: list[str], remaps: dict[str, str]) -> None:
         check_topic_name(dst if dst.startswith(("/", "~")) else "/" + dst, "--remap target", given=dst)
 
 
+def _prepare(bag_path: str | Path, topics: list[str] | None,
+             remaps: dict[str, str]) -> tuple[list[str], dict[str, Any], list[tuple[str, int, bytes]], dict]:
+    """The topics to play, their message classes, their messages in order and the QoS each is played with."""
+    with Bag(bag_path) as bag:
+        requested = topics
+        topics = choose_topics(bag, requested)
+        check_remaps(bag, topics, remaps)
+        classes = {}
+        for t in topics:
+            try:
+                classes[t] = message_class(bag.topics[t])
+            except InputError as exc:
+                if requested:  # asked for by name: an error
+                    raise
+                print(f"play: skipping {t}: {exc}", flush=True)
+        topics = [t for t in topics if t in classes]
+        if not topics:
+            raise InputError(f"bag {str(bag_path)!r}: none of its tool topics can be published here "
+                             "(their message packages are missing; see above)")
+        messages = load_messages(bag, topics)
+        counts = bag.message_counts
+        qos_of = {t: play_qos(bag, t, counts.get(t, 0)) for t in topics}
+    if not messages:
+        raise InputError(f"bag {str(bag_path)!r}: topics {', '.join(topics)} hold no messages")
+    return topics, classes, messages, qos_of
+
+
+class _Player:
+    """A node publishing the played topics (and /clock), stopped by ``stop``."""
+
+    def __init__(self, node: Any, topics: list[str], classes: dict[str, Any], qos_of: dict, remaps: dict[str, str],
+                 clock: bool, stop: threading.Event) -> None:
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: PLC0415
+
+        def qos(topic: str) -> QoSProfile:
+            reliable, latched, depth = qos_of[topic]
+            return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
+                              reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+                              durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+
+        self.node, self.remaps, self.stop = node, remaps, stop
+        self.pubs = {t: node.create_publisher(classes[t], remaps.get(t, t), qos(t)) for t in topics}
+        self.clock_pub = None
+        if clock:
+            from rosgraph_msgs.msg import Clock  # noqa: PLC0415
+
+            self.clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10))
+        self.watched = dict(self.pubs) if self.clock_pub is None else {**self.pubs, "/clock": self.clock_pub}
+
+    def _matched(self, pub: Any, need: int) -> bool:
+        # --min-subscribers matched, and every subscription the graph already shows on the topic: one
+        # subscriber elsewhere (a monitor, a viewer) must not start the play before the node's own is
+        # matched, whose first messages, and a latched /tf_static once play has ended, it would miss
+        known = self.node.count_subscribers(pub.topic_name) if need > 0 else 0
+        return pub.get_subscription_count() >= max(need, known)
+
+    def wait_for_subscribers(self, need: int, wait: float) -> None:
+        """Up to ``wait`` s for ``need`` subscribers on every played topic (and a /clock follower); says what is
+        missing when it plays anyway."""
+        stop, pubs, clock_pub = self.stop, self.pubs, self.clock_pub
+        deadline = time.monotonic() + max(0.0, wait)
+        while not stop.is_set() and time.monotonic() < deadline:
+            if all(self._matched(p, need) for p in pubs.values()):
+                break
+            stop.wait(0.02)  # polling the graph; a signal ends the wait at once
+        if clock_pub is not None and need > 0:
+            # a node that follows /clock subscribes once it has seen this publisher; nodes that do not never do
+            clock_deadline = min(deadline, time.monotonic() + 2.0) if wait > 0 else time.monotonic()
+            while not stop.is_set() and time.monotonic() < clock_deadline and clock_pub.get_subscription_count() < 1:
+                stop.wait(0.02)
+        waiting = [self.remaps.get(t, t) for t, p in pubs.items() if p.get_subscription_count() < need]
+        if waiting and wait > 0:
+            print(f"play: fewer than {need} subscribers on {', '.join(waiting)} after {wait} s; playing anyway",
+                  flush=True)
+        unmatched = [f"{p.topic_name} ({p.get_subscription_count()} of {self.node.count_subscribers(p.topic_name)})"
+                     for t, p in pubs.items() if self.remaps.get(t, t) not in waiting and not self._matched(p, need)]
+        if unmatched and wait > 0:
+            print(f"play: not every subscription in the graph matched after {wait} s on {', '.join(unmatched)} (one "
+                  "with incompatible QoS never does); playing anyway", flush=True)
+        if clock_pub is not None and clock_pub.get_subscription_count() == 0:
+            print("play: nobody subscribes to /clock (yet): nodes with use_sim_time or follow_clock follow the "
+                  "bag's time once they do", flush=True)
+
+    def run(self, messages: list[tuple[str, int, bytes]], rate: float, loop: bool, clock_rate: float) -> int:
+        """Publish the messages at their recorded times (scaled by ``rate``), /clock between; the count sent."""
+        stop, clock_pub, sent = self.stop, self.clock_pub, 0
+        t0 = messages[0][1]
+        span = messages[-1][1] - t0
+        period_ns = int(1e9 / clock_rate)
+        loop_offset = 0  # bag-time offset of the current loop, so /clock keeps increasing
+        while not stop.is_set():
+            start = time.monotonic()
+            next_clock = t0
+            for topic, t_ns, raw in messages:
+                # /clock ticks up to this message's time, each at its own wall time
+                while clock_pub is not None and next_clock <= t_ns and not stop.is_set():
+                    _sleep_until(start + (next_clock - t0) * 1e-9 / rate, stop)
+                    _publish_clock(clock_pub, next_clock + loop_offset)
+                    next_clock += period_ns
+                _sleep_until(start + (t_ns - t0) * 1e-9 / rate, stop)
+                if stop.is_set():
+                    break
+                if clock_pub is not None:
+                    _publish_clock(clock_pub, t_ns + loop_offset)
+                self.pubs[topic].publish(raw)
+                sent += 1
+            if not loop:
+                break
+            loop_offset += span + period_ns
+        return sent
+
+    def drain(self) -> None:
+        """Let the middleware hand the last messages (and /clock) over before the node goes: reliable readers
+        acknowledge them; best-effort ones (the node's tool input) never do, and the publisher's sending
+        thread may still hold the last sample when wait_for_all_acked returns, so play lingers a moment more
+        (without it a lock-step node lost the bag's last pose)."""
+        from rclpy.duration import Duration  # noqa: PLC0415
+
+        end = time.monotonic() + 1.0
+        for p in self.watched.values():
+            left = end - time.monotonic()
+            if left > 0 and p.get_subscription_count() > 0 and not self.stop.is_set():
+                p.wait_for_all_acked(Duration(nanoseconds=ns_from_seconds(left)))
+        if any(p.get_subscription_count() > 0 for p in self.watched.values()):
+            self.stop.wait(LINGER_S)
+
+
 def play(bag_path: str | Path, *, topics: list[str] | None = None, remaps: dict[str, str] | None = None,
          rate: float = 1.0, loop: bool = False, clock: bool = True, clock_rate: float = 100.0, wait: float = 5.0,
          min_subscribers: int = 1) -> int:
@@ -128,32 +255,9 @@ def play(bag_path: str | Path, *, topics: list[str] | None = None, remaps: dict[
     if not (math.isfinite(wait) and wait >= 0):
         raise InputError(f"--wait {wait}: expected seconds >= 0")
     remaps = dict(remaps or {})
-    with Bag(bag_path) as bag:
-        requested = topics
-        topics = choose_topics(bag, requested)
-        check_remaps(bag, topics, remaps)
-        types = {t: bag.topics[t] for t in topics}
-        classes = {}
-        for t in topics:
-            try:
-                classes[t] = message_class(types[t])
-            except InputError as exc:
-                if requested:  # asked for by name: an error
-                    raise
-                print(f"play: skipping {t}: {exc}", flush=True)
-        topics = [t for t in topics if t in classes]
-        if not topics:
-            raise InputError(f"bag {str(bag_path)!r}: none of its tool topics can be published here "
-                             "(their message packages are missing; see above)")
-        messages = load_messages(bag, topics)
-        counts = bag.message_counts
-        qos_of = {t: play_qos(bag, t, counts.get(t, 0)) for t in topics}
-    if not messages:
-        raise InputError(f"bag {str(bag_path)!r}: topics {', '.join(topics)} hold no messages")
+    topics, classes, messages, qos_of = _prepare(bag_path, topics, remaps)
 
     import rclpy  # noqa: PLC0415
-    from rclpy.duration import Duration  # noqa: PLC0415
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: PLC0415
     from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415
 
     stop = threading.Event()
@@ -169,87 +273,12 @@ def play(bag_path: str | Path, *, topics: list[str] | None = None, remaps: dict[
     sent = 0
     try:
         node = rclpy.create_node("tissue_sim_player", namespace="/")
-        def qos(topic: str) -> QoSProfile:
-            reliable, latched, depth = qos_of[topic]
-            return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                              reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
-                              durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
-
-        pubs = {t: node.create_publisher(classes[t], remaps.get(t, t), qos(t)) for t in topics}
-        clock_pub = None
-        if clock:
-            from rosgraph_msgs.msg import Clock  # noqa: PLC0415
-
-            clock_pub = node.create_publisher(Clock, "/clock", QoSProfile(depth=10))
-        watched = dict(pubs) if clock_pub is None else {**pubs, "/clock": clock_pub}
-        need = min_subscribers
-
-        def matched(pub: Any) -> bool:
-            # --min-subscribers matched, and every subscription the graph already shows on the topic: one
-            # subscriber elsewhere (a monitor, a viewer) must not start the play before the node's own is
-            # matched, whose first messages, and a latched /tf_static once play has ended, it would miss
-            known = node.count_subscribers(pub.topic_name) if need > 0 else 0
-            return pub.get_subscription_count() >= max(need, known)
-
-        deadline = time.monotonic() + max(0.0, wait)
-        while not stop.is_set() and time.monotonic() < deadline:
-            if all(matched(p) for p in pubs.values()):
-                break
-            stop.wait(0.02)  # polling the graph; a signal ends the wait at once
-        if clock_pub is not None and need > 0:
-            # a node that follows /clock subscribes once it has seen this publisher; nodes that do not never do
-            clock_deadline = min(deadline, time.monotonic() + 2.0) if wait > 0 else time.monotonic()
-            while not stop.is_set() and time.monotonic() < clock_deadline and clock_pub.get_subscription_count() < 1:
-                stop.wait(0.02)
-        waiting = [remaps.get(t, t) for t, p in pubs.items() if p.get_subscription_count() < need]
-        if waiting and wait > 0:
-            print(f"play: fewer than {need} subscribers on {', '.join(waiting)} after {wait} s; playing anyway",
-                  flush=True)
-        unmatched = [f"{p.topic_name} ({p.get_subscription_count()} of {node.count_subscribers(p.topic_name)})"
-                     for t, p in pubs.items() if remaps.get(t, t) not in waiting and not matched(p)]
-        if unmatched and wait > 0:
-            print(f"play: not every subscription in the graph matched after {wait} s on {', '.join(unmatched)} (one "
-                  "with incompatible QoS never does); playing anyway", flush=True)
-        if clock_pub is not None and clock_pub.get_subscription_count() == 0:
-            print("play: nobody subscribes to /clock (yet): nodes with use_sim_time or follow_clock follow the "
-                  "bag's time once they do", flush=True)
+        player = _Player(node, topics, classes, qos_of, remaps, clock, stop)
+        player.wait_for_subscribers(min_subscribers, wait)
         print(f"playing {len(messages)} messages on {', '.join(remaps.get(t, t) for t in topics)} at {rate}x"
-              + (" with /clock" if clock_pub else "") + (", looping" if loop else ""), flush=True)
-
-        t0 = messages[0][1]
-        span = messages[-1][1] - t0
-        period_ns = int(1e9 / clock_rate)
-        loop_offset = 0  # bag-time offset of the current loop, so /clock keeps increasing
-        while not stop.is_set():
-            start = time.monotonic()
-            next_clock = t0
-            for topic, t_ns, raw in messages:
-                # /clock ticks up to this message's time, each at its own wall time
-                while clock_pub is not None and next_clock <= t_ns and not stop.is_set():
-                    _sleep_until(start + (next_clock - t0) * 1e-9 / rate, stop)
-                    _publish_clock(clock_pub, next_clock + loop_offset)
-                    next_clock += period_ns
-                _sleep_until(start + (t_ns - t0) * 1e-9 / rate, stop)
-                if stop.is_set():
-                    break
-                if clock_pub is not None:
-                    _publish_clock(clock_pub, t_ns + loop_offset)
-                pubs[topic].publish(raw)
-                sent += 1
-            if not loop:
-                break
-            loop_offset += span + period_ns
-        # let the middleware hand the last messages (and /clock) over before the node goes: reliable readers
-        # acknowledge them; best-effort ones (the node's tool input) never do, and the publisher's sending
-        # thread may still hold the last sample when wait_for_all_acked returns, so play lingers a moment more
-        # (without it a lock-step node lost the bag's last pose: 29 steps for 30 poses, 5 of 22 runs)
-        end = time.monotonic() + 1.0
-        for p in watched.values():
-            left = end - time.monotonic()
-            if left > 0 and p.get_subscription_count() > 0 and not stop.is_set():
-                p.wait_for_all_acked(Duration(nanoseconds=ns_from_seconds(left)))
-        if any(p.get_subscription_count() > 0 for p in watched.values()):
-            stop.wait(LINGER_S)
+              + (" with /clock" if player.clock_pub else "") + (", looping" if loop else ""), flush=True)
+        sent = player.run(messages, rate, loop, clock_rate)
+        player.drain()
     finally:
         if node is not None:
             node.destroy_node()

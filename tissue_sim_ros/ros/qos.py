@@ -32,9 +32,8 @@ def tool_input(lock_step: bool = False) -> QoSProfile:
 def state_stream(depth: int = 100) -> QoSProfile:
     """Points, wrench, applied tool (keep last 100, as energy) and markers (keep last 2): reliable, volatile.
 
-    A reliable writer resends only what its history still holds: with 2, a recorder
-    on a loaded machine lost 4 of 300 point clouds in the demo (load 5), with 10 it
-    lost 12 (load 4). A second of points (55 kB each at 5k triangles: 5.5 MB at most, which
+    A reliable writer resends only what its history still holds, so a short history loses
+    point clouds to a recorder on a busy machine. A second of points (55 kB each at 5k triangles: 5.5 MB at most, which
     Fast DDS allocates once a reader first falls that far behind and then keeps: msg_docs/topics.md)
     never blocks the step (keep-last); markers (1 MB) keep 2.
     """
@@ -66,7 +65,7 @@ def diagnostics() -> QoSProfile:
 
 def tool_output() -> QoSProfile:
     """The tool driver's tool/pose and tool/twist publishers: reliable (matches any reader), keep last 100, so
-    a recorder on a loaded machine gets every pose (with 10 the demo's lost 5 of 300 at load 6.7)."""
+    a recorder on a busy machine gets every pose (a history of 10 lost some)."""
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                       reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 

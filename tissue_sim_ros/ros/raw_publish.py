@@ -1,35 +1,40 @@
-"""Publishing CDR bytes with the GIL released, for the ~1 MB MarkerArray on the marker thread.
+"""Publishing CDR bytes with the GIL released, for the 1 MB MarkerArray on the marker thread.
 
-rclpy's ``Publisher.publish(bytes)`` (``publish_raw`` in rclpy's C++) copies
-the bytes into a ``std::string`` and calls ``rcl_publish_serialized_message``
-while holding the GIL. For a 5,000-triangle MarkerArray (1 MB, reliable) the
-DDS write takes 0.7-1.8 ms at the median and up to ~6 ms, and the node's step
-thread cannot run a line of Python meanwhile. Measured in one process (a
-Python loop beside a thread publishing 1 MB at 30 Hz to a subscriber in
-another process, 150 arrays, 2 runs each): the loop was held more than 1 ms
-17-25 times by rclpy's publish, 0-1 times by this one (longest hold 4.1-4.8 ms
-against 0.7-2.9 ms).
+rclpy's ``Publisher.publish(bytes)`` (``publish_raw`` in rclpy's C++) copies the bytes into a ``std::string``
+and calls ``rcl_publish_serialized_message`` while holding the GIL: for as long as DDS takes a 1 MB write, the
+node's step thread cannot run a line of Python. rclpy offers no public call that lets the GIL go.
+:class:`GilFreePublisher` calls the same rcl function through ctypes, which releases the GIL for the call's
+duration, on the caller's own buffer (no copy). ``docs/benchmarks/ros.md`` measures the two side by side
+(``tissue-sim bench ros``).
 
-:class:`GilFreePublisher` calls the same rcl function through ctypes, which
-releases the GIL for the call's duration, on the caller's own buffer (no
-copy). rcl documents ``rcl_publish_serialized_message`` as thread-safe for a
-publisher that is not being finalized; the rclpy handle's context manager
-keeps it alive during the call, as rclpy's own ``publish`` does. Anything
-else than bytes, or a process where librcl is not found, goes through
-rclpy's ``publish`` unchanged.
-
-The structure passed is ``rcl_serialized_message_t`` (``rcutils_uint8_array_t``:
-buffer, length, capacity, then an ``rcutils_allocator_t`` of four function
-pointers and a state pointer), unchanged from Foxy to Jazzy; rcl does not
-use its allocator to publish, so it is left zeroed.
+rcl documents ``rcl_publish_serialized_message`` as thread-safe for a publisher that is not being finalized; the
+rclpy handle's context manager keeps it alive during the call, as rclpy's own ``publish`` does. The structure
+passed is ``rcl_serialized_message_t`` (``rcutils_uint8_array_t``: buffer, length, capacity, then an
+``rcutils_allocator_t`` of four function pointers and a state pointer); rcl does not use its allocator to
+publish, so it is left zeroed. That layout, and the publisher handle's ``pointer``, were checked against the
+rclpy releases of :data:`RCLPY_CHECKED` (``test_marker_publisher.py`` fails on another one); with any other
+rclpy, with anything else than bytes, or where librcl is not found, it publishes through rclpy's ``publish``.
 """
 from __future__ import annotations
 
 import ctypes
 import functools
 import re
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
+
+#: The rclpy releases (version prefixes: Jazzy's) whose publisher handle and serialized-message layout this
+#: module was checked against.
+RCLPY_CHECKED = ("7.",)
+
+
+def rclpy_checked() -> bool:
+    """Whether the installed rclpy is one of :data:`RCLPY_CHECKED`."""
+    try:
+        return version("rclpy").startswith(RCLPY_CHECKED)
+    except PackageNotFoundError:
+        return False
 
 
 class _Allocator(ctypes.Structure):
@@ -55,7 +60,10 @@ def _loaded_librcl() -> str | None:
 
 @functools.cache
 def rcl_publish_serialized() -> Any:
-    """ctypes function for ``rcl_publish_serialized_message`` of the loaded librcl, or None (looked up once)."""
+    """ctypes function for ``rcl_publish_serialized_message`` of the loaded librcl, or None (looked up once; None
+    also with an rclpy this module was not checked against)."""
+    if not rclpy_checked():
+        return None
     path = _loaded_librcl()
     if path is None:
         return None
@@ -72,7 +80,7 @@ class GilFreePublisher:
     """Wraps an rclpy Publisher: ``publish(bytes)`` without holding the GIL; everything else as the Publisher.
 
     ``gil_free`` tells which path it takes (False where librcl could not be
-    found: rclpy's publish then).
+    found or rclpy is not one of :data:`RCLPY_CHECKED`: rclpy's publish then).
     """
 
     def __init__(self, publisher: Any) -> None:

@@ -1,12 +1,11 @@
 """Real-time scheduling of the node's step thread (opt-in: parameter ``step_rt_priority``).
 
-On 2 shared cores the 5k scene's step, 4-5 ms on average on this machine,
-crosses the 10 ms period in its tail, and a normal thread or process that
-takes its core makes that worse. A thread under ``SCHED_FIFO`` runs before
-every normal (``SCHED_OTHER``) thread on its core, so other work cannot
-preempt the step (measured: fewer missed deadlines in 3 of 3 rounds; the
-step's own time unchanged, docs/benchmarks.md); it still waits for the GIL where the marker thread holds
-it (at most the 0.5 ms switch interval the node sets).
+On shared cores a large scene's step crosses the period in its tail, and a
+normal thread or process that takes its core makes that worse. A thread under
+``SCHED_FIFO`` runs before every normal (``SCHED_OTHER``) thread on its core, so
+other work cannot preempt the step (docs/benchmarks/node.md); it still waits for
+the GIL where the marker thread holds it (at most the switch interval the node
+sets, :data:`SWITCH_INTERVAL`).
 
 ``SCHED_RESET_ON_FORK`` goes with it: threads and processes started later by
 the step thread (a recorder, a planner pool) start under normal scheduling

@@ -151,7 +151,7 @@ class Recorder:
         return self.node.create_subscription(cls, topic, lambda data, t=topic: self._on_message(t, data), qos,
                                              raw=True, event_callbacks=SubscriptionEventCallbacks(message_lost=on_lost))
 
-    def _want(self, topic: str) -> bool:
+    def wants(self, topic: str) -> bool:
         if self.wanted is None:
             return topic not in _IGNORED
         return topic in self.wanted or any(topic.startswith(p) for p in self.prefixes)
@@ -201,7 +201,7 @@ class Recorder:
             if topic in self._provisional:
                 self._settle(topic, types)
                 continue
-            if topic in self.subscriptions or topic in self.skipped_types or not self._want(topic):
+            if topic in self.subscriptions or topic in self.skipped_types or not self.wants(topic):
                 continue
             if not self.node.get_publishers_info_by_topic(topic):
                 continue  # only subscribers so far (e.g. our own, or the node's inputs): wait for a publisher
@@ -365,6 +365,79 @@ class ParameterFetch:
         return f"  parameters of {self.target} recorded ({len(self.params)}): replay steps with them"
 
 
+def _recover(recover: str | Path, output: Path, storage: str) -> dict[str, int]:
+    counts = recover_bag(recover, output, storage)
+    with Bag(output) as bag:
+        kept = sorted(bag.custom_data)
+    print(f"recovered {sum(counts.values())} messages from {recover} into {output}: "
+          + (", ".join(f"{t} {n}" for t, n in sorted(counts.items())) or "no topics")
+          + (f"; custom_data kept: {', '.join(kept)}" if kept else ""))
+    return counts
+
+
+def _start(node: Any, writer: BagWriter, namespace: str, topics: list[str] | None, all_topics: bool,
+           duration: float | None) -> tuple[Recorder, ParameterFetch]:
+    """The recorder of the chosen topics (subscribed to the known inputs at once) and the simulator's
+    parameters' fetch."""
+    if all_topics:
+        wanted, prefixes = None, ()
+    elif topics:
+        wanted, prefixes = {resolve(t, namespace) for t in topics}, ()
+    else:
+        wanted = {resolve(t, namespace) for t in DEFAULT_TOPICS}
+        prefixes = tuple(resolve(p, namespace) for p in _PREFIXES)
+    recorder = Recorder(node, writer, wanted, prefixes, duration=duration)
+    simulator = resolve(SIMULATOR_TOPIC, namespace)
+    fetch = ParameterFetch(node, [simulator] if wanted is None or recorder.wants(simulator) else [])
+    for name, msgtype in KNOWN_INPUTS.items():
+        topic = resolve(name, namespace)
+        if wanted is not None and topic in wanted:
+            recorder.presubscribe(topic, msgtype)
+            print(f"  + {topic} ({msgtype})", flush=True)
+    return recorder, fetch
+
+
+def _run(executor: Any, recorder: Recorder, fetch: ParameterFetch, writer: BagWriter, stop: threading.Event,
+         duration: float | None, wait: float, quiet: bool) -> None:
+    """Spin until stopped, the duration is over, or nothing came within ``wait`` s; say how it goes."""
+    start = time.monotonic()
+    next_discovery, next_status, next_waiting = 0.0, start + 1.0, start + 2.0
+    announced = duration is None
+    while not stop.is_set():
+        now = time.monotonic()
+        if recorder.done:
+            break
+        if duration is not None and recorder.first_message is None and now - start >= wait:
+            print(f"  no message in {wait:g} s: nothing to record (is the node running, in this namespace and "
+                  "ROS domain?)", flush=True)
+            break
+        if not announced and recorder.first_message is not None:
+            announced = True
+            print(f"  first message after {recorder.first_message - start:.1f} s: recording {duration:g} s "
+                  "from it", flush=True)
+        if now >= next_discovery:
+            for topic in recorder.discover():
+                print(f"  + {topic} ({writer.topics[topic]})", flush=True)
+            next_discovery = now + 0.2
+        executor.spin_once(timeout_sec=0.05)
+        said = fetch.poll()
+        if said:
+            print(said, flush=True)
+            if fetch.params is not None:
+                from ..core.config import params_json_flat  # noqa: PLC0415
+
+                # durable: in the storage file at once, so a killed recorder's bag keeps them (record --recover)
+                writer.set_custom_data("tissue_sim.params", params_json_flat(fetch.params), durable=True)
+        if not quiet and now >= next_status:
+            next_status = now + 1.0
+            total = sum(writer.counts.values())
+            print(f"  {now - start:6.1f} s  {total} messages", flush=True)
+            if total == 0 and now >= next_waiting:
+                # a status of 0 messages for many seconds reads as a hang: say what it waits for
+                next_waiting = now + 5.0
+                print("  " + recorder.waiting_for(), flush=True)
+
+
 def record(output: str | Path | None = None, storage: str = "mcap", *, duration: float | None = None,
            namespace: str = "", topics: list[str] | None = None, all_topics: bool = False, flush_period: float = 1.0,
            quiet: bool = False, use_sim_time: bool = False, recover: str | Path | None = None,
@@ -385,13 +458,7 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
         raise InputError(f"--wait {wait}: expected seconds > 0")
     output = Path(output or time.strftime("tissue_sim_%Y%m%d_%H%M%S"))
     if recover:
-        counts = recover_bag(recover, output, storage)
-        with Bag(output) as bag:
-            kept = sorted(bag.custom_data)
-        print(f"recovered {sum(counts.values())} messages from {recover} into {output}: "
-              + (", ".join(f"{t} {n}" for t, n in sorted(counts.items())) or "no topics")
-              + (f"; custom_data kept: {', '.join(kept)}" if kept else ""))
-        return counts
+        return _recover(recover, output, storage)
     # names are checked before the bag directory exists: bad input creates nothing
     check_namespace(namespace)
     for t in topics or []:
@@ -400,6 +467,7 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
 
     import rclpy  # noqa: PLC0415
     from rclpy.executors import SingleThreadedExecutor  # noqa: PLC0415
+    from rclpy.parameter import Parameter  # noqa: PLC0415
     from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415
 
     stop = threading.Event()
@@ -415,67 +483,14 @@ def record(output: str | Path | None = None, storage: str = "mcap", *, duration:
     rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
     node = recorder = None
     try:
-        from rclpy.parameter import Parameter  # noqa: PLC0415
-
         node = rclpy.create_node("tissue_sim_recorder", namespace="/", parameter_overrides=[
             Parameter("use_sim_time", Parameter.Type.BOOL, bool(use_sim_time))])
-        if all_topics:
-            wanted, prefixes = None, ()
-        elif topics:
-            wanted, prefixes = {resolve(t, namespace) for t in topics}, ()
-        else:
-            wanted = {resolve(t, namespace) for t in DEFAULT_TOPICS}
-            prefixes = tuple(resolve(p, namespace) for p in _PREFIXES)
-        recorder = Recorder(node, writer, wanted, prefixes, duration=duration)
-        simulator = resolve(SIMULATOR_TOPIC, namespace)
-        fetch = ParameterFetch(node, [simulator] if wanted is None or recorder._want(simulator) else [])
-        for name, msgtype in KNOWN_INPUTS.items():
-            topic = resolve(name, namespace)
-            if wanted is not None and topic in wanted:
-                recorder.presubscribe(topic, msgtype)
-                print(f"  + {topic} ({msgtype})", flush=True)
+        recorder, fetch = _start(node, writer, namespace, topics, all_topics, duration)
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         print(f"recording to {output} ({storage}); Ctrl-C to stop"
               + (f"; {duration:g} s from the first message" if duration is not None else ""), flush=True)
-        start = time.monotonic()
-        next_discovery = 0.0
-        next_status = start + 1.0
-        next_waiting = start + 2.0
-        announced = duration is None
-        while not stop.is_set():
-            now = time.monotonic()
-            if recorder.done:
-                break
-            if duration is not None and recorder.first_message is None and now - start >= wait:
-                print(f"  no message in {wait:g} s: nothing to record (is the node running, in this namespace and "
-                      "ROS domain?)", flush=True)
-                break
-            if not announced and recorder.first_message is not None:
-                announced = True
-                print(f"  first message after {recorder.first_message - start:.1f} s: recording {duration:g} s "
-                      "from it", flush=True)
-            if now >= next_discovery:
-                for topic in recorder.discover():
-                    print(f"  + {topic} ({writer.topics[topic]})", flush=True)
-                next_discovery = now + 0.2
-            executor.spin_once(timeout_sec=0.05)
-            said = fetch.poll()
-            if said:
-                print(said, flush=True)
-                if fetch.params is not None:
-                    from ..core.config import params_json_flat  # noqa: PLC0415
-
-                    # durable: in the storage file at once, so a killed recorder's bag keeps them (record --recover)
-                    writer.set_custom_data("tissue_sim.params", params_json_flat(fetch.params), durable=True)
-            if not quiet and now >= next_status:
-                next_status = now + 1.0
-                total = sum(writer.counts.values())
-                print(f"  {now - start:6.1f} s  {total} messages", flush=True)
-                if total == 0 and now >= next_waiting:
-                    # a status of 0 messages for many seconds reads as a hang: say what it waits for
-                    next_waiting = now + 5.0
-                    print("  " + recorder.waiting_for(), flush=True)
+        _run(executor, recorder, fetch, writer, stop, duration, wait, quiet)
     finally:
         writer.close()
         if node is not None:

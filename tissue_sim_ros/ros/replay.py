@@ -5,7 +5,7 @@
 modes); :class:`ReplayBagSink` writes each step's outputs into a bag with the
 node's own :class:`~tissue_sim_ros.ros.messages.StepEncoder`; :func:`write_outputs`
 writes the CSV, plot, frames and video. The command line is in
-:mod:`tissue_sim_ros.cli.replay`. Three modes (:func:`schedule`): ``per-message``, ``fixed-rate``, and ``applied``: a bag the node recorded
+:mod:`tissue_sim_ros.cli.replay`, the job (files, summary) in :mod:`tissue_sim_ros.experiments.replay`. Three modes (:func:`schedule`): ``per-message``, ``fixed-rate``, and ``applied``: a bag the node recorded
 itself, stepped with the pose and twist the node used at each step (``tool/applied_pose``,
 ``tool/applied_twist``), so a timer-mode run is reproduced bit for bit. Instead of a bag, :func:`track_from_trajectory` turns a trajectory given as
 data (:mod:`tissue_sim_ros.core.timing.trajectories`) into the samples, one step each.

@@ -33,7 +33,15 @@ import numpy as np
 
 from ..core.contact.tool import ToolPose, ToolTwist, yaw_from_quaternion
 from ..core.errors import InputError
-from .messages import CdrReader, CdrWriter, Stamp
+from .messages import (
+    Stamp,
+    decode_joint_state,
+    decode_pose_stamped,
+    decode_twist_stamped,
+    encode_joint_state,
+    pose_stamped,
+    twist_stamped,
+)
 
 POSE_TOPIC = "/tool/applied_pose"
 TWIST_TYPE = "geometry_msgs/msg/TwistStamped"
@@ -53,56 +61,35 @@ def planar_quaternion(yaw: float) -> tuple[float, float, float, float]:
 def encode_applied_pose(stamp: Stamp, frame_id: str, x: float, y: float,
                         quaternion: tuple[float, float, float, float]) -> bytes:
     """geometry_msgs/PoseStamped: the tool's position in the plane (z = 0) and the quaternion its yaw came from."""
-    w = CdrWriter()
-    w.header(stamp, frame_id)
-    w.f64s(x, y, 0.0, *quaternion)
-    return w.getvalue()
+    return pose_stamped(stamp, frame_id, (x, y, 0.0), quaternion)
 
 
 def encode_applied_twist(stamp: Stamp, frame_id: str, twist: ToolTwist) -> bytes:
     """geometry_msgs/TwistStamped: linear (vx, vy, 0) [m/s], angular (0, 0, wz) [rad/s]."""
-    w = CdrWriter()
-    w.header(stamp, frame_id)
-    w.f64s(twist.vx, twist.vy, 0.0, 0.0, 0.0, twist.wz)
-    return w.getvalue()
+    return twist_stamped(stamp, frame_id, (twist.vx, twist.vy, 0.0), (0.0, 0.0, twist.wz))
 
 
 def encode_applied_jaw(stamp: Stamp, frame_id: str, jaw: float | None) -> bytes:
     """sensor_msgs/JointState: one joint ``jaw``, ``position[0]`` the jaw angle [rad]; no position: none given."""
-    w = CdrWriter()
-    w.header(stamp, frame_id)
-    w.u32(1)
-    w.string("jaw")
-    w.sequence(np.array([] if jaw is None else [jaw], dtype="<f8"), 0 if jaw is None else 1, 8)
-    w.u32(0)
-    w.u32(0)
-    return w.getvalue()
+    return encode_joint_state(stamp, frame_id, ["jaw"], [] if jaw is None else [jaw])
 
 
 def decode_applied_jaw(data: bytes) -> tuple[Stamp, float | None]:
-    r = CdrReader(data)
-    stamp, _ = r.header()
-    for _ in range(r.u32()):
-        r.string()
-    n = r.u32()
-    return stamp, (r.f64s(n)[0] if n else None)
+    stamp, _, _, positions = decode_joint_state(data)
+    return stamp, (float(positions[0]) if positions.size else None)
 
 
 def decode_applied_pose(data: bytes) -> tuple[Stamp, ToolPose]:
-    r = CdrReader(data)
-    stamp, _ = r.header()
-    x, y, _z, qx, qy, qz, qw = r.f64s(7)
+    stamp, _, (x, y, _z), (qx, qy, qz, qw) = decode_pose_stamped(data)
     yaw = yaw_from_quaternion(qx, qy, qz, qw)
     if yaw is None:
         raise InputError(f"{POSE_TOPIC} stamped {stamp}: not a rotation ({qx}, {qy}, {qz}, {qw})")
-    return stamp, ToolPose(x, y, yaw)
+    return stamp, ToolPose(float(x), float(y), yaw)
 
 
 def decode_applied_twist(data: bytes) -> tuple[Stamp, ToolTwist]:
-    r = CdrReader(data)
-    stamp, _ = r.header()
-    vx, vy, _vz, _wx, _wy, wz = r.f64s(6)
-    return stamp, ToolTwist(vx, vy, wz)
+    stamp, _, (vx, vy, _vz), (_wx, _wy, wz) = decode_twist_stamped(data)
+    return stamp, ToolTwist(float(vx), float(vy), float(wz))
 
 
 @dataclass
@@ -164,7 +151,7 @@ def read_applied_steps(path: str | Path, namespace: str | None = None) -> Applie
                              f"tool (record with the node's record_path); it has: {bag.describe_topics()}")
         # the node writes each step's pose (when it had a tool), then its twist, but a recorder in another process
         # receives the topics on separate subscriptions: a pose can arrive after its twist, or two poses before
-        # their twists (seen under load). So the steps are the twists in order, and a pose or jaw belongs to the
+        # their twists (on a busy machine). So the steps are the twists in order, and a pose or jaw belongs to the
         # twist with its stamp. Stamps need not increase (a node that starts following /clock jumps to the bag's
         # time), so when a stamp recurs, the step whose twist arrived nearest in time takes it
         jaw_topic = namespace.rstrip("/") + JAW_TOPIC

@@ -1,7 +1,9 @@
-"""``tissue-sim bench stability``: the command line of bench/stability.py (and bench/material_stability.py)."""
+"""``tissue-sim bench stability``: the command line of bench/stability.py (and of bench/material_stability.py with
+``--material``, bench/grasp_stability.py with ``--grasp``)."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from ...bench import stability
 from ..options import add_backend_arguments, backend_kwargs
@@ -23,5 +25,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    return stability.run(args.out, quick=args.quick, material=args.material, grasp=args.grasp,
-                         **backend_kwargs(args))
+    if args.material:
+        from ...bench.material_stability import run_material  # noqa: PLC0415  (one sweep's imports only)
+
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        return run_material(out, args.quick)
+    if args.grasp:
+        from ...bench.grasp_stability import run_grasp_sweep  # noqa: PLC0415
+
+        return run_grasp_sweep(args.out, args.quick)
+    return stability.run(args.out, quick=args.quick, **backend_kwargs(args))

@@ -38,9 +38,8 @@ A parameter is *not identifiable*, tested in this order, when
 It is then held at its starting value, the others refitted, and reported with
 the reason instead of a number. The forward-difference step is 10% of a scale
 parameter (``diff_step`` 0.1): contact makes a rollout rough at the micrometre
-level (measured on the 8 mm test mesh: two rollouts with the same E / rho, the
-same motion in exact arithmetic, differ by up to 4 um), which a small step
-turns into Jacobian noise.
+level (two rollouts with the same E / rho, the same motion in exact
+arithmetic, differ there), which a small step turns into Jacobian noise.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Drive the tissue to a target (issue 31): a model-predictive controller for a grasper, on its own model.
+"""Drive the tissue to a target: a model-predictive controller for a grasper, on its own model.
 
 The controller sees what a tracker gives: tissue points (positions, with the model's particle ids, or bound to the
 model at the first observation), the tool's measured pose and jaw. It keeps its own model of the tissue (a
@@ -25,13 +25,13 @@ step returns the next tool command (pose, twist, jaw):
   and its prediction is offset-free: the model's point plus a bias b, the observed point nearest the start minus
   the model's, filtered over the syncs (b <- (1 - a) b + a (o - m), a = ``bias_gain``). A model that is not the
   world (coarser, another E) is then wrong about where the point goes by what it was wrong about where it is,
-  which the bias removes: measured, a 4 mm model of the 2.5 mm flap stopped 4.7 mm off its goal without it and
-  0.7 mm with it.
+  which the bias removes (docs/control.md: a coarse model of the flap reaches its goal with it, not without).
 * **approach**: the grasp site is chosen once, from the free particles within ``grasp_search`` of the goal's
   start point that the open grasper can reach from above without touching the tissue: each is rolled out on the
   model (tool placed at the site, jaw closed, a straight pull by the goal's displacement at ``pull_speeds[0]``)
   and the one whose rollout leaves the goal point nearest its goal is taken. The tool then moves above the site
-  at ``approach_speed``, comes down to ``approach_clearance`` above it and closes the jaw.
+  at ``approach_speed`` (from wherever it is: first straight up to the hover height when it is below it),
+  comes down to ``approach_clearance`` above it and closes the jaw.
 * **pull** (model-predictive): every ``replan_every`` steps the candidates are straight tool motions of
   ``horizon`` steps toward the tool pose plus g R(theta) d (d: the goal's displacement still to go in the synced
   model; g in ``gains``, theta in ``angles_deg``, at each of ``pull_speeds``; and holding still), rolled out in a
@@ -75,8 +75,8 @@ from .observe import SyncEnergy, embed, particle_points
 PHASES = ("approach", "close", "pull", "holding")
 MODEL_COARSENING = 2.0
 """The controller's model is its scene on a mesh this many times coarser than the world's by default
-(:func:`default_model`): the retraction flap's 2.5 mm world (150 particles) is modelled at 5 mm (39), where a
-replan's 32 candidates x 50 steps fit in 100 ms on two cores (docs/control.md)."""
+(:func:`default_model`): the retraction flap's 2.5 mm world is modelled at 5 mm, where a replan's candidates fit
+within the steps it commits (docs/control.md)."""
 RECORDS_KEPT = 200
 """Replan records a controller keeps by default (:attr:`TissueController.records`, the newest last)."""
 APPROACH_REACHED = 3e-4
@@ -552,7 +552,8 @@ class TissueController:
             self.queue = [(ToolPose(tool_pose.x, tool_pose.y, tool_pose.yaw), s.closed_jaw)]
             return
         waypoints = [np.array([target.x, target.y])] if abs(tool_pose.x - target.x) < 1e-3 and \
-            tool_pose.y <= hover.y + 1e-9 else [np.array([hover.x, hover.y]), np.array([target.x, target.y])]
+            tool_pose.y <= hover.y + 1e-9 else [*self._rise(tool_pose, hover), np.array([hover.x, hover.y]),
+                                                 np.array([target.x, target.y])]
         for w in waypoints:
             while len(queue) < s.replan_every:
                 d = w - pos
@@ -565,6 +566,14 @@ class TissueController:
         if not queue:
             queue.append((ToolPose(target.x, target.y, 0.0), s.open_jaw))
         self.queue = queue
+
+    @staticmethod
+    def _rise(tool_pose: ToolPose, hover: ToolPose) -> list[np.ndarray]:
+        """A tool below the hover height and not over the site first rises straight up to that height: from
+        wherever it starts, the open grasper then crosses to the site above the tissue, never through it."""
+        if tool_pose.y < hover.y - 1e-9 and abs(tool_pose.x - hover.x) >= 1e-3:
+            return [np.array([tool_pose.x, hover.y])]
+        return []
 
     def planned_path(self, points: Any, tool_pose: ToolPose, jaw: float, *, t: float | None = None,
                      ids: Any = None) -> np.ndarray:
@@ -584,7 +593,9 @@ class TissueController:
                 self._choose_site(tool_pose, jaw, rec)
                 self._record(rec)
             site = self._site_pose(self.site)
-            pts += [(site.x, site.y + s.approach_hover, 0.0), (site.x, site.y, 0.0)]
+            hover = ToolPose(site.x, site.y + s.approach_hover, 0.0)
+            pts += [(float(w[0]), float(w[1]), 0.0) for w in self._rise(tool_pose, hover)]
+            pts += [(hover.x, hover.y, 0.0), (site.x, site.y, 0.0)]
         else:
             pts += [(p.x, p.y, p.yaw) for p, _ in self.queue]
         disp = self.to_go()

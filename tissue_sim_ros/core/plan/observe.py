@@ -1,4 +1,4 @@
-"""The controller's model tied to what a tracker sees (issue 31; :mod:`.control` uses them).
+"""The controller's model tied to what a tracker sees (:mod:`.control` uses them).
 
 * :func:`embed`: observed points as barycentric weights in the model's triangles (the fit's weights,
   :func:`~tissue_sim_ros.core.fit.tracking.barycentric`), so a model on another mesh is tied at the material

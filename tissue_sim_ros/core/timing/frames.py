@@ -2,8 +2,9 @@
 
 The tissue lives in the z = 0 plane of its own frame (the node's ``frame_id``).
 A robot publishes its tool in frames of its own (``base_link``, ``world``,
-``tool0``...), often only as transforms on /tf. This module, pure NumPy and
-``math`` (no ROS), gives
+``tool0``...), often only as transforms on /tf. This module (no ROS; the
+rotations are SciPy's :class:`~scipy.spatial.transform.Rotation`, their
+interpolation its slerp) gives
 
 * :class:`Transform`: a rigid transform (translation, unit quaternion x, y, z, w)
   with composition, inverse, and the ROS conventions: ``T_a_b`` maps points
@@ -30,9 +31,11 @@ import bisect
 import math
 from collections import deque
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Iterable
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
 
@@ -40,64 +43,46 @@ Quaternion = tuple[float, float, float, float]
 Vector = tuple[float, float, float]
 
 
-def quat_multiply(a: Quaternion, b: Quaternion) -> Quaternion:
-    """Hamilton product a * b of (x, y, z, w) quaternions (rotation b first, then a)."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return (aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz)
+def _quat(r: Rotation) -> Quaternion:
+    return tuple(float(c) for c in r.as_quat())  # type: ignore[return-value]
+
+
+def _vector(v: np.ndarray) -> Vector:
+    return float(v[0]), float(v[1]), float(v[2])
 
 
 def quat_normalize(q: Quaternion) -> Quaternion:
+    """``q`` divided by its norm; InputError when it is no rotation (zero or not finite). Every /tf transform is
+    checked so; its SciPy Rotation is made only when a lookup uses it."""
     n = math.sqrt(sum(c * c for c in q))
     if not math.isfinite(n) or n < 1e-9:
         raise InputError(f"quaternion {q}: expected a rotation (non-zero, finite)")
     return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
 
-def quat_conjugate(q: Quaternion) -> Quaternion:
-    return (-q[0], -q[1], -q[2], q[3])
-
-
-def quat_rotate(q: Quaternion, v: Vector) -> Vector:
-    """The vector v rotated by the unit quaternion q (v' = q v q*)."""
-    x, y, z, w = q
-    vx, vy, vz = v
-    # t = 2 q_vec x v; v' = v + w t + q_vec x t
-    tx, ty, tz = 2.0 * (y * vz - z * vy), 2.0 * (z * vx - x * vz), 2.0 * (x * vy - y * vx)
-    return (vx + w * tx + (y * tz - z * ty), vy + w * ty + (z * tx - x * tz), vz + w * tz + (x * ty - y * tx))
-
-
 def quat_from_rpy(roll: float, pitch: float, yaw: float) -> Quaternion:
-    """Rotation R = Rz(yaw) Ry(pitch) Rx(roll) as (x, y, z, w) (the tf2/URDF convention)."""
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy,
-            cr * cp * cy + sr * sp * sy)
-
-
-def quat_slerp(a: Quaternion, b: Quaternion, s: float) -> Quaternion:
-    """Spherical interpolation from a (s = 0) to b (s = 1), the short way round."""
-    dot = sum(x * y for x, y in zip(a, b))
-    if dot < 0.0:
-        b, dot = (-b[0], -b[1], -b[2], -b[3]), -dot
-    if dot > 0.9995:  # nearly equal: linear, then normalised
-        return quat_normalize(tuple(x + s * (y - x) for x, y in zip(a, b)))  # type: ignore[arg-type]
-    theta = math.acos(min(1.0, dot))
-    sin_t = math.sin(theta)
-    wa, wb = math.sin((1.0 - s) * theta) / sin_t, math.sin(s * theta) / sin_t
-    return tuple(wa * x + wb * y for x, y in zip(a, b))  # type: ignore[return-value]
+    """Rotation R = Rz(yaw) Ry(pitch) Rx(roll) as (x, y, z, w) (the tf2/URDF convention: SciPy's intrinsic ZYX)."""
+    return _quat(Rotation.from_euler("ZYX", [yaw, pitch, roll]))
 
 
 @dataclass(frozen=True)
 class Transform:
-    """Rigid transform: p_parent = R(rotation) p_child + translation."""
+    """Rigid transform: p_parent = R(rotation) p_child + translation (the rotation a SciPy Rotation, made once)."""
 
     translation: Vector = (0.0, 0.0, 0.0)
     rotation: Quaternion = (0.0, 0.0, 0.0, 1.0)
+
+    @cached_property
+    def rotation_object(self) -> Rotation:
+        """:attr:`rotation` as a SciPy Rotation."""
+        return Rotation.from_quat(self.rotation)
+
+    @classmethod
+    def of(cls, translation: Iterable[float], rotation: Rotation) -> Transform:
+        """A transform of a translation and a SciPy Rotation."""
+        out = cls(_vector(np.asarray(translation, dtype=float)), _quat(rotation))
+        out.__dict__["rotation_object"] = rotation  # the cached_property's own slot: no second conversion
+        return out
 
     @classmethod
     def from_xyz_rpy(cls, x: float, y: float, z: float, roll: float, pitch: float, yaw: float) -> Transform:
@@ -116,24 +101,23 @@ class Transform:
 
     def __mul__(self, other: Transform) -> Transform:
         """Composition: (self * other)(p) = self(other(p)); T_a_b * T_b_c = T_a_c."""
-        r = quat_rotate(self.rotation, other.translation)
-        t = (r[0] + self.translation[0], r[1] + self.translation[1], r[2] + self.translation[2])
-        return Transform(t, quat_multiply(self.rotation, other.rotation))
+        return Transform.of(self.apply(other.translation), self.rotation_object * other.rotation_object)
 
     def inverse(self) -> Transform:
-        qi = quat_conjugate(self.rotation)
-        t = quat_rotate(qi, self.translation)
-        return Transform((-t[0], -t[1], -t[2]), qi)
+        inv = self.rotation_object.inv()
+        return Transform.of(-inv.apply(self.translation), inv)
 
     def apply(self, p: Vector) -> Vector:
-        r = quat_rotate(self.rotation, p)
-        return (r[0] + self.translation[0], r[1] + self.translation[1], r[2] + self.translation[2])
+        return _vector(self.rotation_object.apply(p) + self.translation)
+
+    def rotate(self, v: Vector) -> Vector:
+        """A vector (a velocity) in the child frame, in the parent's: the rotation alone."""
+        return _vector(self.rotation_object.apply(v))
 
     def matrix(self) -> np.ndarray:
         """The 4x4 homogeneous matrix."""
         m = np.eye(4)
-        for i, e in enumerate(np.eye(3)):
-            m[:3, i] = quat_rotate(self.rotation, tuple(e))
+        m[:3, :3] = self.rotation_object.as_matrix()
         m[:3, 3] = self.translation
         return m
 
@@ -142,9 +126,13 @@ class Transform:
 
 
 def interpolate(a: Transform, b: Transform, s: float) -> Transform:
-    """The transform a fraction s in [0, 1] of the way from a to b (linear translation, slerp rotation)."""
+    """The transform a fraction s in [0, 1] of the way from a to b: linear in translation, the rotation's slerp
+    the short way round (:class:`~scipy.spatial.transform.Slerp`'s formula, a times the fraction s of the
+    rotation from a to b, without making a Slerp per lookup)."""
     t = tuple(x + s * (y - x) for x, y in zip(a.translation, b.translation))
-    return Transform(t, quat_slerp(a.rotation, b.rotation, s))  # type: ignore[arg-type]
+    ra = a.rotation_object
+    step = Rotation.from_rotvec(s * (ra.inv() * b.rotation_object).as_rotvec())
+    return Transform.of(t, ra * step)
 
 
 def project_pose(t_plane_src: Transform, position: Vector,
@@ -155,8 +143,10 @@ def project_pose(t_plane_src: Transform, position: Vector,
     orientation with :func:`~tissue_sim_ros.core.contact.tool.yaw_from_quaternion`
     (the heading of the tool's +x axis in the plane).
     """
+    if t_plane_src.is_identity():  # the pose as given, to the bit (a replay of it computes the same yaw)
+        return float(position[0]), float(position[1]), float(position[2]), orientation
     p = t_plane_src.apply(position)
-    q = quat_multiply(t_plane_src.rotation, orientation)
+    q = _quat(t_plane_src.rotation_object * Rotation.from_quat(orientation))
     return p[0], p[1], p[2], q
 
 
@@ -166,8 +156,7 @@ def project_twist(t_plane_src: Transform, linear: Vector, angular: Vector) -> tu
     Only the rotation applies (the frames are taken as fixed to each other while
     the twist holds: no transport terms).
     """
-    v = quat_rotate(t_plane_src.rotation, linear)
-    w = quat_rotate(t_plane_src.rotation, angular)
+    v, w = t_plane_src.rotate(linear), t_plane_src.rotate(angular)
     return v[0], v[1], w[2]
 
 
@@ -321,10 +310,17 @@ class TransformBuffer:
         if common is None:
             raise FrameLookupError(f"frames {source!r} and {target!r} are not connected (roots {up_source[-1]!r} "
                                    f"and {up_target[-1]!r})")
-        t_common_source = Transform()
-        for f in up_source[:up_source.index(common)]:
-            t_common_source = self._link(f, t_ns) * t_common_source
-        t_common_target = Transform()
-        for f in up_target[:up_target.index(common)]:
-            t_common_target = self._link(f, t_ns) * t_common_target
-        return t_common_target.inverse() * t_common_source
+        t_common_source = self._compose(up_source[:up_source.index(common)], t_ns)
+        t_common_target = self._compose(up_target[:up_target.index(common)], t_ns)
+        if t_common_target is None:
+            return t_common_source or Transform()
+        inverse = t_common_target.inverse()
+        return inverse if t_common_source is None else inverse * t_common_source
+
+    def _compose(self, chain: list[str], t_ns: int) -> Transform | None:
+        """T_top_frame of ``chain`` (a frame, its parent, ... short of the top), None for an empty chain."""
+        out = None
+        for f in chain:
+            link = self._link(f, t_ns)
+            out = link if out is None else link * out
+        return out

@@ -113,7 +113,7 @@ SCENE_EXPERIMENTS: dict[str, SceneExperiments] = {"paper": PAPER, "liver_probe":
                                                   "retract": RETRACT}
 
 
-#: The retraction (issue 30, config/scenes/retract.yaml): phases of :func:`retract_trajectory` as
+#: The retraction (config/scenes/retract.yaml): phases of :func:`retract_trajectory` as
 #: (name, duration [s]): the open grasper comes down onto the flap, closes, lifts and pulls back, holds, opens.
 RETRACT_PHASES = (("approach", 0.4), ("close", 0.1), ("lift", 1.0), ("pull back", 1.0), ("hold", 0.5), ("open", 0.1),
                   ("after", 0.6))

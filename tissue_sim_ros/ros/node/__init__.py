@@ -17,11 +17,13 @@ step never piles up: the node counts the overrun and the skipped ticks and
 reports them on ``/diagnostics``.
 
 Laid out by job; :class:`TissueSimNode` only wires the parts together, each of
-which takes the node as an argument:
+which takes the few objects it needs (the settings, the simulation, the clock, its publishers), never the
+node, and the flow reads one way: inputs -> stepping -> outputs.
 
 * :mod:`.inputs`: the tool inputs (checks, frames, lock-step's pairing of pose and twist by stamp, jumps);
 * :mod:`.stepping`: the step timer or lock-step, the phase lock, the step itself;
-* :mod:`.outputs`: a step's messages, the markers, the rest mesh, ``/diagnostics``;
+* :mod:`.outputs`: a step's messages, the markers, the rest mesh (on the publishers of :mod:`.publishers`);
+* :mod:`.diagnostics`: ``/diagnostics``;
 * :mod:`.settings`: the parameters, declared resolved and changed at run time;
 * :mod:`.recording` (``record_path``), :mod:`.clock_follow` (``follow_clock``), :mod:`.stats` (counters; the
   throttled warnings are :mod:`..throttle`'s, shared with tissue_controller);
@@ -30,36 +32,41 @@ which takes the node as an argument:
 """
 from __future__ import annotations
 
+import math
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray
-from geometry_msgs.msg import PoseStamped, TwistStamped, WrenchStamped
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from sensor_msgs.msg import JointState, PointCloud2
-from std_msgs.msg import Float64, Float64MultiArray, UInt32
 from std_srvs.srv import SetBool, Trigger
-from visualization_msgs.msg import MarkerArray
 
-from ...core.config import Config
-from ...core.sim.simulation import Simulation, StepReport
-from .. import messages, qos
+from ...core.config import SIM_NAMES, Config
+from ...core.contact.tool import ToolPose
+from ...core.sim.simulation import Simulation
+from ...core.timing.phase_lock import PhaseLock
 from ..marker_publisher import MarkerPublisher
 from ..planner_service import PlannerService
-from ..raw_publish import GilFreePublisher
 from ..tf_input import FrameInput
 from ..throttle import ThrottledWarnings
 from .clock_follow import ClockFollower
+from .diagnostics import Diagnostics
 from .inputs import ToolInputs
-from .outputs import Outputs
+from .outputs import Outputs, marker_error
 from .process import HeapTrimmer, MemoryTrace, main
+from .publishers import NodePublishers
 from .recording import NodeRecorder, start_recording
-from .settings import ParameterChanges, declare_parameters
+from .settings import CurrentConfig, ParameterChanges, declare_parameters
 from .shutdown import OutputGate
 from .stats import NodeStats
 from .stepping import Stepper
 
 __all__ = ["HeapTrimmer", "MemoryTrace", "TissueSimNode", "main"]
+
+
+def start_pose(settings: Any) -> ToolPose | None:
+    """The tool's start pose of the node's settings (``tool_start_*``), None without one."""
+    if math.isnan(settings.tool_start_x):
+        return None
+    return ToolPose(settings.tool_start_x, settings.tool_start_y, settings.tool_start_yaw)
 
 
 class TissueSimNode(Node):
@@ -79,7 +86,10 @@ class TissueSimNode(Node):
     """
 
     def __init__(self, node_name: str = "tissue_sim_node", **kwargs: Any) -> None:
+        # what was given is declared as given, read, resolved and declared again (settings.declare_parameters)
+        kwargs["automatically_declare_parameters_from_overrides"] = True
         super().__init__(node_name, **kwargs)
+        self.recorder: NodeRecorder | None = None
         try:
             self._build()
         except BaseException:
@@ -89,91 +99,86 @@ class TissueSimNode(Node):
             raise
 
     def _build(self) -> None:
-        # the settings and the simulation they describe
-        self.config: Config = declare_parameters(self)
+        self.current = CurrentConfig(declare_parameters(self))
         settings = self.config.node
         self.sim: Simulation = Simulation.from_config(self.config)
         self.sim.warm_up()  # so JIT loading is not the first step's overrun
-        self.last_report: StepReport | None = None
-
-        # the parts, by job
         self.output_gate = OutputGate()
         self.stats = NodeStats()
-        self.warnings = ThrottledWarnings(self.get_logger(), self.stats.dropped,
-                                          lambda: self.config.node.warn_period)
-        self.inputs = ToolInputs(self)
-        self.stepping = Stepper(self)
-        self.outputs = Outputs(self)
-        self.parameter_changes = ParameterChanges(self)
-
-        # outputs; 1 MB of markers at 5k triangles: published without holding the GIL, so the step thread
-        # runs meanwhile (raw_publish.py)
-        self.pub_markers = GilFreePublisher(
-            self.create_publisher(MarkerArray, "tissue/markers", qos.state_stream(qos.MARKER_DEPTH)))
-        self.pub_points = self.create_publisher(PointCloud2, "tissue/points", qos.state_stream())
-        self.pub_rest = self.create_publisher(MarkerArray, "tissue/rest_mesh", qos.latched())
-        self.pub_wrench = self.create_publisher(WrenchStamped, "tool/wrench", qos.state_stream())
-        self.pub_energy = self.create_publisher(Float64, "tissue/energy", qos.energy())
-        self.pub_energy_terms = {term: self.create_publisher(Float64, f"tissue/energy/{term}", qos.energy())
-                                 for term in messages.ENERGY_TERMS[:3]}
-        self.pub_energy_bodies = self.create_publisher(Float64MultiArray, "tissue/energy/bodies", qos.energy())
-        self.pub_contact = self.create_publisher(Float64MultiArray, "tissue/contact", qos.energy())
-        # material: dt^2 E_strain (a term of the total) and the potential energy itself in J (msg_docs/topics.md)
-        self.pub_energy_terms.update({term: self.create_publisher(Float64, f"tissue/energy/{term}", qos.energy())
-                                      for term in ("strain", "potential", "attach")})
-        # a grasper's: the particles held (each step; tool_shape grasper only) (msg_docs/topics.md)
-        self.pub_grasped = self.create_publisher(UInt32, "tool/grasped", qos.energy())
-        self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", qos.diagnostics())
-        self.pub_applied_pose = self.create_publisher(PoseStamped, "tool/applied_pose", qos.state_stream())
-        self.pub_applied_twist = self.create_publisher(TwistStamped, "tool/applied_twist", qos.state_stream())
-        self.pub_applied_jaw = self.create_publisher(JointState, "tool/applied_jaw", qos.state_stream())
-
-        # inputs; the pose with its message info: its reception time is the pose's arrival for the phase lock
+        self.warnings = ThrottledWarnings(self.get_logger(), self.stats.dropped, lambda: self.config.node.warn_period)
+        self.topics = self._make_publishers(settings)
+        self.marker_worker = MarkerPublisher(self.topics.markers.publish, nice=settings.marker_nice,
+                                             on_error=marker_error(self.warnings, self.context))
+        clock = self.get_clock()
         lock_step = settings.lock_step
-        self.frames = FrameInput(self, settings, on_tool_transform=self.inputs.on_tool_transform,
-                                 on_bad=self.warnings.drop)
-        self.sub_pose = self.create_subscription(PoseStamped, "tool/pose",
-                                                 lambda msg, info: self.inputs.on_pose(msg, info),
-                                                 qos.tool_input(lock_step))
-        self.sub_twist = self.create_subscription(TwistStamped, "tool/twist", self.inputs.on_twist,
-                                                  qos.tool_input(lock_step))
-        self.sub_jaw = self.create_subscription(JointState, "tool/jaw", self.inputs.on_jaw, qos.tool_input(lock_step))
-        self.recorder: NodeRecorder | None = None
-        if settings.record_path:
-            self.recorder = start_recording(self, settings.record_path, settings.record_storage)
-
-        # threads: markers encoded and published on their own (the step thread never waits for 1 MB of DDS),
-        # the planner's service ~/plan_insertion
-        self.marker_worker = MarkerPublisher(lambda data: self.pub_markers.publish(data),
-                                             on_error=self.outputs.marker_error, nice=settings.marker_nice)
+        # timer mode's ticks move to just after the poses' arrivals; its period is the step timer's (rclpy's ns)
+        phase_lock = None if lock_step else PhaseLock(int(float(self.sim.params.dt) * 1e9))
+        self.outputs = Outputs(self.current, self.sim, clock, self.topics, self.marker_worker, self.warnings,
+                               lock_step)
+        self.frames = FrameInput(self, settings, on_bad=self.warnings.drop,
+                                 on_tool_transform=lambda *a: self.inputs.on_tool_transform(*a))
+        self.stepping = Stepper(self.current, self.sim, clock, self.stats, self.warnings, self.output_gate,
+                                self.outputs, tool=lambda *a: self.inputs.tool_for_step(*a),
+                                take_inputs=lambda: self.inputs.take_queued(), phase_lock=phase_lock,
+                                logger=self.get_logger())
+        self.inputs = ToolInputs(self.current, self.sim, clock, self.stats, self.warnings, self.frames, phase_lock,
+                                 step=self.stepping.step, subscribe=self.create_subscription,
+                                 record=self.recorder.write if self.recorder else None, start=start_pose(settings))
+        if self.recorder is not None:
+            self.recorder.add_subscriptions([*self.inputs.subscriptions, *self.frames.subs])
+            self.frames.record = self.recorder.write
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         self.planner = PlannerService(self)
-
-        # timers
-        self.step_timer = None if lock_step else self.create_timer(self.sim.params.dt, self.stepping.on_tick)
-        self.marker_timer = (self.create_timer(1.0 / settings.marker_rate, self.outputs.flush_markers)
-                             if lock_step else None)
-        if self.step_timer is not None:
-            self.stepping.use_timer(self.step_timer)
-        self.clock_follower = (ClockFollower(self, self._on_clock_switch)
-                               if not lock_step and settings.follow_clock
-                               and not self.get_parameter("use_sim_time").value else None)
-        self.diagnostics_timer = self.create_timer(1.0 / settings.diagnostics_rate, self.outputs.publish_diagnostics)
-        self.heap_trimmer = HeapTrimmer()
-        self.memory_trace = MemoryTrace.from_env(self.get_logger())
-
-        # parameter changes at run time
+        self._make_timers(settings, phase_lock)
+        self.parameter_changes = ParameterChanges(self.current, self.has_parameter, self._check_settings,
+                                                  self._apply_settings)
         self.add_pre_set_parameters_callback(self.parameter_changes.pre_set)
         self.add_on_set_parameters_callback(self.parameter_changes.on_set)
-
         self.outputs.publish_rest_mesh()
-        m = self.sim.model
+        self._log_start(settings)
+
+    def _make_publishers(self, settings: Any) -> NodePublishers:
+        """Every output publisher; with ``record_path`` each also writes what it publishes into the bag."""
+        publishers = NodePublishers.create(self.create_publisher)
+        if settings.record_path:
+            self.recorder = start_recording(settings.record_path, settings.record_storage, self.config)
+            publishers = publishers.wrapped(self.recorder.wrap)
+            self.get_logger().info(f"recording every message in and out to {settings.record_path} "
+                                   f"({settings.record_storage})")
+        return publishers
+
+    def _make_timers(self, settings: Any, phase_lock: PhaseLock | None) -> None:
+        """The step timer (timer mode), the markers' flush (lock-step), /diagnostics and the /clock follower."""
+        lock_step = settings.lock_step
+        self.step_timer = None if lock_step else self.create_timer(self.sim.params.dt, self.stepping.on_tick)
+        if self.step_timer is not None:
+            self.stepping.use_timer(self.step_timer)
+        self.marker_timer = (self.create_timer(1.0 / settings.marker_rate, self.outputs.flush_markers)
+                             if lock_step else None)
+        self.diagnostics = Diagnostics(f"{self.get_fully_qualified_name()}: simulation", self.current, self.sim,
+                                       self.get_clock(), self.stats, self.marker_worker,
+                                       self.topics.markers.gil_free, phase_lock, self.topics.diagnostics,
+                                       HeapTrimmer(), MemoryTrace.from_env(self.get_logger()))
+        self.diagnostics_timer = self.create_timer(1.0 / settings.diagnostics_rate, self.diagnostics.publish)
+        self.clock_follower = None
+        if not lock_step and settings.follow_clock and not self.get_parameter("use_sim_time").value:
+            topic = self.resolve_topic_name("/clock")
+            self.clock_follower = ClockFollower(lambda: self.count_publishers(topic), self._use_sim_time,
+                                                self._on_clock_switch, self.create_timer)
+
+    def _log_start(self, settings: Any) -> None:
+        m, p = self.sim.model, self.sim.params
         self.get_logger().info(
-            f"{m.n_particles} particles, {m.n_triangles} triangles, {m.n_bodies} bodies; method "
-            f"{self.sim.params.method}/{self.sim.params.scheme}, {self.sim.params.iterations} iterations, contact "
-            f"{self.sim.params.contact_model}; {'lock-step' if lock_step else f'{1.0 / self.sim.params.dt:g} Hz'} "
-            f"in frame '{settings.frame_id}'; {self.frames.status}")
+            f"{m.n_particles} particles, {m.n_triangles} triangles, {m.n_bodies} bodies; method {p.method}/"
+            f"{p.scheme}, {p.iterations} iterations, contact {p.contact_model}; "
+            f"{'lock-step' if settings.lock_step else f'{1.0 / p.dt:g} Hz'} in frame '{settings.frame_id}'; "
+            f"{self.frames.status}")
+
+    @property
+    def config(self) -> Config:
+        """The node's configuration as it is now (a run-time set replaces it as a whole)."""
+        return self.current.value
 
     @property
     def frame_id(self) -> str:
@@ -182,6 +187,39 @@ class TissueSimNode(Node):
     @property
     def paused(self) -> bool:
         return bool(self.config.node.paused)
+
+    @property
+    def last_report(self) -> Any:
+        """The last step's report (None before the first step)."""
+        return self.stats.last_report
+
+    # ------------------------------------------------------------------ parameters at run time
+
+    def _check_settings(self, cfg: Config, changed: list[str]) -> None:
+        """InputError unless the node can take ``cfg`` (its plane frame, its simulation's new tuning)."""
+        if "frame_id" in changed:
+            self.frames.check_plane(cfg.node.frame_id)
+        if any(name in SIM_NAMES for name in changed):
+            self.sim.retune(cfg)
+
+    def _apply_settings(self, old: Any, new: Any) -> None:
+        """Rebuild what depends on the node settings that changed from ``old`` to ``new`` (NodeConfig)."""
+        if new.tf_tolerance != old.tf_tolerance:
+            self.frames.buffer.tolerance_ns = int(new.tf_tolerance * 1e9)
+        if (new.strain_color_max, new.wire_width, new.markers_wireframe) != \
+                (old.strain_color_max, old.wire_width, old.markers_wireframe):
+            self.outputs.encoder = self.outputs.make_encoder()
+        if new.frame_id != old.frame_id:
+            self.frames.set_plane(self, new.frame_id)  # poses in the old frame are no longer the plane's
+            self.outputs.publish_rest_mesh()
+        if self.marker_timer is not None and new.marker_rate != old.marker_rate:
+            self.destroy_timer(self.marker_timer)
+            self.marker_timer = self.create_timer(1.0 / new.marker_rate, self.outputs.flush_markers)
+        if new.diagnostics_rate != old.diagnostics_rate:
+            self.destroy_timer(self.diagnostics_timer)
+            self.diagnostics_timer = self.create_timer(1.0 / new.diagnostics_rate, self.diagnostics.publish)
+        if new.paused != old.paused:
+            self.get_logger().info("paused" if new.paused else "running")
 
     # ------------------------------------------------------------------ services and clock
 
@@ -201,6 +239,12 @@ class TissueSimNode(Node):
         response.message = ("paused" if request.data else "running") if result.successful else result.reason
         return response
 
+    def _use_sim_time(self, on: bool | None = None) -> bool:
+        """The node's ``use_sim_time``; set to ``on`` when given."""
+        if on is not None:
+            self.set_parameters([Parameter("use_sim_time", Parameter.Type.BOOL, on)])
+        return bool(self.get_parameter("use_sim_time").value)
+
     def _on_clock_switch(self, following: bool) -> None:
         """The node's clock changed between /clock and the system clock: forget the input stamps."""
         self.inputs.forget_stamps()
@@ -216,4 +260,3 @@ class TissueSimNode(Node):
             if part is not None:
                 part.close()
         super().destroy_node()
-

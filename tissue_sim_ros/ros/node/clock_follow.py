@@ -14,11 +14,9 @@ look out of order or stale); the simulation state stays.
 from __future__ import annotations
 
 import time
-from typing import Callable
+from typing import Any, Callable
 
 from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
-from rclpy.parameter import Parameter
 
 CHECK_PERIOD = 0.1
 """Seconds of wall time between looks at the graph."""
@@ -27,29 +25,39 @@ GONE_AFTER = 1.0
 
 
 class ClockFollower:
-    """Switches ``use_sim_time`` on while ``/clock`` has a publisher (only if the node switched it on itself)."""
+    """Switches ``use_sim_time`` on while ``/clock`` has a publisher (only if the node switched it on itself).
 
-    def __init__(self, node: Node, on_switch: Callable[[bool], None]) -> None:
-        self._node = node
+    Parameters
+    ----------
+    clock_publishers : callable
+        How many publishers ``/clock`` has now (the node's ``count_publishers`` of its resolved name).
+    use_sim_time : callable
+        ``use_sim_time()`` reads the node's parameter, ``use_sim_time(on)`` sets it.
+    on_switch : callable
+        Called with True (now following /clock) or False (back on the system clock) after each switch.
+    create_timer : callable
+        The node's ``create_timer``: the look at the graph runs on a wall-clock timer.
+    """
+
+    def __init__(self, clock_publishers: Callable[[], int], use_sim_time: Callable[..., bool],
+                 on_switch: Callable[[bool], None], create_timer: Callable[..., Any]) -> None:
+        self._publishers = clock_publishers
+        self._use_sim_time = use_sim_time
         self._on_switch = on_switch
-        self._topic = node.resolve_topic_name("/clock")
         self.following = False
         self.switches = 0
         self._gone_since: float | None = None
         # wall-clock timer: a node on a /clock that stopped must still notice that it stopped
-        self.timer = node.create_timer(CHECK_PERIOD, self._check, clock=Clock(clock_type=ClockType.STEADY_TIME))
-
-    def _use_sim_time(self) -> bool:
-        return bool(self._node.get_parameter("use_sim_time").value)
+        self.timer = create_timer(CHECK_PERIOD, self._check, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def _set(self, on: bool) -> None:
-        self._node.set_parameters([Parameter("use_sim_time", Parameter.Type.BOOL, on)])
+        self._use_sim_time(on)
         self.following = on
         self.switches += 1
         self._on_switch(on)
 
     def _check(self) -> None:
-        publishers = self._node.count_publishers(self._topic)
+        publishers = self._publishers()
         if not self.following:
             if publishers > 0 and not self._use_sim_time():
                 self._set(True)

@@ -73,9 +73,8 @@ def fix_mmap_threshold() -> None:
 
     A MarkerArray is ~1 MB of bytes made and dropped 30 times a second on the
     marker thread. glibc raises its mmap threshold after such frees, so later
-    ones come from the heap and its arenas, which then keep growing (the soak
-    showed +1 MiB steps under load). A fixed threshold keeps them out of the
-    heap. No-op where there is no glibc.
+    ones come from the heap and its arenas, which then keep growing. A fixed
+    threshold keeps them out of the heap. No-op where there is no glibc.
     """
     mallopt = _glibc_function("mallopt")
     if mallopt is not None:
@@ -91,9 +90,9 @@ class HeapTrimmer:
 
     Small allocations made and freed on two threads (step and markers) leave free
     pages inside glibc's arenas that it keeps; over an hour they show as resident
-    memory that only grows under load. ``malloc_trim`` returns them (measured: a
-    fraction of a millisecond on the node). Called from the diagnostics timer,
-    never from the step. No-op where there is no glibc.
+    memory that only grows under load. ``malloc_trim`` returns them (its time is
+    reported on /diagnostics, ``heap_trim_ms_max``). Called from the diagnostics
+    timer, never from the step. No-op where there is no glibc.
     """
 
     def __init__(self, period: float = 10.0) -> None:

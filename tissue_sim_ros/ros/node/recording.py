@@ -20,12 +20,11 @@ import threading
 import time
 from typing import Any
 
-from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 from rclpy.serialization import serialize_message
 
-from ...core.config import params_json
+from ...core.config import Config, params_json
 from ...core.errors import InputError
 from ..bags import BagWriter
 
@@ -56,8 +55,7 @@ class RecordingPublisher:
 class NodeRecorder:
     """Owns the node's bag: topics with their types and QoS, written at the system time of writing, in order."""
 
-    def __init__(self, node: Node, path: str, storage: str) -> None:
-        self._node = node
+    def __init__(self, path: str, storage: str) -> None:
         self.writer = BagWriter(path, storage, hold_signals=False)
         self.path = path
         self._lock = threading.Lock()  # the step, marker and executor threads write
@@ -71,6 +69,11 @@ class NodeRecorder:
     def wrap(self, publisher: Publisher) -> RecordingPublisher:
         return RecordingPublisher(publisher, self)
 
+    def add_subscriptions(self, subscriptions: Any) -> None:
+        """Record what these subscriptions receive (their callbacks call :meth:`write`)."""
+        for sub in subscriptions:
+            self.add(sub.topic_name, sub.msg_type, sub.qos_profile)
+
     def write(self, topic: str, msg: Any) -> None:
         if self.writer.closed:
             return
@@ -83,29 +86,14 @@ class NodeRecorder:
         self.writer.close()
 
 
-#: The node's publishers (attributes) whose every message goes into the bag too.
-RECORDED_PUBLISHERS = ("pub_markers", "pub_points", "pub_rest", "pub_wrench", "pub_energy", "pub_energy_bodies",
-                       "pub_contact", "pub_diagnostics", "pub_applied_pose", "pub_applied_twist", "pub_grasped",
-                       "pub_applied_jaw")
-
-
-def start_recording(node: Any, path: str, storage: str) -> NodeRecorder:
-    """Wrap every publisher of ``node`` so what it publishes is also written to the bag; record the tool inputs.
-
-    The bag holds the node's resolved parameters (``tissue_sim.params``), what ``tissue-sim replay --mode
-    applied`` needs to rebuild this very Simulation from the bag alone, written when the recording starts.
-    """
+def start_recording(path: str, storage: str, config: Config) -> NodeRecorder:
+    """A new bag at ``path`` holding the node's resolved parameters (``tissue_sim.params``): what ``tissue-sim
+    replay --mode applied`` needs to rebuild this very Simulation from the bag alone, written when the recording
+    starts. The node then wraps its publishers (:meth:`NodeRecorder.wrap`) and adds its subscriptions."""
     if os.path.exists(path):
         raise InputError(f"parameter record_path={path!r}: that path exists; expected a new bag directory")
-    recorder = NodeRecorder(node, path, storage)
+    recorder = NodeRecorder(path, storage)
     # durable: in the storage file from the start, so a node killed hard (SIGKILL, a crash) leaves them too and
     # `tissue-sim record --recover` carries them into the bag it writes
-    recorder.writer.set_custom_data("tissue_sim.params", params_json(node.config), durable=True)
-    for name in RECORDED_PUBLISHERS:
-        setattr(node, name, recorder.wrap(getattr(node, name)))
-    node.pub_energy_terms = {k: recorder.wrap(p) for k, p in node.pub_energy_terms.items()}
-    for sub in (node.sub_pose, node.sub_twist, node.sub_jaw, *node.frames.subs):
-        recorder.add(sub.topic_name, sub.msg_type, sub.qos_profile)
-    node.frames.record = recorder.write
-    node.get_logger().info(f"recording every message in and out to {path} ({storage})")
+    recorder.writer.set_custom_data("tissue_sim.params", params_json(config), durable=True)
     return recorder

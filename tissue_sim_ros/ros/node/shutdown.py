@@ -1,14 +1,14 @@
 """A step's outputs go out whole or not at all, whatever signal ends the node.
 
-Where a signal lands with rclpy's own handlers (measured, Jazzy wheels): on
+Where a signal lands with rclpy's own handlers (Jazzy): on
 SIGINT or SIGTERM rclpy's C handler shuts the context down from its signal
 thread at once, so every publish after that fails ("publisher's context is
 invalid"); on SIGINT it also chains to Python's handler, which raises
 KeyboardInterrupt in the main thread, the node's step thread (it spins the
 executor), at the next bytecode. Either can land between two publishes of one
 step: its energy was out, live and in the node's bag, but not its wrench,
-points or applied tool (1 interrupt in 4), so the bag held one energy message
-more than replayable steps.
+points or applied tool, so the bag held one energy message more than
+replayable steps.
 
 So :func:`~tissue_sim_ros.ros.node.process.main` initialises rclpy without its
 signal handlers and installs :class:`SignalShutdown`:

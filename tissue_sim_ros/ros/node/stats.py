@@ -1,9 +1,11 @@
 """The node's counters on ``/diagnostics``, which the inputs, the stepping loop and the outputs all count into (the
-throttled warnings that count drops: :class:`~tissue_sim_ros.ros.throttle.ThrottledWarnings`)."""
+throttled warnings that count drops: :class:`~tissue_sim_ros.ros.throttle.ThrottledWarnings`), and the last step's
+report."""
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 
 @dataclass
@@ -29,3 +31,16 @@ class NodeStats:
     window_sim_time_sum: float = 0.0
     """Wall time inside Simulation.step (contact + solve + energy) over the window [s]."""
     window_start: float = field(default_factory=time.monotonic)
+    last_report: Any = None
+    """The last step's :class:`~tissue_sim_ros.core.sim.simulation.StepReport` (None before the first)."""
+
+    def count_step(self, elapsed: float, sim_seconds: float) -> None:
+        """A step's wall time (step and outputs) and the simulation's own share of it, into the window [s]."""
+        self.window_steps += 1
+        self.window_step_time_sum += elapsed
+        self.window_step_time_max = max(self.window_step_time_max, elapsed)
+        self.window_sim_time_sum += sim_seconds
+
+    def new_window(self, now: float) -> None:
+        self.window_steps, self.window_step_time_sum, self.window_step_time_max = 0, 0.0, 0.0
+        self.window_sim_time_sum, self.window_start = 0.0, now

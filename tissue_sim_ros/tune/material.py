@@ -27,9 +27,8 @@ mesh with twice the substeps (solver) and from a mesh sqrt(2) coarser (mesh, fir
 Candidate meshes: every spacing, uniform and graded (``grade_spacing`` within ``GRADE_RADIUS_TOOLS`` tool
 radii of the press point, growing outside; :class:`~tissue_sim_ros.core.mesh.Grading`). Why graded: under a
 5 mm instrument a uniform 2.5-5 mm mesh has one to three particles in contact, placed unsymmetrically
-about the instrument's axis, so the contact pushes sideways (a lateral force of 12-20% of the vertical
-one) and the soft slab shears as a whole: the displacement field's error is mostly far from the tool and
-falls only 1.2-1.5x per refinement. Time: the median solver time per step during the hold. The cheapest
+about the instrument's axis, so the contact pushes sideways and the soft slab shears as a whole: the
+displacement field's error is mostly far from the tool and falls slowly with refinement. Time: the median solver time per step during the hold. The cheapest
 setting with error <= tolerance and time <= budget is written as a parameter file: the scene's file with
 ``spacing``, the ``grade_*`` parameters, ``substeps`` and ``iterations`` replaced.
 """
@@ -51,7 +50,7 @@ SETTINGS = ((1, 10), (2, 5), (5, 5), (10, 2), (10, 5), (10, 10), (20, 3), (20, 5
             (30, 10), (40, 3), (40, 5), (50, 5))
 QUICK_SETTINGS = ((2, 5), (10, 5))
 #: substeps x iterations of a converged solve: the rest state's bias falls with the substep (1/substeps),
-#: hardly with the iterations (measured on the liver scene: 100 x 10 and 100 x 30 give the same force to 1e-6)
+#: hardly with the iterations
 CONVERGED = (100, 10)
 QUICK_CONVERGED = (20, 5)
 REST_SPEED = 1e-5
@@ -181,9 +180,9 @@ def build_reference(cfg: Config, spacing: float, grade_spacing: float, depth: fl
     from this mesh's outline), and the reference's own errors.
 
     Solver: against the same mesh with twice the substeps. Mesh: from the change against the same family of
-    mesh sqrt(2) coarser (spacing and graded spacing both), taken as first order (measured on this scene:
-    the strain energy's changes fall 1.4x per sqrt(2) refinement, order 0.9-1; the force's changes do not fall
-    steadily, contact particles come and go): error ~ change / (sqrt(2) - 1) = 2.4 x the change.
+    mesh sqrt(2) coarser (spacing and graded spacing both), taken as first order (the strain energy's changes
+    fall about that fast; the force's do not fall steadily, contact particles come and go): error ~ change /
+    (sqrt(2) - 1) = 2.4 x the change.
     """
     n_c, it_c = converged
     press = press_point(cfg.replace(spacing=spacing, grade_spacing=0.0), depth)
@@ -317,13 +316,13 @@ def run_tune_material(cfg: Config, *, tolerance: float, budget_ms: float, materi
                       verify_only: bool = False, depth: float = 0.003, out: str | Path | None = None,
                       csv_path: str | Path | None = None, png_path: str | Path | None = None,
                       params_file: str | Path | None = None, **backend: Any) -> int:
-    """``tissue-sim tune`` on a neo_hookean scene: the arguments of :func:`~tissue_sim_ros.bench.tune.run`.
+    """``tissue-sim tune`` on a neo_hookean scene: the arguments of :func:`~tissue_sim_ros.tune.settings.run`.
 
     ``material_spacings`` and ``grade_spacings`` [m] are the candidates (``quick``: 6 mm and 3 mm; no grade
     spacing: uniform meshes only); ``backend`` holds ``jobs``, ``backend`` and ``address``. Returns the exit status.
     """
+    from ..bench.accuracy import format_table, write_csv  # noqa: PLC0415
     from ..core.config import resolve_config  # noqa: PLC0415
-    from .accuracy import format_table, write_csv  # noqa: PLC0415
 
     if quick:
         spacings, grades, settings, converged = [0.006], [0.003], QUICK_SETTINGS, QUICK_CONVERGED

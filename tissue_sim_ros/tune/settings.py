@@ -19,7 +19,7 @@ extrapolated.
 With ``material: neo_hookean`` (e.g. ``--params config/scenes/liver_probe.yaml``) the error is the
 material's physical one instead, mesh plus solver error at rest under the scene's instrument, over
 uniform and graded meshes (finer near the instrument), substeps and iterations
-(:mod:`~tissue_sim_ros.bench.tune_material`).
+(:mod:`~tissue_sim_ros.tune.material`).
 
 Exit status: 0 when a setting meets the tolerance within the budget (written to
 --out if given); 1 when none does (nothing is written; the most accurate setting
@@ -34,9 +34,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..core.config import Config
-from ..core.errors import InputError
-from .accuracy import (
+from ..bench.accuracy import (
     Setting,
     default_scene,
     displacement_error,
@@ -45,6 +43,8 @@ from .accuracy import (
     reference_run,
     write_csv,
 )
+from ..core.config import Config
+from ..core.errors import InputError
 
 COUNTS = (1, 2, 5, 10, 20, 50, 100, 200)
 METHODS = ("pbd", "xpbd", "xpbd_jacobi", "xpbd_substep")
@@ -132,7 +132,7 @@ def run(config: Config, *, tolerance: float, budget_ms: float, spacings: Sequenc
     ----------
     config : Config
         The scene (its parameter file resolved). ``material: neo_hookean`` tunes the material's physical
-        error instead (:func:`~tissue_sim_ros.bench.tune_material.run_tune_material`).
+        error instead (:func:`~tissue_sim_ros.tune.material.run_tune_material`).
     tolerance : float
         Largest accepted error, relative to the tissue's displacement.
     budget_ms : float
@@ -184,8 +184,8 @@ def run(config: Config, *, tolerance: float, budget_ms: float, spacings: Sequenc
 
     jobs, backend = check_jobs(jobs), check_backend(backend)
     if config.sim.material == "neo_hookean":
-        # a physical material: mesh + solver error at rest under the instrument (bench/tune_material.py)
-        from .tune_material import run_tune_material  # noqa: PLC0415
+        # a physical material: mesh + solver error at rest under the instrument (tune/material.py)
+        from .material import run_tune_material  # noqa: PLC0415
 
         if not (math.isfinite(depth) and depth > 0):
             raise InputError(f"--depth={depth}: expected a depth > 0 m")
