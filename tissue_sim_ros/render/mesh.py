@@ -10,7 +10,6 @@ from matplotlib.collections import PolyCollection
 from ..core.mesh import Grading, TissueMesh
 from . import _save, plt
 
-
 #: How opaque a body's triangles are over the image (faint: the image shows through)
 BODY_ALPHA = 0.18
 
