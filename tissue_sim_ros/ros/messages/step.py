@@ -25,6 +25,7 @@ STEP_TOPICS: dict[str, str] = {
     "tissue/energy/area": "std_msgs/msg/Float64",
     "tissue/energy/strain": "std_msgs/msg/Float64",
     "tissue/energy/potential": "std_msgs/msg/Float64",
+    "tissue/energy/contact": "std_msgs/msg/Float64",
     "tissue/energy/bodies": "std_msgs/msg/Float64MultiArray",
     "tissue/contact": "std_msgs/msg/Float64MultiArray",
     "tool/wrench": "geometry_msgs/msg/WrenchStamped",
@@ -113,6 +114,8 @@ class StepEncoder:
                 # material: dt^2 E_strain (a term of the total) and the potential energy itself [J]
                 out.messages["tissue/energy/strain"] = encode_float64(float(e.strain.sum()))
                 out.messages["tissue/energy/potential"] = encode_float64(e.scene_potential)
+                # barrier contact: dt^2 kappa sum b, the contact barriers' term of the total (0 otherwise)
+                out.messages["tissue/energy/contact"] = encode_float64(float(np.sum(e.contact)))
                 out.messages["tissue/energy/bodies"] = encode_float64_multiarray(
                     terms, [self.body_label, "term:" + ",".join(ENERGY_TERMS)])
             else:

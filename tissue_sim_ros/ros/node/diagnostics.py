@@ -11,6 +11,9 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from ..realtime import thread_scheduling
 from .stepping import ms
 
+#: The barrier contact's tool this far short of its command [m] warns (micrometres are the servo's own give).
+TOOL_LAG_WARN = 1e-4
+
 
 class Diagnostics:
     """Publishes the node's status (:meth:`publish`, the diagnostics timer's callback).
@@ -107,6 +110,9 @@ class Diagnostics:
             "solve_iterations": r.solve_iterations,
             "solve_residual": r.solve_residual,
             "solve_converged": r.solve_converged,
+            "tool_lag_m": r.tool_lag,
+            "tool_lag_rad": r.tool_lag_angle,
+            "energy_contact": float(r.energy.contact.sum()),
         }
 
     def _level(self, window: float, r: Any) -> tuple[int, str]:
@@ -119,6 +125,9 @@ class Diagnostics:
         if r is not None and not r.solve_converged and level == DiagnosticStatus.OK:
             level, message = DiagnosticStatus.WARN, (f"{message}; the last step's solve stopped short "
                                                      f"(estimated error {r.solve_residual:.3g} > solve_tolerance)")
+        if r is not None and r.tool_lag > TOOL_LAG_WARN and level == DiagnosticStatus.OK:
+            level, message = DiagnosticStatus.WARN, (f"{message}; the tool stopped {1e3 * r.tool_lag:.3g} mm short "
+                                                     "of its command (the tissue cannot make room)")
         if r is not None and r.tool_buried and level == DiagnosticStatus.OK:
             level, message = DiagnosticStatus.WARN, f"{message}; the tool is buried in the tissue"
         return level, message
