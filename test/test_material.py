@@ -259,7 +259,13 @@ def test_neo_hookean_brings_its_solver_defaults_and_the_paper_stays_default() ->
     assert (paper.params.material, paper.params.method, paper.params.contact_model) == ("constraints", "pbd", "paper")
     sim = build_simulation({"material": "neo_hookean"}, mesh=mesh_rectangle(0.04, 0.02, 0.01))
     p = sim.params
+    assert (p.method, p.substeps, p.iterations, p.contact_model) == ("ipc", 1, 50, "barrier")
+    # the whole-step solve with the constraint contact: asked by its name, or by the contact alone
+    p = build_simulation({"material": "neo_hookean", "method": "quasi_newton"}, mesh=mesh_rectangle(0.04, 0.02, 0.01)).params
     assert (p.method, p.substeps, p.iterations, p.contact_model) == ("quasi_newton", 1, 50, "projection")
+    p = build_simulation({"material": "neo_hookean", "contact_model": "projection"},
+                         mesh=mesh_rectangle(0.04, 0.02, 0.01)).params
+    assert (p.method, p.contact_model) == ("quasi_newton", "projection")
     # choosing xpbd brings xpbd's own substeps and iterations
     p = build_simulation({"material": "neo_hookean", "method": "xpbd"}, mesh=mesh_rectangle(0.04, 0.02, 0.01)).params
     assert (p.method, p.substeps, p.iterations) == ("xpbd", 10, 10)
@@ -395,7 +401,8 @@ def test_retune_changes_the_modulus_and_refuses_a_bad_one() -> None:
 
 
 def test_energy_recomputed_from_outputs() -> None:
-    """E = 1/2 sum m |x - x*|^2 + dt^2 E_strain(x) from the published positions and StepReport.x_pred."""
+    """E = 1/2 sum m |x - x*|^2 + dt^2 E_strain(x) + E_contact from the published positions, StepReport.x_pred and
+    the contact's own term (the default barrier contact: dt^2 kappa sum b, zero until the tool is within dhat)."""
     sim = build_simulation({"material": "neo_hookean", "young_modulus": E, "dt": 0.002,
                             "boundary_y_top": 0.1 - 1e-9, "boundary_y_bottom": float("nan"),
                             "tool_shape": "sphere", "tool_radius": 0.004}, mesh=mesh_rectangle(0.04, 0.1, 0.01))
@@ -407,9 +414,10 @@ def test_energy_recomputed_from_outputs() -> None:
         x = sim.state.particle_q
         inertial = 0.5 * (m.particle_mass[:, None] * (x - r.x_pred) ** 2).sum()
         strain = naive.strain_energy(x, m.particle_q0, m.tri_indices, m.tri_body, 1, E, NU, m.params.thickness)
-        assert r.energy.scene_total == pytest.approx(inertial + 0.002 ** 2 * strain.sum(), rel=1e-10)
+        contact = float(r.energy.contact.sum())
+        assert r.energy.scene_total == pytest.approx(inertial + 0.002 ** 2 * strain.sum() + contact, rel=1e-10)
         assert r.energy.scene_potential == pytest.approx(strain.sum(), rel=1e-10)
-    assert r.n_contact_particles > 0 and r.energy.scene_potential > 0
+    assert r.n_contact_particles > 0 and r.energy.scene_potential > 0 and contact > 0
 
 
 def test_solver_counts_element_projections() -> None:
@@ -472,8 +480,8 @@ def test_punch_reaction_is_the_elastic_force_and_converges_to_the_fem_force() ->
                          poisson_ratio=STRIP["poisson_ratio"], thickness=STRIP["thickness"]).force
     errors = []
     for spacing in SPACINGS:
-        p = params(**dict(material="neo_hookean", dt=0.002, damping=30.0, gravity=0.0,
-                                        boundary_y_bottom=1e-9, contact_margin=0.0, **STRIP))
+        p = params(**dict(material="neo_hookean", method="quasi_newton", dt=0.002, damping=30.0, gravity=0.0,
+                          boundary_y_bottom=1e-9, contact_margin=0.0, **STRIP))
         assert p.method == "quasi_newton" and p.contact_model == "projection"
         sim = Simulation(Model.from_mesh(mesh_rectangle(0.1, 0.04, spacing), p),
                          tool=ToolShape(kind="box", length=0.14, width=0.01))
@@ -494,10 +502,10 @@ def test_material_defaults_through_the_front_door(tmp_path) -> None:
 
     cfg = resolve_config({"material": "neo_hookean"})
     assert (cfg.sim.method, cfg.sim.substeps, cfg.sim.iterations, cfg.sim.contact_model) == \
-        ("quasi_newton", 1, 50, "projection")
+        ("ipc", 1, 50, "barrier")
     # a value set later is the user's (the material's defaults are applied once, when it is chosen)
     assert cfg.replace(iterations=30).sim.iterations == 30
-    assert resolve_config().replace(material="neo_hookean").sim.method == "quasi_newton"
+    assert resolve_config().replace(material="neo_hookean").sim.method == "ipc"
     # substeps without a method: the sweeps they belong to
     swept = resolve_config({"material": "neo_hookean", "substeps": 4}).sim
     assert (swept.method, swept.substeps, swept.iterations) == ("xpbd", 4, 10)

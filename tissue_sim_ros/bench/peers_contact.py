@@ -225,9 +225,9 @@ def _mujoco(meshes: Sequence[TissueMesh], ipc: bool, tool_y: float | None):
     """The model (flexes in order, a capsule on a mocap body when ``tool_y``), lumped masses, damping."""
     import mujoco  # noqa: PLC0415
 
-    from .peers_fem import lumped_mass  # noqa: PLC0415
+    from ..core.physics.material import lumped_mass  # noqa: PLC0415
 
-    masses = [lumped_mass(m, DENSITY, THICKNESS) for m in meshes]
+    masses = [lumped_mass(m.vertices, m.triangles, DENSITY, THICKNESS) for m in meshes]
     flexes = "".join(_flex(f"body{k}", m, masses[k], np.flatnonzero(m.vertices[:, 1] < 0.0005) if k == 0 else [])
                      for k, m in enumerate(meshes))
     tool = "" if tool_y is None else (
@@ -291,9 +291,9 @@ def drop_mujoco(ipc: bool, quick: bool) -> dict[str, Any]:
     body = np.r_[np.zeros(ns, int), np.ones(len(block.vertices), int)]
     tris = np.r_[strip.triangles, block.triangles + ns]
     block_dof = dof_vert >= ns
-    from .peers_fem import lumped_mass  # noqa: PLC0415
+    from ..core.physics.material import lumped_mass  # noqa: PLC0415
 
-    weight = float(lumped_mass(block, DENSITY, THICKNESS).sum()) * GRAVITY
+    weight = float(lumped_mass(block.vertices, block.triangles, DENSITY, THICKNESS).sum()) * GRAVITY
     n = int(round((0.3 if quick else DROP_TIME) / MUJOCO_DT))
     tail = max(1, n // 10)
     every = max(1, int(round(OURS_DT / MUJOCO_DT)))  # the overlap checked as often in simulated time as ours

@@ -76,13 +76,10 @@ PEERS = ("ours", "ours_static", "mujoco", "newton_si", "newton_vbd")
 
 
 def lumped_mass(mesh: TissueMesh, density: float, thickness: float) -> np.ndarray:
-    """A third of each triangle's rest area x density x thickness per corner [kg], (N,)."""
-    v, t = mesh.vertices, mesh.triangles
-    e1, e2 = v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]
-    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
-    m = np.zeros(len(v))
-    np.add.at(m, t.ravel(), np.repeat(area / 3.0, 3))
-    return m * density * thickness
+    """A third of each triangle's rest area x density x thickness per corner [kg], (N,) (the model's own lumping)."""
+    from ..core.physics.material import lumped_mass as lumped  # noqa: PLC0415
+
+    return lumped(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles), density, thickness)
 
 
 def sag_errors(rest: np.ndarray, x: np.ndarray, mass: np.ndarray, ref: fem.FemSolution) -> dict[str, float]:

@@ -214,6 +214,20 @@ def _segments_apart(p0: np.ndarray, p1: np.ndarray, a: np.ndarray, b: np.ndarray
     return np.where(cross, 0.0, d)
 
 
+def points_in_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """(P,) bool: each point strictly inside the closed polygon (K, 2) (even-odd rule: a ray along +x crosses its
+    edges an odd number of times)."""
+    inside = np.zeros(points.shape[0], dtype=bool)
+    px, py = points[:, 0], points[:, 1]
+    for k in range(polygon.shape[0]):
+        (ax, ay), (bx, by) = polygon[k], polygon[(k + 1) % polygon.shape[0]]
+        straddles = (ay > py) != (by > py)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cross_x = ax + (py - ay) * (bx - ax) / (by - ay)
+        inside ^= straddles & (px < cross_x)
+    return inside
+
+
 def tool_clearance(q: np.ndarray, geometry: ToolGeometry, x: np.ndarray, edges: np.ndarray,
                    tris: np.ndarray) -> float:
     """How far the tool's outline at ``q`` is from the tissue's boundary [m] (``edges`` (K, 2) its boundary
@@ -234,11 +248,9 @@ def tool_clearance(q: np.ndarray, geometry: ToolGeometry, x: np.ndarray, edges: 
             return -1.0
     if geometry.loops:
         # a closed polygon holding a tissue vertex (a small body wholly inside the tool)
-        from matplotlib.path import Path  # noqa: PLC0415
-
         inner = x[np.unique(edges)]
         for loop in geometry.loops:
-            if Path(pos[loop]).contains_points(inner).any():
+            if points_in_polygon(inner, pos[loop]).any():
                 return -1.0
     return gap
 

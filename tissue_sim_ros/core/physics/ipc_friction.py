@@ -34,15 +34,17 @@ def friction_workspace(n_particles: int, n_pairs: int) -> tuple:
 
 
 @njit(cache=True, inline="always")
-def _entry(ids: np.ndarray, data: np.ndarray, m: int, kind: int, i: int, j: int, k: int, s: float, d: float,
-           px: float, py: float, cx: float, cy: float, lam: float, ax: float, ay: float) -> None:
-    ids[m, 0], ids[m, 1], ids[m, 2], ids[m, 3] = kind, i, j, k
+def _entry(ids: np.ndarray, data: np.ndarray, m: int, kind: int, ends: tuple, s: float, d: float, p: tuple,
+           c: tuple, lam: float, anchor: tuple) -> None:
+    """Pair m: its kind and ends (vertex, edge's ends), where along the edge it touches, its tangent (the unit
+    normal (p - c) / d turned by +90 degrees), mu lambda and the tool's point at the start."""
+    ids[m, 0], ids[m, 1], ids[m, 2], ids[m, 3] = kind, ends[0], ends[1], ends[2]
     data[m, 0] = s
-    data[m, 1] = -(py - cy) / d  # the tangent: the unit normal turned by +90 degrees
-    data[m, 2] = (px - cx) / d
+    data[m, 1] = -(p[1] - c[1]) / d
+    data[m, 2] = (p[0] - c[0]) / d
     data[m, 3] = lam
-    data[m, 4] = ax
-    data[m, 5] = ay
+    data[m, 4] = anchor[0]
+    data[m, 5] = anchor[1]
 
 
 @njit(cache=True, nogil=True)
@@ -70,7 +72,7 @@ def friction_lag(x: np.ndarray, q: np.ndarray, model: tuple, contact: tuple, too
             b1 = barrier(d, dhat_t)[1]
             if b1 == 0.0 or d <= 0.0 or m == ids.shape[0]:
                 continue
-            _entry(ids, data, m, 0, p, a, b, s, d, x[p, 0], x[p, 1], cx, cy, mus[1] * kappa * -b1, 0.0, 0.0)
+            _entry(ids, data, m, 0, (p, a, b), s, d, (x[p, 0], x[p, 1]), (cx, cy), mus[1] * kappa * -b1, (0.0, 0.0))
             m += 1
     if mus[0] > 0.0 and tool[2]:
         for k in range(counts[1]):
@@ -80,7 +82,7 @@ def friction_lag(x: np.ndarray, q: np.ndarray, model: tuple, contact: tuple, too
             b1 = barrier(d - edge_radius[te], dhat_tool)[1]
             if b1 == 0.0 or d <= 0.0 or m == ids.shape[0]:
                 continue
-            _entry(ids, data, m, 1, p, ta, tb, s, d, x[p, 0], x[p, 1], cx, cy, mus[0] * kappa * -b1, cx, cy)
+            _entry(ids, data, m, 1, (p, ta, tb), s, d, (x[p, 0], x[p, 1]), (cx, cy), mus[0] * kappa * -b1, (cx, cy))
             m += 1
         for k in range(counts[2]):
             w, e = tv[k, 0], tv[k, 1]
@@ -89,8 +91,8 @@ def friction_lag(x: np.ndarray, q: np.ndarray, model: tuple, contact: tuple, too
             b1 = barrier(d - vertex_radius[w], dhat_tool)[1]
             if b1 == 0.0 or d <= 0.0 or m == ids.shape[0]:
                 continue
-            _entry(ids, data, m, 2, w, a, b, s, d, pos[w, 0], pos[w, 1], cx, cy, mus[0] * kappa * -b1, pos[w, 0],
-                   pos[w, 1])
+            _entry(ids, data, m, 2, (w, a, b), s, d, (pos[w, 0], pos[w, 1]), (cx, cy), mus[0] * kappa * -b1,
+                   (pos[w, 0], pos[w, 1]))
             m += 1
     count[0] = m
 

@@ -222,7 +222,7 @@ SIM_PARAMETERS: tuple[ParamSpec, ...] = (
               non_negative("a margin >= 0 m")),
     ParamSpec("contact_surface", str, "edges", "", f"Projection contact keeps out of the tool: {', '.join(CONTACT_SURFACES)} (edges = particles and boundary edges; particles = particles only, a thin tool slips between them).", False, "contact",
               one_of(CONTACT_SURFACES)),
-    ParamSpec("contact_dhat", float, 0.0, "m", "Barrier contact (method ipc): the activation distance dhat; a boundary vertex and an edge (of the tissue or the tool's core) closer than this repel, and never touch; 0 = 0.3 % of the mesh's short boundary edges (their 10th percentile): the gap a pressed contact keeps is a fraction of it (a 0.4 mm punch at h = 2 mm is 1 % off the FEM; a smaller dhat is more accurate and takes more iterations where the tool moves fast into the tissue).", False, "contact",
+    ParamSpec("contact_dhat", float, 0.0, "m", "Barrier contact (method ipc): the activation distance dhat; a boundary vertex and an edge (of the tissue or the tool's core) closer than this repel, and never touch; 0 = 1 % of the mesh's short boundary edges (their 10th percentile): the gap a pressed contact keeps is a fraction of it (a 0.4 mm punch at h = 2 mm is 3 % off the FEM, 1 % at dhat 0.3 %; a smaller dhat is more accurate and takes more iterations where the tool moves fast into the tissue).", False, "contact",
               non_negative("a distance >= 0 m (0: from the mesh)")),
     ParamSpec("contact_stiffness", float, 0.0, "N/m", "Barrier contact: the barrier's stiffness kappa; 0 = young_modulus x thickness (the membrane's own stiffness scale).", False, "contact",
               non_negative("a stiffness >= 0 N/m (0: from the material)")),

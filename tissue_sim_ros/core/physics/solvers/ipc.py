@@ -7,7 +7,7 @@ the boundary (vertices, edges and the triangle each edge bounds), the Hessian's 
 snapshots, so a rollout from one is the live run's), the pair buffers, the L-BFGS history. Each step is one
 compiled call (:func:`~tissue_sim_ros.core.physics.ipc_step.ipc_step`) and the contact's report another.
 
-Parameters (``core/physics/params.py``): ``contact_dhat`` (0: 0.3 % of the 10th percentile of the boundary
+Parameters (``core/physics/params.py``): ``contact_dhat`` (0: 1 % of the 10th percentile of the boundary
 edges' lengths), ``contact_stiffness`` kappa (0: E x thickness), ``tool_stiffness`` (0: 1e5 kappa; the tool's
 turn and jaw are held by it times the tool's reach squared), ``contact_bodies``, ``solve_tolerance`` and
 ``iterations``; ``friction`` (tool and tissue), ``friction_tissue`` and ``friction_velocity`` (the lagged friction of
@@ -39,7 +39,7 @@ REFRESH_AFTER = 4
 #: The element's inversion barrier acts below this area ratio J.
 J_HAT = 0.2
 #: dhat: this fraction of the short boundary edges' length, when not given.
-DHAT_FRACTION = 0.003
+DHAT_FRACTION = 0.01
 #: The barrier's stiffness kappa: this multiple of E x thickness, when not given.
 KAPPA_FACTOR = 1.0
 #: The tool's spring: this multiple of E x thickness, when not given.
