@@ -20,8 +20,10 @@ from naive import rollout_stepped
 
 
 def _held_flap(spacing: float = 0.005) -> tuple[Simulation, ToolPose]:
-    """The retraction scene (a coarse mesh: small and quick), the flap grasped and lifted 5 mm."""
-    cfg = resolve_config(params_file=[scene_params_file("retract")]).replace(spacing=spacing)
+    """The retraction scene (a coarse mesh: small and quick) on the whole-step solve with projection contact (the
+    fused rollout's solver), the flap grasped and lifted 5 mm."""
+    cfg = resolve_config(params_file=[scene_params_file("retract")]).replace(
+        spacing=spacing, method="quasi_newton", contact_model="projection")
     sim = Simulation.from_config(cfg)
     pose = grasp_and_lift(sim, 10)
     assert sim.grasp.n_held > 0
@@ -89,10 +91,12 @@ def test_the_stepped_path_where_the_fused_one_does_not_apply():
     jaws[10] = 0.8  # the path opens the jaw: stepped
     assert not fused_applies(sim, snap, jaws)
     assert fused_applies(sim, snap, np.full(30, np.nan))
-    cfg = resolve_config(params_file=[scene_params_file("retract")]).replace(method="xpbd", substeps=10,
-                                                                               iterations=10)
+    cfg = resolve_config(params_file=[scene_params_file("retract")]).replace(
+        method="xpbd", substeps=10, iterations=10, contact_model="projection")
     xpbd = Simulation.from_config(cfg)
     assert not fused_applies(xpbd, xpbd.snapshot(), None)  # another solver: stepped
+    barrier = Simulation.from_config(resolve_config(params_file=[scene_params_file("retract")]))
+    assert barrier.params.method == "ipc" and not fused_applies(barrier, barrier.snapshot(), None)
     opening = sim.snapshot()
     opening.grasp = {**opening.grasp, "jaw": 0.8}  # closed, but the jaw reads open: the first step lets go
     assert not fused_applies(sim, opening, None)

@@ -24,7 +24,8 @@ from tissue_sim_ros.core.sim.simulation import Simulation
 import naive
 
 E, NU, THICK, RHO = 50e3, 0.45, 0.005, 1060.0
-STRIP = {"material": "neo_hookean", "young_modulus": E, "poisson_ratio": NU, "thickness": THICK, "density": RHO,
+STRIP = {"material": "neo_hookean", "method": "quasi_newton", "young_modulus": E, "poisson_ratio": NU,
+         "thickness": THICK, "density": RHO,
          "dt": 0.01, "damping": 20.0, "boundary_y_top": 0.04 - 1e-9, "boundary_y_bottom": float("nan"),
          "contact_model": "none"}
 
