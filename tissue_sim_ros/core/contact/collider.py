@@ -59,6 +59,11 @@ class ToolGeometry:
     """The closed polygons, each a (K,) array of vertex indices, counter-clockwise."""
 
     @property
+    def loop_ptr(self) -> np.ndarray:
+        """(L + 1,) int64: loop l's edges are ``edges[loop_ptr[l]:loop_ptr[l + 1]]`` (they are made loop by loop)."""
+        return np.concatenate([[0], np.cumsum([len(loop) for loop in self.loops])]).astype(np.int64)
+
+    @property
     def arrays(self) -> tuple:
         """(hinge, arm, sign, edges, edge_radius, vertex_radius): the kernels' bundle ``geom``."""
         return (self.hinge, self.arm, self.sign, self.edges, self.edge_radius, self.vertex_radius)

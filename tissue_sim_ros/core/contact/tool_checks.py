@@ -95,3 +95,104 @@ def tool_checks(x0: np.ndarray, x1: np.ndarray, shape0: np.ndarray, shape1: np.n
             break
     return n_inside, deepest, arg, n_tunnel, buried
 
+
+
+@njit(cache=True, inline="always")
+def _in_loop(px: float, py: float, pos: np.ndarray, edges: np.ndarray, k0: int, k1: int) -> tuple[bool, float]:
+    """(inside, distance to the boundary) of a point and the closed polygon of edges k0..k1 (even-odd rule)."""
+    inside = False
+    dist = np.inf
+    for k in range(k0, k1):
+        ax, ay = pos[edges[k, 0], 0], pos[edges[k, 0], 1]
+        bx, by = pos[edges[k, 1], 0], pos[edges[k, 1], 1]
+        if (ay > py) != (by > py) and px < ax + (py - ay) * (bx - ax) / (by - ay):
+            inside = not inside
+        ex, ey = bx - ax, by - ay
+        ll = ex * ex + ey * ey
+        s = 0.0 if ll == 0.0 else min(1.0, max(0.0, ((px - ax) * ex + (py - ay) * ey) / ll))
+        dist = min(dist, np.hypot(px - ax - s * ex, py - ay - s * ey))
+    return inside, dist
+
+
+@njit(cache=True, inline="always")
+def _crosses(ax: float, ay: float, bx: float, by: float, cx: float, cy: float, dx: float, dy: float) -> bool:
+    """Segments a-b and c-d cross (proper crossing)."""
+    d1 = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+    d2 = (bx - ax) * (dy - ay) - (by - ay) * (dx - ax)
+    d3 = (dx - cx) * (ay - cy) - (dy - cy) * (ax - cx)
+    d4 = (dx - cx) * (by - cy) - (dy - cy) * (bx - cx)
+    return d1 * d2 < 0.0 and d3 * d4 < 0.0
+
+
+@njit(cache=True, nogil=True)
+def outline_checks(x0: np.ndarray, x1: np.ndarray, frame0: np.ndarray, frame1: np.ndarray, pos1: np.ndarray,
+                   edges: np.ndarray, loop_ptr: np.ndarray, tris: np.ndarray,
+                   inside_tol: float) -> tuple[int, float, int, int, bool]:
+    """The checks of :func:`tool_checks` against the tool's true outline, its closed polygons (the barrier
+    contact's tool, ``core/contact/collider.py``): ``pos1`` (V, 2) its vertices at the step's end, ``edges`` (E,
+    2) their loops' edges, loop l's edges ``loop_ptr[l]:loop_ptr[l + 1]``; ``frame0``, ``frame1`` = (x, y, cos,
+    sin) of the tool's pose at the step's start and end (a particle's chord is taken in the tool's frame, its start
+    carried by the tool's motion). Returns (n_inside, deepest [m], deepest particle or -1, n_tunnelled, buried)."""
+    n_inside = 0
+    deepest = 0.0
+    arg = -1
+    n_tunnel = 0
+    n_loops = loop_ptr.shape[0] - 1
+    lox, loy, hix, hiy = np.inf, np.inf, -np.inf, -np.inf
+    for v in range(pos1.shape[0]):
+        lox, loy = min(lox, pos1[v, 0]), min(loy, pos1[v, 1])
+        hix, hiy = max(hix, pos1[v, 0]), max(hiy, pos1[v, 1])
+    for i in range(x1.shape[0]):
+        # the start carried into the end's frame: local in frame0, then placed by frame1
+        rx, ry = x0[i, 0] - frame0[0], x0[i, 1] - frame0[1]
+        lx, ly = frame0[2] * rx + frame0[3] * ry, -frame0[3] * rx + frame0[2] * ry
+        sx = frame1[0] + frame1[2] * lx - frame1[3] * ly
+        sy = frame1[1] + frame1[3] * lx + frame1[2] * ly
+        ex, ey = x1[i, 0], x1[i, 1]
+        if (max(sx, ex) < lox or min(sx, ex) > hix or max(sy, ey) < loy or min(sy, ey) > hiy):
+            continue
+        inside_end = False
+        for lp in range(n_loops):
+            inside, dist = _in_loop(ex, ey, pos1, edges, loop_ptr[lp], loop_ptr[lp + 1])
+            if inside and dist > inside_tol:
+                inside_end = True
+                n_inside += 1
+                if dist > deepest:
+                    deepest = dist
+                    arg = i
+                break
+        if inside_end:
+            continue
+        started_inside = False
+        for lp in range(n_loops):
+            if _in_loop(sx, sy, pos1, edges, loop_ptr[lp], loop_ptr[lp + 1])[0]:
+                started_inside = True
+        if started_inside:
+            continue
+        for lp in range(n_loops):
+            crossings = 0
+            for k in range(loop_ptr[lp], loop_ptr[lp + 1]):
+                a, b = edges[k, 0], edges[k, 1]
+                if _crosses(sx, sy, ex, ey, pos1[a, 0], pos1[a, 1], pos1[b, 0], pos1[b, 1]):
+                    crossings += 1
+            if crossings >= 2:
+                n_tunnel += 1
+                break
+    # buried: a vertex of the outline inside a triangle of the deformed tissue
+    buried = False
+    for t in range(tris.shape[0]):
+        a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
+        if (max(x1[a, 0], x1[b, 0], x1[c, 0]) < lox or min(x1[a, 0], x1[b, 0], x1[c, 0]) > hix
+                or max(x1[a, 1], x1[b, 1], x1[c, 1]) < loy or min(x1[a, 1], x1[b, 1], x1[c, 1]) > hiy):
+            continue
+        for v in range(pos1.shape[0]):
+            px, py = pos1[v, 0], pos1[v, 1]
+            d1 = (x1[b, 0] - x1[a, 0]) * (py - x1[a, 1]) - (x1[b, 1] - x1[a, 1]) * (px - x1[a, 0])
+            d2 = (x1[c, 0] - x1[b, 0]) * (py - x1[b, 1]) - (x1[c, 1] - x1[b, 1]) * (px - x1[b, 0])
+            d3 = (x1[a, 0] - x1[c, 0]) * (py - x1[c, 1]) - (x1[a, 1] - x1[c, 1]) * (px - x1[c, 0])
+            if (d1 > 0.0 and d2 > 0.0 and d3 > 0.0) or (d1 < 0.0 and d2 < 0.0 and d3 < 0.0):
+                buried = True
+                break
+        if buried:
+            break
+    return n_inside, deepest, arg, n_tunnel, buried

@@ -28,10 +28,10 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from ..config import BY_NAME, Config
-from ..contact.collider import ToolCollider, clear_start, pose_dofs, tool_geometry
+from ..contact.collider import ToolCollider, clear_start, core_positions, pose_dofs, tool_geometry
 from ..contact.collision import ContactModel, Contacts
 from ..contact.tool import ToolPose, ToolShape, ToolTwist, tool_shape_array, twist_from_poses
-from ..contact.tool_checks import INSIDE_TOL, tool_checks
+from ..contact.tool_checks import INSIDE_TOL, outline_checks, tool_checks
 from ..errors import InputError
 from ..physics.energy import NO_ATTACH, EnergyTerms, energy_model
 from ..physics.kernels import count_inverted
@@ -387,9 +387,8 @@ class Simulation:
         through the tissue. False without a tool."""
         if self.tool is None:
             return False
-        shape = tool_shape_array(self.tool, pose)
         x = self.state.particle_q
-        n_in, _, _, _, buried = tool_checks(x, x, shape, shape, self.model.tri_indices, INSIDE_TOL)
+        n_in, _, _, _, buried = self._tool_checks(x, x, pose, pose)
         return bool(n_in) or bool(buried)
 
     def use_solver(self, solver: SolverFactory) -> None:
@@ -587,6 +586,15 @@ class Simulation:
         """Penetration, tunnelling and a buried tool after a step (``core/contact/tool_checks.py``); zeros without a tool."""
         if self.tool is None or pose1 is None:
             return 0, 0.0, -1, 0, False
+        if self.params.contact_model == "barrier":
+            # against the tool's true outline, as the barrier sees it (the grasper's jaws, not its envelope)
+            geom = self._geometry
+            p0 = pose0 or pose1
+            pos1 = core_positions(pose_dofs(pose1, self.tool_jaw or 0.0), geom)
+            frames = [np.array([p.x, p.y, math.cos(p.yaw), math.sin(p.yaw)]) for p in (p0, pose1)]
+            n_in, depth, arg, n_tunnel, buried = outline_checks(x0, x1, frames[0], frames[1], pos1, geom.edges,
+                                                                geom.loop_ptr, self.model.tri_indices, INSIDE_TOL)
+            return int(n_in), float(depth), int(arg), int(n_tunnel), bool(buried)
         n_in, depth, arg, n_tunnel, buried = tool_checks(
             x0, x1, tool_shape_array(self.tool, pose0 or pose1), tool_shape_array(self.tool, pose1),
             self.model.tri_indices, INSIDE_TOL)
