@@ -143,6 +143,8 @@ def contact_part(x: np.ndarray, model: tuple, contact: tuple, tool: tuple, pairs
         if bb == 0.0:
             continue
         e += k2 * bb
+        if d <= 0.0:
+            continue  # (touching: E is inf, the line search refuses the state)
         s = k2 * b1 / d
         nx, ny = s * (x[p, 0] - cx), s * (x[p, 1] - cy)
         g[2 * p] += nx
@@ -160,6 +162,8 @@ def contact_part(x: np.ndarray, model: tuple, contact: tuple, tool: tuple, pairs
         if bb == 0.0:
             continue
         e += k2 * bb
+        if d <= 0.0:
+            continue  # (touching: E is inf, the line search refuses the state)
         s = k2 * b1 / d
         nx, ny = x[p, 0] - cx, x[p, 1] - cy
         g[2 * p] += s * nx
@@ -175,6 +179,8 @@ def contact_part(x: np.ndarray, model: tuple, contact: tuple, tool: tuple, pairs
         if bb == 0.0:
             continue
         e += k2 * bb
+        if d <= 0.0:
+            continue  # (touching: E is inf, the line search refuses the state)
         s = k2 * b1 / d
         nx, ny = pos[w, 0] - cx, pos[w, 1] - cy
         _add_tool_grad(gq, jac, w, s, nx, ny)
