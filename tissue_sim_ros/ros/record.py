@@ -43,7 +43,7 @@ DEFAULT_TOPICS = (
     "tool/pose", "tool/twist",
     "tissue/markers", "tissue/points", "tissue/rest_mesh",
     "tissue/energy", "tissue/energy/inertial", "tissue/energy/spring", "tissue/energy/area", "tissue/energy/strain",
-    "tissue/energy/potential", "tissue/energy/bodies", "tissue/contact",
+    "tissue/energy/potential", "tissue/energy/contact", "tissue/energy/bodies", "tissue/contact",
     "tool/wrench",
 )
 _PREFIXES = ("tissue/", "tool/")

@@ -16,7 +16,7 @@ from ..raw_publish import GilFreePublisher
 
 #: The energy terms with a topic of their own (``tissue/energy/TERM``): the paper's three, the material's strain
 #: (a term of the total) and potential energy [J], and the grasp's attachment springs.
-TERM_TOPICS = (*ENERGY_TERMS[:3], "strain", "potential", "attach")
+TERM_TOPICS = (*ENERGY_TERMS[:3], "strain", "potential", "contact", "attach")
 
 
 @dataclass(frozen=True)
