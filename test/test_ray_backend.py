@@ -120,7 +120,7 @@ def test_tune_material_runs_on_ray_as_locally(cluster):
 
     cfg = resolve_config(params_file="config/scenes/liver_probe.yaml")
     press = tm.press_point(cfg.replace(spacing=0.008), 0.003)
-    runs = [(tm.mesh_config(cfg, press, h, g).replace(substeps=2, iterations=5), press)
+    runs = [(tm.with_setting(tm.mesh_config(cfg, press, h, g), (1, 20, 1e-2)), press)
             for h, g in ((0.008, 0.0), (0.008, 0.004))]
     local = tm.rest_runs(runs)
     remote = tm.rest_runs(runs, jobs=2, backend="ray")

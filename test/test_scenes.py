@@ -34,7 +34,7 @@ def liver():
 
 def test_liver_scene_is_real_tissue_at_real_size(liver):
     p = liver.params
-    assert p.material == "neo_hookean" and p.contact_model == "projection" and p.substeps > 1
+    assert p.material == "neo_hookean" and p.method == "ipc" and p.contact_model == "barrier" and p.substeps == 1
     assert 1e3 <= p.young_modulus <= 1e4  # a few kPa (healthy liver, see the YAML's references)
     assert 1000 <= p.density <= 1100
     q0 = liver.model.particle_q0

@@ -1,4 +1,8 @@
-"""``tissue-sim tune`` for ``material: neo_hookean``: the cheapest mesh (spacing, grading), substeps and iterations.
+"""``tissue-sim tune`` for ``material: neo_hookean``: the cheapest mesh (spacing, grading) and solver setting.
+
+The solver setting is the method's own knob (:func:`solver_settings`): the solve tolerance of the whole-step
+solves (``ipc``, the default, and ``quasi_newton``: one substep, iterations a cap), substeps x iterations of
+``xpbd``.
 
 The material's answer is a physical one, so its error has two parts, both measured here on the
 parameter file's own scene (e.g. ``config/scenes/liver_probe.yaml``) under a static load: gravity and
@@ -30,7 +34,7 @@ radii of the press point, growing outside; :class:`~tissue_sim_ros.core.mesh.Gra
 about the instrument's axis, so the contact pushes sideways and the soft slab shears as a whole: the
 displacement field's error is mostly far from the tool and falls slowly with refinement. Time: the median solver time per step during the hold. The cheapest
 setting with error <= tolerance and time <= budget is written as a parameter file: the scene's file with
-``spacing``, the ``grade_*`` parameters, ``substeps`` and ``iterations`` replaced.
+``spacing``, the ``grade_*`` parameters, ``substeps``, ``iterations`` and ``solve_tolerance`` replaced.
 """
 from __future__ import annotations
 
@@ -46,13 +50,21 @@ from ..core.config import Config
 from ..core.contact.tool import ToolPose
 from ..core.sim.simulation import Simulation
 
-SETTINGS = ((1, 10), (2, 5), (5, 5), (10, 2), (10, 5), (10, 10), (20, 3), (20, 5), (20, 10), (30, 3), (30, 5),
-            (30, 10), (40, 3), (40, 5), (50, 5))
-QUICK_SETTINGS = ((2, 5), (10, 5))
-#: substeps x iterations of a converged solve: the rest state's bias falls with the substep (1/substeps),
-#: hardly with the iterations
-CONVERGED = (100, 10)
-QUICK_CONVERGED = (20, 5)
+#: a solver setting: (substeps, iterations, solve_tolerance). xpbd (substeps of a fixed number of iterations): the
+#: rest state's bias falls with the substep (1/substeps), hardly with the iterations; its tolerance only reports
+SETTINGS = tuple((n, it, 1e-3) for n, it in (
+    (1, 10), (2, 5), (5, 5), (10, 2), (10, 5), (10, 10), (20, 3), (20, 5), (20, 10), (30, 3), (30, 5), (30, 10),
+    (40, 3), (40, 5), (50, 5)))
+QUICK_SETTINGS = ((2, 5, 1e-3), (10, 5, 1e-3))
+CONVERGED = (100, 10, 1e-3)
+QUICK_CONVERGED = (20, 5, 1e-3)
+#: the whole-step solves (ipc, quasi_newton: one substep, iterations a cap): they stop at solve_tolerance, the
+#: estimated relative error of the step, so the tolerance is the setting
+WHOLE_STEP = ("ipc", "quasi_newton")
+WHOLE_SETTINGS = ((1, 50, 3e-2), (1, 50, 1e-2), (1, 50, 3e-3), (1, 50, 1e-3), (1, 100, 3e-4), (1, 100, 1e-4))
+WHOLE_QUICK_SETTINGS = ((1, 50, 1e-2), (1, 50, 1e-3))
+WHOLE_CONVERGED = (1, 300, 1e-6)
+WHOLE_QUICK_CONVERGED = (1, 200, 1e-5)
 REST_SPEED = 1e-5
 #: radius of a graded mesh's fine disc around the press point, in tool radii
 GRADE_RADIUS_TOOLS = 2.0
@@ -60,6 +72,33 @@ QUANTITIES = ("field", "force", "energy")
 RAMP = 40
 #: the reference mesh is this much finer than the finest candidate (two sqrt(2) refinements past it)
 REFINE = 2.0 ** 1.5
+
+
+def solver_settings(cfg: Config, quick: bool = False) -> tuple[tuple[tuple[int, int, float], ...],
+                                                               tuple[int, int, float]]:
+    """The candidate settings and the converged one for ``cfg``'s method: substeps x iterations (xpbd) or the
+    solve tolerance (the whole-step solves)."""
+    if cfg.sim.method in WHOLE_STEP:
+        return (WHOLE_QUICK_SETTINGS, WHOLE_QUICK_CONVERGED) if quick else (WHOLE_SETTINGS, WHOLE_CONVERGED)
+    return (QUICK_SETTINGS, QUICK_CONVERGED) if quick else (SETTINGS, CONVERGED)
+
+
+def with_setting(cfg: Config, setting: Sequence[float]) -> Config:
+    """``cfg`` with a setting's substeps, iterations and solve tolerance."""
+    n, it, tol = setting
+    return cfg.replace(substeps=int(n), iterations=int(it), solve_tolerance=float(tol))
+
+
+def setting_label(setting: Sequence[float], method: str) -> str:
+    """``10 x 5`` (substeps x iterations) or ``tolerance 0.001`` (a whole-step solve)."""
+    n, it, tol = setting
+    return f"tolerance {float(tol):g}" if method in WHOLE_STEP else f"{int(n)} x {int(it)}"
+
+
+def tighter(setting: Sequence[float], method: str) -> tuple[int, int, float]:
+    """The setting a converged one is checked against: twice the substeps (xpbd) or a tenth of the tolerance."""
+    n, it, tol = setting
+    return (int(n), int(it), float(tol) / 10) if method in WHOLE_STEP else (2 * int(n), int(it), float(tol))
 
 
 def _reach(cfg: Config) -> float:
@@ -174,24 +213,25 @@ def reference_meshes(spacings: Sequence[float], grades: Sequence[float]) -> tupl
 
 
 def build_reference(cfg: Config, spacing: float, grade_spacing: float, depth: float,
-                    converged: tuple[int, int] = CONVERGED, progress: Any = print,
+                    converged: tuple[int, int, float] | None = None, progress: Any = print,
                     **backend: Any) -> dict[str, Any]:
     """The press solved with ``converged`` on a mesh of ``spacing`` graded to ``grade_spacing`` (the press point
     from this mesh's outline), and the reference's own errors.
 
-    Solver: against the same mesh with twice the substeps. Mesh: from the change against the same family of
+    Solver: against the same mesh with twice the substeps (xpbd) or a tenth of the tolerance (:func:`tighter`). Mesh: from the change against the same family of
     mesh sqrt(2) coarser (spacing and graded spacing both), taken as first order (the strain energy's changes
     fall about that fast; the force's do not fall steadily, contact particles come and go): error ~ change /
     (sqrt(2) - 1) = 2.4 x the change.
     """
-    n_c, it_c = converged
+    method = cfg.sim.method
+    converged = converged or solver_settings(cfg)[1]
     press = press_point(cfg.replace(spacing=spacing, grade_spacing=0.0), depth)
     ref_cfg = mesh_config(cfg, press, spacing, grade_spacing)
     ref, check, coarser = rest_runs([
-        (ref_cfg.replace(substeps=n_c, iterations=it_c), press),
-        (ref_cfg.replace(substeps=2 * n_c, iterations=it_c), press),
-        (mesh_config(cfg, press, spacing * math.sqrt(2), grade_spacing * math.sqrt(2)).replace(
-            substeps=n_c, iterations=it_c), press)], **backend)
+        (with_setting(ref_cfg, converged), press),
+        (with_setting(ref_cfg, tighter(converged, method)), press),
+        (with_setting(mesh_config(cfg, press, spacing * math.sqrt(2), grade_spacing * math.sqrt(2)), converged),
+         press)], **backend)
     solver = errors(ref, check, same_mesh=True)
     change = errors(coarser, ref)
     mesh = {q: v / (math.sqrt(2) - 1) for q, v in change.items()}
@@ -201,8 +241,9 @@ def build_reference(cfg: Config, spacing: float, grade_spacing: float, depth: fl
                  "at_rest": ref["at_rest"] and check["at_rest"] and coarser["at_rest"],
                  "converged": converged, "run": ref}
     progress(f"reference: {ref['particles']} particles (spacing {spacing * 1e3:.4g} mm, {grade_spacing * 1e3:.4g} mm "
-             f"near the tool), {n_c} x {it_c}: force {ref['force'][1]:.5g} N, strain energy {ref['energy']:.5g} J, "
-             f"RMS displacement {rms(ref['u'], ref['mass']):.4g} m; its own error, solver (vs {2 * n_c} x {it_c}): "
+             f"near the tool), {setting_label(converged, method)}: force {ref['force'][1]:.5g} N, strain energy "
+             f"{ref['energy']:.5g} J, RMS displacement {rms(ref['u'], ref['mass']):.4g} m; its own error, solver (vs "
+             f"{setting_label(tighter(converged, method), method)}): "
              + _listing(solver)
              + f"; mesh (2.4 x the change from {coarser['particles']} particles): "
              + _listing(mesh))
@@ -210,8 +251,8 @@ def build_reference(cfg: Config, spacing: float, grade_spacing: float, depth: fl
 
 
 def tune_material(cfg: Config, tolerance: float, budget_ms: float, spacings: Sequence[float],
-                  grades: Sequence[float], depth: float, settings: Sequence[tuple[int, int]] = SETTINGS,
-                  converged: tuple[int, int] = CONVERGED,
+                  grades: Sequence[float], depth: float, settings: Sequence[tuple[int, int, float]] | None = None,
+                  converged: tuple[int, int, float] | None = None,
                   progress: Any = print,
                   **backend: Any) -> tuple[dict[str, Any] | None, list[dict[str, Any]], dict[str, Any]]:
     """Measure every mesh x setting; the cheapest row meeting tolerance and budget (None if none), rows, reference.
@@ -220,14 +261,15 @@ def tune_material(cfg: Config, tolerance: float, budget_ms: float, spacings: Seq
     on it can qualify. ``backend``: ``jobs``, ``backend``, ``address`` of :func:`rest_runs` (the runs of each
     stage, reference, converged per mesh, settings, are independent calls; the same numbers).
     """
-    n_c, it_c = converged
+    settings = settings or solver_settings(cfg)[0]
+    converged = converged or solver_settings(cfg)[1]
     t0 = time.perf_counter()
     reference = build_reference(cfg, *reference_meshes(spacings, grades), depth, converged, progress, **backend)
     press, ref = reference["press"], reference["run"]
     ref_h, ref_g = reference["spacing"], reference["grade_spacing"]
     meshes = [(h, g, mesh_config(cfg, press, h, g)) for h in sorted(spacings, reverse=True)
               for g in sorted({0.0, *(g for g in grades if 0 < g < h)}, reverse=True)]
-    convs = rest_runs([(m.replace(substeps=n_c, iterations=it_c), press) for _, _, m in meshes], **backend)
+    convs = rest_runs([(with_setting(m, converged), press) for _, _, m in meshes], **backend)
     plans = []
     for (h, g, mesh_cfg), conv in zip(meshes, convs):
         mesh_err = errors(conv, ref)
@@ -236,16 +278,16 @@ def tune_material(cfg: Config, tolerance: float, budget_ms: float, spacings: Seq
                  + f" ({conv['particles']} particles): against the reference "
                  + _listing(mesh_err, ".3g"))
         plans.append((h, g, mesh_cfg, conv, mesh_err, [] if worst_mesh > tolerance else list(settings)))
-    todo = [(mesh_cfg.replace(substeps=n, iterations=it), press) for _, _, mesh_cfg, _, _, sets in plans
-            for n, it in sets]
+    todo = [(with_setting(mesh_cfg, s), press) for _, _, mesh_cfg, _, _, sets in plans for s in sets]
     done = iter(rest_runs(todo, **backend))
     rows: list[dict[str, Any]] = []
     for h, g, _, conv, mesh_err, sets in plans:
-        runs = [(n, it, next(done)) for n, it in sets] or [(n_c, it_c, conv)]
-        for n, it, run in runs:
+        runs = [(s, next(done)) for s in sets] or [(converged, conv)]
+        for (n, it, tol), run in runs:
             solver_err = errors(run, conv, same_mesh=True)
             row: dict[str, Any] = {"spacing": h, "grade_spacing": g, "particles": run["particles"],
-                                   "substeps": n, "iterations": it, "ms_per_step": run["solve_ms"]}
+                                   "substeps": n, "iterations": it, "solve_tolerance": tol,
+                                   "ms_per_step": run["solve_ms"]}
             for q in QUANTITIES:
                 row[f"mesh_{q}"] = mesh_err[q] + reference["error"][q]
                 row[f"solver_{q}"] = solver_err[q]
@@ -263,8 +305,8 @@ def tune_material(cfg: Config, tolerance: float, budget_ms: float, spacings: Seq
 
 def chosen_config(cfg: Config, press: Press, row: dict[str, Any]) -> Config:
     """The scene's configuration with the row's mesh and solver setting."""
-    return mesh_config(cfg, press, float(row["spacing"]), float(row["grade_spacing"])).replace(
-        substeps=int(row["substeps"]), iterations=int(row["iterations"]))
+    return with_setting(mesh_config(cfg, press, float(row["spacing"]), float(row["grade_spacing"])),
+                        (row["substeps"], row["iterations"], row["solve_tolerance"]))
 
 
 def verify(chosen: Config, reference: dict[str, Any]) -> dict[str, Any]:
@@ -278,7 +320,7 @@ def verify(chosen: Config, reference: dict[str, Any]) -> dict[str, Any]:
 
 
 def plot(path: Path, rows: Sequence[dict[str, Any]], best: dict[str, Any] | None, tolerance: float,
-         title: str) -> None:
+         title: str, method: str = "xpbd") -> None:
     """The worst of the three errors against solver time per step, one marker per mesh; the choice circled."""
     import matplotlib  # noqa: PLC0415
 
@@ -296,7 +338,7 @@ def plot(path: Path, rows: Sequence[dict[str, Any]], best: dict[str, Any] | None
     ax.axhline(tolerance, color="#c62828", lw=0.8, ls="--", label=f"tolerance {tolerance:g}")
     if best is not None:
         ax.loglog([best["ms_per_step"]], [best["error"]], "o", ms=16, mfc="none", mec="k",
-                  label=f"chosen: {best['substeps']} x {best['iterations']}")
+                  label="chosen: " + setting_label((best["substeps"], best["iterations"], best["solve_tolerance"]), method))
     ax.set_xlabel("solver time per step [ms]")
     ax.set_ylabel("worst of field, force, energy error (mesh + solver)")
     ax.set_title(title, fontsize=9)
@@ -307,7 +349,7 @@ def plot(path: Path, rows: Sequence[dict[str, Any]], best: dict[str, Any] | None
     plt.close(fig)
 
 
-TABLE = ["spacing", "grade_spacing", "particles", "substeps", "iterations", "ms_per_step", "mesh_field",
+TABLE = ["spacing", "grade_spacing", "particles", "substeps", "iterations", "solve_tolerance", "ms_per_step", "mesh_field",
          "solver_field", "mesh_force", "solver_force", "mesh_energy", "solver_energy", "error", "at_rest"]
 
 
@@ -324,12 +366,13 @@ def run_tune_material(cfg: Config, *, tolerance: float, budget_ms: float, materi
     from ..bench.accuracy import format_table, write_csv  # noqa: PLC0415
     from ..core.config import resolve_config  # noqa: PLC0415
 
+    method = cfg.sim.method
+    settings, converged = solver_settings(cfg, quick)
     if quick:
-        spacings, grades, settings, converged = [0.006], [0.003], QUICK_SETTINGS, QUICK_CONVERGED
+        spacings, grades = [0.006], [0.003]
     else:
         spacings = sorted(set(material_spacings), reverse=True)
         grades = sorted(set(grade_spacings), reverse=True)
-        settings, converged = SETTINGS, CONVERGED
     if verify_only:
         return run_verify(cfg, spacings, grades, converged, depth=depth, tolerance=tolerance,
                           params_file=params_file, **backend)
@@ -342,10 +385,10 @@ def run_tune_material(cfg: Config, *, tolerance: float, budget_ms: float, materi
              f"in;\nreference {reference['spacing'] * 1e3:.3g} mm, {reference['grade_spacing'] * 1e3:.3g} mm at the tool")
     if png_path:
         Path(png_path).parent.mkdir(parents=True, exist_ok=True)
-        plot(Path(png_path), rows, best, tolerance, title)
-    print(f"\n{title.replace(chr(10), ' ')}; error = mesh (converged {converged[0]} x {converged[1]} vs the reference, plus the reference's "
+        plot(Path(png_path), rows, best, tolerance, title, method)
+    print(f"\n{title.replace(chr(10), ' ')}; error = mesh (converged {setting_label(converged, method)} vs the reference, plus the reference's "
           f"own error: " + _listing(reference["error"])
-          + f") + solver (vs {converged[0]} x {converged[1]} on the same mesh), per quantity; 'error' is the worst:")
+          + f") + solver (vs {setting_label(converged, method)} on the same mesh), per quantity; 'error' is the worst:")
     print(format_table(rows, TABLE))
     if best is None:
         within = [r for r in rows if r["ms_per_step"] <= budget_ms and r["at_rest"]]
@@ -353,14 +396,14 @@ def run_tune_material(cfg: Config, *, tolerance: float, budget_ms: float, materi
         msg = f"\nno setting meets error <= {tolerance:g} within {budget_ms:g} ms per step"
         if hint:
             msg += (f"; the most accurate within budget: spacing {hint['spacing']:g} m, grade_spacing "
-                    f"{hint['grade_spacing']:g} m, {hint['substeps']} x {hint['iterations']} (error field "
+                    f"{hint['grade_spacing']:g} m, {setting_label((hint['substeps'], hint['iterations'], hint['solve_tolerance']), method)} (error field "
                     f"{hint['err_field']:.3g}, force {hint['err_force']:.3g}, energy {hint['err_energy']:.3g}, "
                     f"{hint['ms_per_step']:.3g} ms)")
         print(msg + (f"; {out} not written" if out else "") + " (exit 1)")
         return 1
     print(f"\nchosen: spacing {best['spacing']:g} m" + (f", {best['grade_spacing']:g} m near the tool"
                                                        if best["grade_spacing"] else "")
-          + f" ({best['particles']} particles), {best['substeps']} substeps x {best['iterations']} iterations: "
+          + f" ({best['particles']} particles), {setting_label((best['substeps'], best['iterations'], best['solve_tolerance']), method)}: "
           f"{best['ms_per_step']:.3g} ms per step, error field {best['err_field']:.3g}, force {best['err_force']:.3g}, "
           f"energy {best['err_energy']:.3g}")
     if out:
@@ -381,13 +424,13 @@ def run_tune_material(cfg: Config, *, tolerance: float, budget_ms: float, materi
     return 0
 
 
-def run_verify(cfg: Config, spacings: Sequence[float], grades: Sequence[float], converged: tuple[int, int], *,
+def run_verify(cfg: Config, spacings: Sequence[float], grades: Sequence[float], converged: tuple[int, int, float], *,
                depth: float, tolerance: float, params_file: str | Path | None = None, **backend: Any) -> int:
     """``--verify``: the parameter file as it is, against the reference tune would build for these candidates."""
     reference = build_reference(cfg, *reference_meshes(spacings, grades), depth, converged, **backend)
     check = verify(cfg, reference)
     print(f"\n{params_file or ''}: {check['particles']} particles (spacing {cfg.scene.spacing:g} m, grade_spacing "
-          f"{cfg.scene.grade_spacing:g} m), {cfg.sim.substeps} x {cfg.sim.iterations}: {check['ms_per_step']:.3g} ms "
+          f"{cfg.scene.grade_spacing:g} m), {setting_label((cfg.sim.substeps, cfg.sim.iterations, cfg.sim.solve_tolerance), cfg.sim.method)}: {check['ms_per_step']:.3g} ms "
           f"per step, error against the reference field {check['err_field']:.3g}, force {check['err_force']:.3g}, "
           f"energy {check['err_energy']:.3g}" + ("" if check["at_rest"] else " (not at rest)")
           + " (the reference's own: " + _listing(reference["error"]) + ")")
