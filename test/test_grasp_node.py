@@ -259,7 +259,9 @@ def test_a_step_that_stops_short_is_reported_and_warned(ros_client: Any, start_p
         c.diagnostics.clear()
         d = c.ros.spin_until(lambda: c.diagnostics and c.diagnostics[-1], TIMEOUT, proc, "diagnostics")
         assert d["solve_converged"] == "false" and int(d["unconverged_steps"]) >= 1, d
-        assert int(d["solve_iterations"]) == 1 and float(d["solve_residual"]) > 1e-9
+        # one iteration per part: the barrier step approaches the tool's 0.8 mm in parts of a tenth of the
+        # boundary's median edge (core/physics/solvers/ipc.py, COMMAND_PART), each capped at `iterations`
+        assert 1 <= int(d["solve_iterations"]) <= 8 and float(d["solve_residual"]) > 1e-9
         c.ros.spin_until(lambda: "stopped short of its own step" in proc.output(), TIMEOUT, proc,
                          "the node's warning")
     finally:
