@@ -24,9 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the tool driver's trajectory: a preset (experiment_a, experiment_b_shallow, "
                              "experiment_b_steep, authors, retract) or a .csv/.yaml trajectory file (default "
                              "experiment_a; retract with --scene retract: grasp, lift and pull back 2 cm, open)")
-    parser.add_argument("--contact-model", choices=["paper", "projection"], default="projection",
-                        help="contact model of the node (default projection: the tissue is pushed; the paper's eq. (3) "
-                             "lets the tool pass into the tissue once it touches)")
+    parser.add_argument("--contact-model", choices=["paper", "projection", "barrier"], default=None,
+                        help="contact model of the node (default: the scene's own; projection for the paper's "
+                             "springs, barrier for material: neo_hookean scenes; the paper's eq. (3) lets the tool "
+                             "pass into the tissue once it touches)")
 
 
 def run(args: argparse.Namespace) -> int:

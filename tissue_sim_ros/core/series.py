@@ -42,7 +42,8 @@ def split_remainder(listed: Mapping[str, np.ndarray], total: np.ndarray,
     """Per-body terms missing from a per-body table, from its total and the scene sums of those terms.
 
     ``tissue/energy/bodies`` carries inertial, spring and area per body beside the total; strain and attach come
-    as scene sums only (``tissue/energy/strain``, ``tissue/energy/attach``). The per-body remainder
+    as scene sums only (``tissue/energy/strain``, ``tissue/energy/attach``; the barrier contact's
+    ``tissue/energy/contact``). The per-body remainder
     ``total - sum(listed)`` is exactly those terms together: one body takes the scene sums as they are; with
     several bodies a remainder holding one non-zero term is that term, and one holding both is shown as their sum
     ("strain + attach"), since the table cannot tell them apart per body.

@@ -185,7 +185,7 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
     Contact is ``tissue/contact``'s per-body ``in_contact``, the Simulation's own flag; the markers are a
     display stream (newest state only) that may skip steps. The energy terms are the ones the bag says it
     has: ``tissue/energy/bodies``' columns by its ``term:`` label, its ``total`` column the total (the terms
-    it leaves out, strain and attach, come from their scene topics: :func:`~tissue_sim_ros.core.series.split_remainder`).
+    it leaves out, strain, attach and the contact barriers', come from their scene topics: :func:`~tissue_sim_ros.core.series.split_remainder`).
     """
     from ..ros.bags import Bag  # noqa: PLC0415
     from ..ros.messages import (  # noqa: PLC0415
@@ -204,7 +204,7 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
     energy_t: list[int] = []
     contact: list[np.ndarray] = []
     points: list[tuple[int, np.ndarray]] = []
-    scene: dict[str, list[float]] = {"strain": [], "attach": []}
+    scene: dict[str, list[float]] = {"strain": [], "attach": [], "contact": []}
     grasped: list[int] = []
     jaw: list[float] = []
     with Bag(path) as bag:
@@ -217,7 +217,7 @@ def read_demo_bag(path: Path) -> dict[str, Any]:
                 data, labels = decode_float64_multiarray(raw)
                 energy.append(np.asarray(data, dtype=np.float64))
                 energy_t.append(t_ns)
-            elif topic in ("/tissue/energy/strain", "/tissue/energy/attach"):
+            elif topic in ("/tissue/energy/strain", "/tissue/energy/attach", "/tissue/energy/contact"):
                 scene[topic.rsplit("/", 1)[1]].append(decode_float64(raw))
             elif topic == "/tool/grasped":
                 grasped.append(decode_uint32(raw))
@@ -294,7 +294,7 @@ def write_energy_csv(path: Path, run: Mapping[str, Any], body_names: Sequence[st
 
 def run(out: str | Path, *, scene: str = "paper", params_file: str | Path | None = None,
         domain_id: int | None = None, timeout: float = 120.0, trajectory: str = "experiment_a",
-        contact_model: str = "projection") -> int:
+        contact_model: str | None = None) -> int:
     """The demo end to end: node, recorder and driver as processes, figures from the bag; the exit status (0).
 
     Parameters
@@ -312,8 +312,9 @@ def run(out: str | Path, *, scene: str = "paper", params_file: str | Path | None
         Give up after this many seconds.
     trajectory : str
         The driver's trajectory: a preset or a .csv/.yaml trajectory file.
-    contact_model : str
-        The node's contact model, ``"paper"`` or ``"projection"``.
+    contact_model : str, optional
+        The node's contact model, ``"paper"``, ``"projection"`` or ``"barrier"`` (default: the scene's own; the
+        demo of a ``neo_hookean`` scene forced to projection ran the former default, quasi_newton, and inverted).
 
     Raises
     ------
@@ -331,7 +332,9 @@ def run(out: str | Path, *, scene: str = "paper", params_file: str | Path | None
     params_file = Path(params_file) if params_file else scene_params_file(scene_name)
     scene = tr.scene_experiments(scene_name)
     # the node resolves the same file and -p contact_model through the same front door
-    cfg = resolve_config({"contact_model": contact_model}, params_file=params_file, source="--contact-model")
+    given = {"contact_model": contact_model} if contact_model else {}
+    cfg = resolve_config(given, params_file=params_file, source="--contact-model")
+    contact_model = cfg.sim.contact_model
     params, tool = cfg.sim, cfg.tool
     for line in implausible_values(cfg):
         print(f"demo: warning: {line}", file=sys.stderr)
@@ -356,7 +359,8 @@ def run(out: str | Path, *, scene: str = "paper", params_file: str | Path | None
     try:
         node = _Process("tissue_sim_node", [_script("tissue_sim_node"), "--ros-args", "--params-file", str(params_file),
                                             "-p", "lock_step:=true", "-p", "points_rate:=1000.0",
-                                            "-p", "marker_rate:=1000.0", "-p", f"contact_model:={contact_model}"],
+                                            "-p", "marker_rate:=1000.0",
+                                            *(["-p", f"contact_model:={contact_model}"] if given else [])],
                             env, out / "node.log")
         procs.append(node)
         recorder = _Process("recorder", [_script("tissue-sim"), "record", "--output", str(bag_path)], env,
