@@ -167,11 +167,10 @@ def test_bench_peers_fem_quick(tmp_path, capsys):
 
 def test_bench_stability_material_quick(tmp_path, capsys):
     # a gentle press and a drag of each scheme, and the hardest press of the box: a 1 m/s tool at dt 20 ms jumps
-    # 2 cm per step (4x its own width) into a sliver mesh of a 1 MPa tissue. The default (ipc) holds the gentle
-    # runs and stays intersection- and inversion-free in all (its tool stops short where it must); in the hardest
-    # its solve stops short of the tolerance after the press (the barrier's stiffness, E x thickness, is too soft
-    # for that load: a known limit, counted per step as the node reports it); the former default (quasi_newton +
-    # projection) ends inside the tissue
+    # 2 cm per step (4x its own width) into a sliver mesh of a 1 MPa tissue. The default (ipc) holds in every run
+    # (its tool stops short where it must; in the hardest it stiffens its barrier, and its reaction stays the
+    # load's, 24 N: with a fixed stiffness the held steps stopped short and it read up to 1e8 N); the former
+    # default (quasi_newton + projection) ends inside the tissue
     from tissue_sim_ros.bench import material_stability as ms
 
     assert main(["bench", "stability", "--material", "--quick", "--out", str(tmp_path)]) == 0
@@ -179,11 +178,9 @@ def test_bench_stability_material_quick(tmp_path, capsys):
     assert len(rows) == len(ms.sweep(True)) == 6
     assert {r["motion"] for r in rows} == {"press", "drag"}
     ipc = [r for r in rows if r["scheme"] == "ipc"]
-    gentle = [r for r in ipc if float(r["young_modulus"]) < 1e6]
-    assert all(r["outcome"] == "stable" for r in gentle), [(r["motion"], r["outcome"], r["detail"]) for r in ipc]
-    assert all(r["outcome"] in ("stable", "unconverged") for r in ipc)
-    assert all(int(r["unconverged_steps"]) == 0 for r in gentle)
-    assert all(float(r["max_reaction_n"]) > 0 for r in ipc)
+    assert all(r["outcome"] == "stable" for r in ipc), [(r["motion"], r["outcome"], r["detail"]) for r in ipc]
+    assert all(int(r["unconverged_steps"]) == 0 for r in ipc)
+    assert all(0 < float(r["max_reaction_n"]) < 100 for r in ipc)
     assert all(float(r["max_penetration_m"]) == 0.0 and int(r["max_inverted"]) == 0 for r in ipc)
     # the lag is a distance the tool stopped short: finite, >= 0, and far below the travel here
     assert all(0.0 <= float(r["lag_end_m"]) <= float(r["lag_max_m"]) < 1e-3 for r in ipc)

@@ -31,9 +31,9 @@ that holds but whose steps say their solve stopped short (``StepReport.solve_con
 warns about and counts on ``/diagnostics``) is ``unconverged``, with the count of such steps. Each run also
 reports how far the tool stopped short of its command (``StepReport.tool_lag``) at its last step and at most
 (the barrier contact's tool stops where the tissue cannot make room; the projection contact's never lags),
-the largest reaction on the tool [N] (an unconverged barrier step can end with a pair squeezed far inside dhat,
-and its barrier's force is then far above the load: the hardest press, 1 MPa at 2 cm per step, reads up to
-1e8 N where the converged steps read 24 N),
+the largest reaction on the tool [N] (a step that stops short with a pair squeezed far inside dhat reads a
+barrier force far above the load: before the barrier stiffened itself, the hardest press, 1 MPa at 2 cm per step,
+read up to 1e8 N where the load is 24 N),
 its solve iterations (median, max) and its wall time.
 
 Writes ``material_stability.csv`` (one row per run) and ``material_stability.png`` (a map per scheme and

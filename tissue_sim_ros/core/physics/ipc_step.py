@@ -119,7 +119,8 @@ def contact_report(x: np.ndarray, q: np.ndarray, model: tuple, contact: tuple, t
     per body, the barrier energy dt^2 kappa sum b (``out_body[:, 0]``), the smallest gap to the tool
     (``out_body[:, 1]``, inf: none within dhat), 1.0 when the tool touches it (``out_body[:, 2]``) and the net
     force every contact (the tool, other bodies, itself; barriers and friction) puts on it [N]
-    (``out_body[:, 3:5]``); ``touched`` (N,) 1 at the particles in a pair with the
+    (``out_body[:, 3:5]``), the smallest gap of a pair within or between bodies (``out_body[:, 5]``, inf: none
+    within dhat; the pair's point's body); ``touched`` (N,) 1 at the particles in a pair with the
     tool closer than dhat. The grasp's targets at q into ``scratch``."""
     edges = model[5]
     dhat_t, dhat_tool, kappa, _lines = contact
@@ -132,6 +133,7 @@ def contact_report(x: np.ndarray, q: np.ndarray, model: tuple, contact: tuple, t
         out_body[b, 2] = 0.0
         out_body[b, 3] = 0.0
         out_body[b, 4] = 0.0
+        out_body[b, 5] = math.inf
     for i in range(n):
         touched[i] = 0
     g = np.zeros(2 * n + 4)
@@ -150,6 +152,8 @@ def contact_report(x: np.ndarray, q: np.ndarray, model: tuple, contact: tuple, t
         p, a, b = tt[k, 0], edges[tt[k, 1], 0], edges[tt[k, 1], 1]
         d = point_segment(x[p, 0], x[p, 1], x[a, 0], x[a, 1], x[b, 0], x[b, 1])[0]
         out_body[body[p], 0] += dt2 * kappa * barrier(d, dhat_t)[0]
+        if d < dhat_t:
+            out_body[body[p], 5] = min(out_body[body[p], 5], d)
     for kind in (1, 2):
         for k in range(counts[kind]):
             if kind == 1:

@@ -359,6 +359,9 @@ class Simulation:
             self.time = 0.0
             self.tool_pose = None
             self.grasp.reset()
+            reset_carry = getattr(self.solver, "reset_carry", None)
+            if reset_carry is not None:
+                reset_carry()  # (the barrier step's lagged factor and its stiffness: as built)
             self.tool_jaw = None
             self.tool_command = None
             self.jaw_command = None

@@ -8,7 +8,8 @@ snapshots, so a rollout from one is the live run's), the pair buffers, the L-BFG
 compiled call (:func:`~tissue_sim_ros.core.physics.ipc_step.ipc_step`) and the contact's report another.
 
 Parameters (``core/physics/params.py``): ``contact_dhat`` (0: 1 % of the 10th percentile of the boundary
-edges' lengths), ``contact_stiffness`` kappa (0: E x thickness), ``tool_stiffness`` (0: 1e5 kappa; the tool's
+edges' lengths), ``contact_stiffness`` kappa at the start (0: E x thickness; raised tenfold and the step solved again when it
+ends with a pair closer than ``KAPPA_RAISE_GAP`` dhat, kept for the steps that follow), ``tool_stiffness`` (0: 1e5 kappa; the tool's
 turn and jaw are held by it times the tool's reach squared), ``contact_bodies``, ``solve_tolerance`` and
 ``iterations``; ``friction`` (tool and tissue), ``friction_tissue`` and ``friction_velocity`` (the lagged friction of
 ``core/physics/ipc_friction.py``).
@@ -42,6 +43,16 @@ J_HAT = 0.2
 DHAT_FRACTION = 0.01
 #: The barrier's stiffness kappa: this multiple of E x thickness, when not given.
 KAPPA_FACTOR = 1.0
+#: The barrier is stiffened (kappa times KAPPA_GROWTH, the step solved again from its start) when a step ends with
+#: a pair closer than this fraction of dhat: its barrier then holds a load far above the one kappa was sized for,
+#: and the solve, pressed into the barrier's stiff end, creeps (IPC's adaptive stiffness, Li et al. 2020, sec. 4.3;
+#: a 1 MPa strip pressed a third deep in one 20 ms step then held: with kappa = E x thickness the held steps
+#: stopped short, the gap fell tenfold per step and the reported reaction rose to 1e8 N where the load is 24 N).
+KAPPA_RAISE_GAP = 0.02
+#: The factor of one raise.
+KAPPA_GROWTH = 10.0
+#: kappa is raised to at most this multiple of its start (per step at most log10 of it times).
+KAPPA_MAX = 1e4
 #: The tool's spring: this multiple of E x thickness, when not given.
 TOOL_STIFFNESS_FACTOR = 1e5
 #: The tool's command is approached in parts of at most this fraction of the boundary's median edge.
@@ -107,6 +118,10 @@ class IPCSolver(SolverBase):
                                else TOOL_STIFFNESS_FACTOR * float(p.young_modulus * p.thickness))
         self._model = (np.ascontiguousarray(model.particle_mass, dtype=np.float64), self.tris, self.elastic, J_HAT,
                        bverts, edges, edge_neighbours(model.tri_indices, edges), roller, bool(p.contact_bodies))
+        self.kappa0 = self.kappa
+        """kappa at the start; :attr:`kappa` is raised from it where a step ends too deep inside dhat."""
+        self.kappa_raises = 0
+        """How often kappa was raised since the start (a diagnostic)."""
         self._contact = (self.dhat, self.dhat, self.kappa, (float(p.boundary_y_top), float(p.boundary_y_bottom),
                                                            float(p.wall_y_bottom), float(p.wall_y_top)))
         size = float(np.hypot(*np.ptp(q0, axis=0))) if n else 0.0
@@ -144,7 +159,7 @@ class IPCSolver(SolverBase):
         """(a factor is held, the last step's iterations, the dt it was made for): carried in snapshots."""
         self._q = np.zeros(TOOL_DOFS)
         self._body = np.ascontiguousarray(self.model.particle_body, dtype=np.int64)
-        self._report = np.zeros((self.model.n_bodies, 5))
+        self._report = np.zeros((self.model.n_bodies, 6))
         self._touched = np.zeros(n, dtype=np.int64)
         self._force = np.zeros(TOOL_DOFS)
         self._q_cmd = np.zeros(TOOL_DOFS)
@@ -155,17 +170,30 @@ class IPCSolver(SolverBase):
         return self.tris.shape[0] * self.params.iterations
 
     def carry_state(self) -> dict:
-        """The lagged factor and its state (for :meth:`Simulation.snapshot`), copied."""
-        return {"factor_state": self.factor_state.copy(), "l": self._lin[2].copy(), "d": self._lin[3].copy()}
+        """The lagged factor and its state, and the barrier's stiffness (for :meth:`Simulation.snapshot`), copied."""
+        return {"factor_state": self.factor_state.copy(), "l": self._lin[2].copy(), "d": self._lin[3].copy(),
+                "kappa": self.kappa}
 
     def restore_carry(self, state: dict) -> None:
         """Back to a :meth:`carry_state`: the next step is the one that followed it, bit for bit."""
         if not state:
             self.factor_state[:] = 0.0
+            self._set_kappa(self.kappa0)
             return
+        self._set_kappa(float(state.get("kappa", self.kappa0)))
         np.copyto(self.factor_state, state["factor_state"])
         np.copyto(self._lin[2], state["l"])
         np.copyto(self._lin[3], state["d"])
+
+    def reset_carry(self) -> None:
+        """As built (for :meth:`Simulation.reset`): no factor held, kappa at its start."""
+        self.restore_carry({})
+
+    def _set_kappa(self, kappa: float) -> None:
+        """The barrier's stiffness from now on (the contact bundle rebuilt)."""
+        self.kappa = float(kappa)
+        c = self._contact
+        self._contact = (c[0], c[1], self.kappa, c[3])
 
     def _tool_bundles(self, collider) -> tuple[tuple, tuple, np.ndarray, np.ndarray, np.ndarray]:
         """(the tool's bundle, the solve's options, the start q, the command q, where the solve starts it) of this
@@ -214,14 +242,25 @@ class IPCSolver(SolverBase):
         sb = self._step_bundle(contacts, self._q_cmd, dt)
         damp = self.damp_factor(dt)
         x = state_out.particle_q
-        ipc_step((state_in.particle_q, state_in.particle_qd, x, state_out.particle_qd),
-                 (self.model.particle_inv_mass, self.inv_mass_eff, self.x_pred, self.material_solve.guess,
-                  step.held_idx, step.held_dx), (dt, 1, self.params.gravity, damp, damp), self.bounds, self._model,
-                 self._contact, tool, sb, self._pairs, self._scratch, self._lin, self._ws, opts,
-                 (q_start, self._q, q_guess, q_cmd, n_sub), self.factor_state)
-        contact_report(x, self._q, self._model, self._contact, tool, sb, self._pairs, self._scratch, self._body,
-                       self._report, self._touched, self._force)
+        its = 0.0
+        while True:
+            ipc_step((state_in.particle_q, state_in.particle_qd, x, state_out.particle_qd),
+                     (self.model.particle_inv_mass, self.inv_mass_eff, self.x_pred, self.material_solve.guess,
+                      step.held_idx, step.held_dx), (dt, 1, self.params.gravity, damp, damp), self.bounds,
+                     self._model, self._contact, tool, sb, self._pairs, self._scratch, self._lin, self._ws, opts,
+                     (q_start, self._q, q_guess, q_cmd, n_sub), self.factor_state)
+            contact_report(x, self._q, self._model, self._contact, tool, sb, self._pairs, self._scratch,
+                           self._body, self._report, self._touched, self._force)
+            its += self._ws[11][0]
+            gap = float(self._report[:, [1, 5]].min()) if self._report.shape[0] else math.inf
+            if not (gap < KAPPA_RAISE_GAP * self.dhat and self.kappa * KAPPA_GROWTH <= KAPPA_MAX * self.kappa0):
+                break
+            # too deep inside dhat: a stiffer barrier, the step again from its start with a fresh factor
+            self._set_kappa(self.kappa * KAPPA_GROWTH)
+            self.kappa_raises += 1
+            self.factor_state[0] = 0.0
         out = self._ws[11]
+        out[0] = its
         if int(out[4]):
             raise InputError("barrier contact: more candidate pairs than the buffers hold (is contact_dhat "
                              f"{self.dhat:g} m far larger than the mesh's edges?)")
