@@ -25,9 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "experiment_b_steep, authors, retract) or a .csv/.yaml trajectory file (default "
                              "experiment_a; retract with --scene retract: grasp, lift and pull back 2 cm, open)")
     parser.add_argument("--contact-model", choices=["paper", "projection", "barrier"], default=None,
-                        help="contact model of the node (default: the scene's own; projection for the paper's "
-                             "springs, barrier for material: neo_hookean scenes; the paper's eq. (3) lets the tool "
-                             "pass into the tissue once it touches)")
+                        help="contact model of the node (default: the scene's own, projection where that is "
+                             "the paper's: barrier for material: neo_hookean scenes; the paper's eq. (3) lets the "
+                             "tool pass into the tissue once it touches)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -313,8 +313,9 @@ def run(out: str | Path, *, scene: str = "paper", params_file: str | Path | None
     trajectory : str
         The driver's trajectory: a preset or a .csv/.yaml trajectory file.
     contact_model : str, optional
-        The node's contact model, ``"paper"``, ``"projection"`` or ``"barrier"`` (default: the scene's own; the
-        demo of a ``neo_hookean`` scene forced to projection ran the former default, quasi_newton, and inverted).
+        The node's contact model, ``"paper"``, ``"projection"`` or ``"barrier"`` (default: the scene's own, but
+        projection where that is the paper's, which lets the tool into the tissue; the demo of a ``neo_hookean``
+        scene forced to projection ran the former default, quasi_newton, and inverted).
 
     Raises
     ------
@@ -334,6 +335,10 @@ def run(out: str | Path, *, scene: str = "paper", params_file: str | Path | None
     # the node resolves the same file and -p contact_model through the same front door
     given = {"contact_model": contact_model} if contact_model else {}
     cfg = resolve_config(given, params_file=params_file, source="--contact-model")
+    if not contact_model and cfg.sim.contact_model == "paper":
+        # the paper's eq. (3) lets the tool into the tissue once it touches: the demo shows the tool pushing it
+        given = {"contact_model": "projection"}
+        cfg = resolve_config(given, params_file=params_file, source="--contact-model")
     contact_model = cfg.sim.contact_model
     params, tool = cfg.sim, cfg.tool
     for line in implausible_values(cfg):
