@@ -1182,3 +1182,64 @@ def finish_reference(model, x, v, x_pred, contacts, dt):
             np.add.at(terms[5], model.particle_body[idx], 0.5 * (d * d).sum(axis=1) / contacts.attach_compliance)
             terms[5] *= dt * dt
     return finite, count_inverted(x, model.tri_indices), terms
+
+
+def outline_checks(x0, x1, frame0, frame1, pos1, edges, loop_ptr, tris, inside_tol=1e-9):
+    """Twin of core.contact.tool_checks.outline_checks, by other means: inside by the winding number (not the
+    even-odd rule), distances and crossings vectorised over every edge of a loop, buried by barycentric signs.
+
+    A particle's chord runs from its start carried by the tool's motion (local in frame0, placed by frame1) to its
+    end; it tunnels when it starts and ends outside the outline and properly crosses some loop's edges at least
+    twice. Returns (n_inside, deepest, deepest particle or -1, n_tunnelled, buried)."""
+    x0 = np.asarray(x0, float)
+    x1 = np.asarray(x1, float)
+    loops = [np.asarray(edges[loop_ptr[k]:loop_ptr[k + 1]]) for k in range(len(loop_ptr) - 1)]
+
+    def winding(p, loop):
+        a, b = pos1[loop[:, 0]] - p, pos1[loop[:, 1]] - p
+        ang = np.arctan2(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], (a * b).sum(axis=1))
+        return abs(round(ang.sum() / (2 * np.pi))) % 2 == 1
+
+    def distance(p, loop):
+        a, b = pos1[loop[:, 0]], pos1[loop[:, 1]]
+        e = b - a
+        ll = (e * e).sum(axis=1)
+        s = np.where(ll > 0, np.clip(((p - a) * e).sum(axis=1) / np.where(ll > 0, ll, 1.0), 0, 1), 0.0)
+        return float(np.hypot(*(p - a - s[:, None] * e).T).min())
+
+    c0, s0, c1, s1 = frame0[2], frame0[3], frame1[2], frame1[3]
+    r = x0 - frame0[:2]
+    local = np.stack([c0 * r[:, 0] + s0 * r[:, 1], -s0 * r[:, 0] + c0 * r[:, 1]], axis=1)
+    start = frame1[:2] + np.stack([c1 * local[:, 0] - s1 * local[:, 1], s1 * local[:, 0] + c1 * local[:, 1]], axis=1)
+    n_inside, deepest, arg, n_tunnel = 0, 0.0, -1, 0
+    for i in range(len(x1)):
+        end_in = [(winding(x1[i], lp), distance(x1[i], lp)) for lp in loops]
+        deep = [d for w, d in end_in if w and d > inside_tol]
+        if deep:
+            n_inside += 1
+            if deep[0] > deepest:
+                deepest, arg = deep[0], i
+            continue
+        if any(winding(start[i], lp) for lp in loops):
+            continue
+        p, q = start[i], x1[i]
+        for lp in loops:
+            a, b = pos1[lp[:, 0]], pos1[lp[:, 1]]
+            def cx(u, w):
+                return u[..., 0] * w[..., 1] - u[..., 1] * w[..., 0]
+
+            d1 = cx(q - p, a - p)
+            d2 = cx(q - p, b - p)
+            d3 = cx(b - a, p - a)
+            d4 = cx(b - a, q - a)
+            if int(((d1 * d2 < 0) & (d3 * d4 < 0)).sum()) >= 2:
+                n_tunnel += 1
+                break
+    buried = False
+    for ta, tb, tc in tris:
+        for v in pos1:
+            signs = np.array([cross2(x1[tb] - x1[ta], v - x1[ta]), cross2(x1[tc] - x1[tb], v - x1[tb]),
+                              cross2(x1[ta] - x1[tc], v - x1[tc])])
+            if (signs > 0).all() or (signs < 0).all():
+                buried = True
+    return n_inside, deepest, arg, n_tunnel, buried
