@@ -1189,8 +1189,8 @@ def outline_checks(x0, x1, frame0, frame1, pos1, edges, loop_ptr, tris, inside_t
     even-odd rule), distances and crossings vectorised over every edge of a loop, buried by barycentric signs.
 
     A particle's chord runs from its start carried by the tool's motion (local in frame0, placed by frame1) to its
-    end; it tunnels when it starts and ends outside the outline and properly crosses some loop's edges at least
-    twice. Returns (n_inside, deepest, deepest particle or -1, n_tunnelled, buried)."""
+    end; it tunnels when it starts and ends outside the outline and the first and last edges of a loop it properly
+    crosses face apart (normals with a negative dot product). Returns (n_inside, deepest, deepest particle or -1, n_tunnelled, buried)."""
     x0 = np.asarray(x0, float)
     x1 = np.asarray(x1, float)
     loops = [np.asarray(edges[loop_ptr[k]:loop_ptr[k + 1]]) for k in range(len(loop_ptr) - 1)]
@@ -1232,7 +1232,14 @@ def outline_checks(x0, x1, frame0, frame1, pos1, edges, loop_ptr, tris, inside_t
             d2 = cx(q - p, b - p)
             d3 = cx(b - a, p - a)
             d4 = cx(b - a, q - a)
-            if int(((d1 * d2 < 0) & (d3 * d4 < 0)).sum()) >= 2:
+            hit = np.flatnonzero((d1 * d2 < 0) & (d3 * d4 < 0))
+            if hit.size < 2:
+                continue
+            # where along the chord each crossed edge is met (the chord's own parameter), and the edges' normals
+            t = np.array([np.linalg.solve(np.column_stack([q - p, a[k] - b[k]]), a[k] - p)[0] for k in hit])
+            e = b[hit] - a[hit]
+            normals = np.stack([e[:, 1], -e[:, 0]], axis=1)
+            if normals[np.argmin(t)] @ normals[np.argmax(t)] < 0:
                 n_tunnel += 1
                 break
     buried = False

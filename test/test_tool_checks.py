@@ -95,4 +95,47 @@ def test_outline_checks_match_naive(kind, seed) -> None:
     want = naive.outline_checks(x0, x1, frames[0], frames[1], pos1, geom.edges, geom.loop_ptr, mesh.triangles)
     assert (got[0], got[2], got[3], got[4]) == (want[0], want[2], want[3], want[4])
     assert got[1] == pytest.approx(want[1], rel=1e-12, abs=1e-15)
-    assert got[0] > 0 and got[3] > 0 and got[4]  # inside, tunnelled and buried are all exercised
+    assert got[0] > 0 and got[4]  # inside and buried are exercised (tunnelling: in some seeds, and below)
+
+
+def test_outline_tunnelling_counts_a_path_through_the_tool_not_one_around_a_corner() -> None:
+    """Through: a particle from left of the capsule to right of it, the tool still. Around: particles that slid
+    along the rounded tip, their chords just cutting one corner of its polygon (two crossed edges facing the same
+    way), as the barrier step leaves them (it never lets one through)."""
+    from tissue_sim_ros.core.config import resolve_config
+    from tissue_sim_ros.core.contact.collider import core_positions, pose_dofs
+    from tissue_sim_ros.core.contact.tool_checks import outline_checks
+
+    cfg = resolve_config({"material": "neo_hookean", "tool_shape": "capsule", "tool_length": 0.03,
+                          "tool_radius": 0.0025, "spacing": 0.01})
+    sim = Simulation.from_config(cfg, mesh=mesh_rectangle(0.1, 0.06, 0.01))
+    geom = sim._geometry
+    pose = ToolPose(0.05, 0.05, -0.5 * math.pi)  # upright, tip down at y = 0.05 - 0.015 - 0.0025
+    pos = core_positions(pose_dofs(pose, 0.0), geom)
+    frame = np.array([pose.x, pose.y, math.cos(pose.yaw), math.sin(pose.yaw)])
+    tip = np.array([0.05, 0.05 - 0.015])  # the centre of the tip's rounded end
+    tri = np.zeros((0, 3), dtype=np.int64)
+    # through the shaft: from 1 cm left to 1 cm right at the shaft's middle
+    x0, x1 = np.array([[0.04, 0.05]]), np.array([[0.06, 0.05]])
+    assert outline_checks(x0, x1, frame, frame, pos, geom.edges, geom.loop_ptr, tri, INSIDE_TOL)[3] == 1
+    assert naive.outline_checks(x0, x1, frame, frame, pos, geom.edges, geom.loop_ptr, tri)[3] == 1
+    # around: points 1 um outside the tip's polygon (outside its circumscribed circle), 8.6 degrees apart; their
+    # chords dip 7 um inward and cut its corners
+    r = float(np.hypot(*(pos - tip).T)[np.hypot(*(pos - tip).T) < 0.003].max()) + 1e-6
+    angles = np.linspace(-0.5 * math.pi - 0.6, -0.5 * math.pi + 0.6, 9)
+    pts = tip + r * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    x0, x1 = pts[:-1], pts[1:]
+    got = outline_checks(x0, x1, frame, frame, pos, geom.edges, geom.loop_ptr, tri, INSIDE_TOL)
+    want = naive.outline_checks(x0, x1, frame, frame, pos, geom.edges, geom.loop_ptr, tri)
+    assert got[3] == want[3] == 0 and got[0] == want[0] == 0
+    # the same chords, counted by crossings alone (the check before it compared the facing of the edges), cut corners
+    crossed = sum(
+        sum(naive_cross(p0, p1, pos[a], pos[b]) for a, b in geom.edges) >= 2 for p0, p1 in zip(x0, x1))
+    assert crossed > 0
+
+
+def naive_cross(p, q, a, b) -> bool:
+    """Segments p-q and a-b cross properly."""
+    def cx(u, w):
+        return u[0] * w[1] - u[1] * w[0]
+    return cx(q - p, a - p) * cx(q - p, b - p) < 0 and cx(b - a, p - a) * cx(b - a, q - a) < 0

@@ -11,6 +11,11 @@ All against the tool's own shape (no contact margin), posed at the step's start
   opposite sides (outward normals at entry and exit with a negative dot product,
   so a particle the projection slid around a corner does not count): the tool
   passed through them within the step, which no end-of-step check sees;
+- against the barrier contact's outline (:func:`outline_checks`, its polygons): tunnelling when the first and
+  the last edge a loop's crossed edges along the chord face apart (normals with a negative dot product; a chord
+  cutting a corner of the polygon the particle slid around crosses two edges facing the same way), and the
+  Simulation follows the barrier step part by part (its ``tool_path``), so a tool moving farther than its
+  width in one step is not judged by one chord through the tip the particles slid around;
 - a buried tool: a point of the tool's axis (9 from end to end; the centre of a
   sphere) lies inside a triangle of the deformed tissue. Projection contact keeps particles out of the tool, but the triangles
   can still close over it (a deep, fast push folds the mesh over the tool), and
@@ -170,12 +175,22 @@ def outline_checks(x0: np.ndarray, x1: np.ndarray, frame0: np.ndarray, frame1: n
         if started_inside:
             continue
         for lp in range(n_loops):
-            crossings = 0
+            # the first and the last edge the chord crosses: through the tool when their normals point apart
+            # (a chord that cuts a corner of the polygon the particle slid around crosses two edges that face
+            # the same way)
+            t_first, t_last = np.inf, -np.inf
+            n_first_x = n_first_y = n_last_x = n_last_y = 0.0
             for k in range(loop_ptr[lp], loop_ptr[lp + 1]):
                 a, b = edges[k, 0], edges[k, 1]
-                if _crosses(sx, sy, ex, ey, pos1[a, 0], pos1[a, 1], pos1[b, 0], pos1[b, 1]):
-                    crossings += 1
-            if crossings >= 2:
+                ax, ay, bx, by = pos1[a, 0], pos1[a, 1], pos1[b, 0], pos1[b, 1]
+                if _crosses(sx, sy, ex, ey, ax, ay, bx, by):
+                    denom = (ex - sx) * (by - ay) - (ey - sy) * (bx - ax)
+                    t = ((ax - sx) * (by - ay) - (ay - sy) * (bx - ax)) / denom
+                    if t < t_first:
+                        t_first, n_first_x, n_first_y = t, by - ay, ax - bx
+                    if t > t_last:
+                        t_last, n_last_x, n_last_y = t, by - ay, ax - bx
+            if t_last > t_first and n_first_x * n_last_x + n_first_y * n_last_y < 0.0:
                 n_tunnel += 1
                 break
     # buried: a vertex of the outline inside a triangle of the deformed tissue

@@ -63,8 +63,10 @@ def _start(state: tuple, pred: tuple, timing: tuple, model: tuple, contact: tupl
 @njit(cache=True, nogil=True)
 def ipc_step(state: tuple, pred: tuple, timing: tuple, bounds: tuple, model: tuple, contact: tuple, tool: tuple,
              step: tuple, pairs: tuple, scratch: tuple, lin: tuple, ws: tuple, opts: tuple, tool_q: tuple,
-             factor_state: np.ndarray) -> None:
-    """One step of ``method: ipc`` (module docstring); the solve's numbers in ``ws``'s out."""
+             factor_state: np.ndarray, path: tuple) -> None:
+    """One step of ``method: ipc`` (module docstring); the solve's numbers in ``ws``'s out; ``path`` = (x (P + 1,
+    N, 2), q (P + 1, 4)): the particles and the tool at the start and at the end of each of the P parts the
+    command is approached in (the run-time checks follow the step along it)."""
     x0, _v0, x, v = state
     inv_mass, w = pred[0], pred[1]
     dt = timing[0]
@@ -99,11 +101,16 @@ def ipc_step(state: tuple, pred: tuple, timing: tuple, bounds: tuple, model: tup
     # a tool that moves far in one step never runs ahead of the tissue it pushes by more than a part
     q_cmd = step[2]
     its = 0.0
+    xs, qs = path
+    xs[0, :, :] = x0
+    qs[0, :] = q_start
     for k in range(1, n_sub + 1):
         for j in range(4):
             q_cmd[j] = q_final[j] if k == n_sub else q_start[j] + (k / n_sub) * (q_final[j] - q_start[j])
         ipc_solve(x, q, x0, q_start, model, contact, tool, step, pairs, scratch, lin, ws, opts)
         its += out[0]
+        xs[k, :, :] = x
+        qs[k, :] = q
     out[0] = its
     factor_state[1] = out[0] / n_sub
     update_velocity(x, x0, dt, v)

@@ -547,7 +547,8 @@ class Simulation:
                 force, torque, attach_force = self._reaction(info, end_pose, p.dt, contacts, out.particle_q)
             if getattr(info, "contact_energy", None) is not None:
                 energy.contact = info.contact_energy
-        checks = (self._tool_checks(self.state.particle_q, out.particle_q, self.tool_pose or tool_pose, end_pose)
+        checks = (self._tool_checks(self.state.particle_q, out.particle_q, self.tool_pose or tool_pose, end_pose,
+                                    getattr(info, "tool_path", None))
                   if self.report_tool_checks else (0, 0.0, -1, 0, False))
         t_energy = time.perf_counter()
 
@@ -585,10 +586,24 @@ class Simulation:
         )
 
     def _tool_checks(self, x0: np.ndarray, x1: np.ndarray, pose0: ToolPose | None,
-                     pose1: ToolPose | None) -> tuple[int, float, int, int, bool]:
-        """Penetration, tunnelling and a buried tool after a step (``core/contact/tool_checks.py``); zeros without a tool."""
+                     pose1: ToolPose | None, path: tuple | None = None) -> tuple[int, float, int, int, bool]:
+        """Penetration, tunnelling and a buried tool after a step (``core/contact/tool_checks.py``); zeros without a
+        tool. ``path``: the barrier step's (particles, tool dofs) at its start and at each part's end; tunnelling is
+        then counted along it, part by part (a particle's chord over a whole step of a tool moving farther than its
+        own width cut through the rounded tip it slid around)."""
         if self.tool is None or pose1 is None:
             return 0, 0.0, -1, 0, False
+        if self.params.contact_model == "barrier" and path is not None and path[0].shape[0] > 2:
+            xs, qs = path
+            geom = self._geometry
+            n_tunnel = 0
+            for k in range(1, xs.shape[0]):
+                frames = [np.array([q[0], q[1], math.cos(q[2]), math.sin(q[2])]) for q in (qs[k - 1], qs[k])]
+                part = outline_checks(xs[k - 1], xs[k], frames[0], frames[1], core_positions(qs[k], geom),
+                                      geom.edges, geom.loop_ptr, self.model.tri_indices, INSIDE_TOL)
+                n_tunnel += int(part[3])
+            n_in, depth, arg, _, buried = part
+            return int(n_in), float(depth), int(arg), n_tunnel, bool(buried)
         if self.params.contact_model == "barrier":
             # against the tool's true outline, as the barrier sees it (the grasper's jaws, not its envelope)
             geom = self._geometry

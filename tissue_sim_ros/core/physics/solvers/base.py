@@ -47,6 +47,9 @@ class SolveInfo:
     """Material: ``solve_residual <= params.solve_tolerance``."""
     tool_q: np.ndarray | None = None
     """Barrier contact: where the tool ended, (x, y, yaw, jaw) (4,); None: no tool, or it is where commanded."""
+    tool_path: tuple[np.ndarray, np.ndarray] | None = None
+    """Barrier contact: the particles (P + 1, N, 2) and the tool's dofs (P + 1, 4) at the step's start and at the
+    end of each part the command was approached in (the run-time checks follow the step along it)."""
     tool_force: np.ndarray | None = None
     """Barrier contact: the tissue's force and torque on the tool (F_x, F_y [N], torque about the pose [N m], on
     the jaw [N m]) (4,); None: the Simulation computes the reaction from ``contact_dx``."""

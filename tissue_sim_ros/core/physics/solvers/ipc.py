@@ -243,12 +243,13 @@ class IPCSolver(SolverBase):
         damp = self.damp_factor(dt)
         x = state_out.particle_q
         its = 0.0
+        path = (np.empty((n_sub + 1, x.shape[0], 2)), np.empty((n_sub + 1, TOOL_DOFS)))
         while True:
             ipc_step((state_in.particle_q, state_in.particle_qd, x, state_out.particle_qd),
                      (self.model.particle_inv_mass, self.inv_mass_eff, self.x_pred, self.material_solve.guess,
                       step.held_idx, step.held_dx), (dt, 1, self.params.gravity, damp, damp), self.bounds,
                      self._model, self._contact, tool, sb, self._pairs, self._scratch, self._lin, self._ws, opts,
-                     (q_start, self._q, q_guess, q_cmd, n_sub), self.factor_state)
+                     (q_start, self._q, q_guess, q_cmd, n_sub), self.factor_state, path)
             contact_report(x, self._q, self._model, self._contact, tool, sb, self._pairs, self._scratch,
                            self._body, self._report, self._touched, self._force)
             its += self._ws[11][0]
@@ -276,6 +277,7 @@ class IPCSolver(SolverBase):
                          contact_force=self._report[:, 3:5].copy())
         if collider is not None:
             info.tool_q = self._q.copy()
+            info.tool_path = path
             info.tool_force = self._force.copy()
             lag = self._q - q_cmd
             info.tool_lag = (float(math.hypot(lag[0], lag[1])), float(abs(lag[2])))
