@@ -11,7 +11,8 @@ one is put on it and stopped).
 
 Bundles: :mod:`.ipc` and :mod:`.ipc_energy`'s, the step kernels' ``state``, ``pred``, ``timing``, ``bounds``
 (``core/physics/step_kernels.py``; ``pred``'s x_start slot holds the guess), ``tool_q`` = (q at the step's start
-(4,), q (4,) out, where to start the tool (4,), the command (4,), the parts it is approached in), ``factor_state`` (3,) = (a factor is held, the last step's iterations, the dt it was made for).
+(4,), q (4,) out, where to start the tool (4,), the command (4,), the parts it is approached in, the path out:
+the particles (P + 1, N, 2) and the tool (P + 1, 4) at the start and each part's end), ``factor_state`` (3,) = (a factor is held, the last step's iterations, the dt it was made for).
 """
 from __future__ import annotations
 
@@ -63,10 +64,10 @@ def _start(state: tuple, pred: tuple, timing: tuple, model: tuple, contact: tupl
 @njit(cache=True, nogil=True)
 def ipc_step(state: tuple, pred: tuple, timing: tuple, bounds: tuple, model: tuple, contact: tuple, tool: tuple,
              step: tuple, pairs: tuple, scratch: tuple, lin: tuple, ws: tuple, opts: tuple, tool_q: tuple,
-             factor_state: np.ndarray, path: tuple) -> None:
-    """One step of ``method: ipc`` (module docstring); the solve's numbers in ``ws``'s out; ``path`` = (x (P + 1,
-    N, 2), q (P + 1, 4)): the particles and the tool at the start and at the end of each of the P parts the
-    command is approached in (the run-time checks follow the step along it)."""
+             factor_state: np.ndarray) -> None:
+    """One step of ``method: ipc`` (module docstring); the solve's numbers in ``ws``'s out; ``tool_q``'s last two,
+    the path, (P + 1, N, 2) and (P + 1, 4): the particles and the tool at the start and at the end of each of the
+    P parts the command is approached in (the run-time checks follow the step along it)."""
     x0, _v0, x, v = state
     inv_mass, w = pred[0], pred[1]
     dt = timing[0]
@@ -78,7 +79,7 @@ def ipc_step(state: tuple, pred: tuple, timing: tuple, bounds: tuple, model: tup
         f = 1.0 if w[i] != 0.0 else 0.0
         free[2 * i] = f
         free[2 * i + 1] = 0.0 if roller[i] else f
-    q_start, q, q_guess, q_final, n_sub = tool_q
+    q_start, q, q_guess, q_final, n_sub, xs, qs = tool_q
     for j in range(4):
         q[j] = q_start[j]
     friction = step[5]
@@ -101,7 +102,6 @@ def ipc_step(state: tuple, pred: tuple, timing: tuple, bounds: tuple, model: tup
     # a tool that moves far in one step never runs ahead of the tissue it pushes by more than a part
     q_cmd = step[2]
     its = 0.0
-    xs, qs = path
     xs[0, :, :] = x0
     qs[0, :] = q_start
     for k in range(1, n_sub + 1):

@@ -249,7 +249,7 @@ class IPCSolver(SolverBase):
                      (self.model.particle_inv_mass, self.inv_mass_eff, self.x_pred, self.material_solve.guess,
                       step.held_idx, step.held_dx), (dt, 1, self.params.gravity, damp, damp), self.bounds,
                      self._model, self._contact, tool, sb, self._pairs, self._scratch, self._lin, self._ws, opts,
-                     (q_start, self._q, q_guess, q_cmd, n_sub), self.factor_state, path)
+                     (q_start, self._q, q_guess, q_cmd, n_sub, *path), self.factor_state)
             contact_report(x, self._q, self._model, self._contact, tool, sb, self._pairs, self._scratch,
                            self._body, self._report, self._touched, self._force)
             its += self._ws[11][0]
