@@ -593,26 +593,23 @@ class Simulation:
         own width cut through the rounded tip it slid around)."""
         if self.tool is None or pose1 is None:
             return 0, 0.0, -1, 0, False
-        if self.params.contact_model == "barrier" and path is not None and path[0].shape[0] > 2:
-            xs, qs = path
+        if self.params.contact_model == "barrier":
+            # against the tool's true outline, as the barrier sees it (the grasper's jaws, not its envelope), over
+            # each part of a step approached in parts, else over the step from pose0 to pose1
             geom = self._geometry
+            if path is not None and path[0].shape[0] > 2:
+                xs, qs = path
+            else:
+                jaw = self.tool_jaw or 0.0
+                xs, qs = (x0, x1), (pose_dofs(pose0 or pose1, jaw), pose_dofs(pose1, jaw))
             n_tunnel = 0
-            for k in range(1, xs.shape[0]):
+            for k in range(1, len(xs)):
                 frames = [np.array([q[0], q[1], math.cos(q[2]), math.sin(q[2])]) for q in (qs[k - 1], qs[k])]
                 part = outline_checks(xs[k - 1], xs[k], frames[0], frames[1], core_positions(qs[k], geom),
                                       geom.edges, geom.loop_ptr, self.model.tri_indices, INSIDE_TOL)
                 n_tunnel += int(part[3])
             n_in, depth, arg, _, buried = part
             return int(n_in), float(depth), int(arg), n_tunnel, bool(buried)
-        if self.params.contact_model == "barrier":
-            # against the tool's true outline, as the barrier sees it (the grasper's jaws, not its envelope)
-            geom = self._geometry
-            p0 = pose0 or pose1
-            pos1 = core_positions(pose_dofs(pose1, self.tool_jaw or 0.0), geom)
-            frames = [np.array([p.x, p.y, math.cos(p.yaw), math.sin(p.yaw)]) for p in (p0, pose1)]
-            n_in, depth, arg, n_tunnel, buried = outline_checks(x0, x1, frames[0], frames[1], pos1, geom.edges,
-                                                                geom.loop_ptr, self.model.tri_indices, INSIDE_TOL)
-            return int(n_in), float(depth), int(arg), int(n_tunnel), bool(buried)
         n_in, depth, arg, n_tunnel, buried = tool_checks(
             x0, x1, tool_shape_array(self.tool, pose0 or pose1), tool_shape_array(self.tool, pose1),
             self.model.tri_indices, INSIDE_TOL)

@@ -120,8 +120,6 @@ class IPCSolver(SolverBase):
                        bverts, edges, edge_neighbours(model.tri_indices, edges), roller, bool(p.contact_bodies))
         self.kappa0 = self.kappa
         """kappa at the start; :attr:`kappa` is raised from it where a step ends too deep inside dhat."""
-        self.kappa_raises = 0
-        """How often kappa was raised since the start (a diagnostic)."""
         self._contact = (self.dhat, self.dhat, self.kappa, (float(p.boundary_y_top), float(p.boundary_y_bottom),
                                                            float(p.wall_y_bottom), float(p.wall_y_top)))
         size = float(np.hypot(*np.ptp(q0, axis=0))) if n else 0.0
@@ -258,7 +256,6 @@ class IPCSolver(SolverBase):
                 break
             # too deep inside dhat: a stiffer barrier, the step again from its start with a fresh factor
             self._set_kappa(self.kappa * KAPPA_GROWTH)
-            self.kappa_raises += 1
             self.factor_state[0] = 0.0
         out = self._ws[11]
         out[0] = its
